@@ -1,0 +1,434 @@
+"""The Arrow feature store: one directory per recording, Parquet tables readable as they are.
+
+Layout of a store directory::
+
+    meta.json          written last; its presence marks a complete store
+    views.parquet      one row per view: pose, intrinsics, encoded images (VIEWS_SCHEMA)
+    features.parquet   one row per view: the dense feature map, float16 (FEATURES_SCHEMA)
+    text.parquet       class-name embeddings of the encoder's text side (TEXT_SCHEMA)
+    <map tables>       written later by fuse (cells.parquet, instances.parquet, ...)
+
+Every table carries ``care.schema_version`` in its schema metadata. Whole stores are written
+into a sibling temporary directory and renamed at the end, so an interrupted job never
+leaves a store that looks complete; single tables added later go through
+:func:`write_table_atomic`.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import shutil
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+from PIL import Image
+
+from care.errors import StoreError
+from care.frames import Frame
+
+__all__ = [
+    "EXTRA_IMAGES",
+    "FEATURES_SCHEMA",
+    "SCHEMA_VERSION",
+    "TEXT_SCHEMA",
+    "VIEWS_SCHEMA",
+    "EncoderInfo",
+    "Store",
+    "StoreWriter",
+    "decode_png",
+    "encode_png",
+    "read_table",
+    "write_table_atomic",
+]
+
+SCHEMA_VERSION = 1
+"""Bumped whenever a table's columns change meaning; readers refuse other versions."""
+
+DEPTH_SCALE = 0.001
+"""Metres per unit of the stored 16-bit depth PNG (millimetres, so 65.535 m at most)."""
+
+EXTRA_IMAGES = ("instance", "class")
+"""Per-pixel label images a recording may carry (sample-world recordings do)."""
+
+_VERSION_KEY = b"care.schema_version"
+
+VIEWS_SCHEMA = pa.schema(
+    [
+        pa.field("view_id", pa.int32(), nullable=False),
+        pa.field("stamp_ns", pa.int64(), nullable=False),
+        pa.field("width", pa.int32(), nullable=False),
+        pa.field("height", pa.int32(), nullable=False),
+        pa.field("K", pa.list_(pa.float64(), 9), nullable=False),
+        pa.field("cam_to_world", pa.list_(pa.float64(), 16), nullable=False),
+        pa.field("depth_scale", pa.float32(), nullable=False),
+        pa.field("rgb_jpeg", pa.binary(), nullable=False),
+        pa.field("depth_png", pa.binary(), nullable=False),
+        *(pa.field(f"{name}_png", pa.binary(), nullable=True) for name in EXTRA_IMAGES),
+    ],
+    metadata={_VERSION_KEY: str(SCHEMA_VERSION).encode()},
+)
+
+FEATURES_SCHEMA = pa.schema(
+    [
+        pa.field("view_id", pa.int32(), nullable=False),
+        pa.field("fh", pa.int16(), nullable=False),
+        pa.field("fw", pa.int16(), nullable=False),
+        pa.field("feature", pa.list_(pa.float16()), nullable=False),
+    ],
+    metadata={_VERSION_KEY: str(SCHEMA_VERSION).encode()},
+)
+"""``feature`` is the (fh, fw, d) map flattened row-major; pixel (u, v) of a W x H image
+falls in feature cell (v * fh // H, u * fw // W)."""
+
+TEXT_SCHEMA = pa.schema(
+    [
+        pa.field("name", pa.string(), nullable=False),
+        pa.field("embedding", pa.list_(pa.float32()), nullable=False),
+    ],
+    metadata={_VERSION_KEY: str(SCHEMA_VERSION).encode()},
+)
+
+
+@dataclass(frozen=True)
+class EncoderInfo:
+    """What the store records about the encoder that made its features."""
+
+    name: str
+    version: str
+    dim: int
+    vocabulary: tuple[str, ...] = ()
+
+    def metadata(self) -> dict[bytes, bytes]:
+        return {
+            _VERSION_KEY: str(SCHEMA_VERSION).encode(),
+            b"care.encoder.name": self.name.encode(),
+            b"care.encoder.version": self.version.encode(),
+            b"care.encoder.dim": str(self.dim).encode(),
+            b"care.vocabulary": json.dumps(list(self.vocabulary)).encode(),
+        }
+
+    @classmethod
+    def from_metadata(cls, md: dict[bytes, bytes]) -> EncoderInfo:
+        return cls(
+            name=md[b"care.encoder.name"].decode(),
+            version=md[b"care.encoder.version"].decode(),
+            dim=int(md[b"care.encoder.dim"]),
+            vocabulary=tuple(json.loads(md.get(b"care.vocabulary", b"[]"))),
+        )
+
+
+def encode_png(image: np.ndarray) -> bytes:
+    """Lossless PNG bytes of a uint8 (H, W[, 3]) or uint16 (H, W) image."""
+    buf = io.BytesIO()
+    Image.fromarray(image).save(buf, format="PNG", compress_level=1)
+    return buf.getvalue()
+
+
+def decode_png(data: bytes) -> np.ndarray:
+    """Inverse of :func:`encode_png` (16-bit PNGs come back as uint16)."""
+    img = Image.open(io.BytesIO(data))
+    arr = np.asarray(img)
+    return arr.astype(np.uint16) if img.mode.startswith("I") else arr
+
+
+def _encode_jpeg(rgb: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    Image.fromarray(rgb).save(buf, format="JPEG", quality=95)
+    return buf.getvalue()
+
+
+def _decode_jpeg(data: bytes) -> np.ndarray:
+    return np.asarray(Image.open(io.BytesIO(data)).convert("RGB"))
+
+
+def _check_version(schema: pa.Schema, path: Path) -> None:
+    found = (schema.metadata or {}).get(_VERSION_KEY)
+    if found is None or int(found) != SCHEMA_VERSION:
+        msg = (
+            f"{path}: schema version {found.decode() if found else 'missing'}, this program "
+            f"reads version {SCHEMA_VERSION}; rebuild it with the matching `care` command."
+        )
+        raise StoreError(msg)
+
+
+def write_table_atomic(
+    table: pa.Table, path: Path, metadata: dict[bytes, bytes] | None = None
+) -> None:
+    """Write one Parquet table through a temporary file renamed over ``path``.
+
+    The schema version is always added to the table's metadata.
+    """
+    md = dict(table.schema.metadata or {})
+    md.update(metadata or {})
+    md[_VERSION_KEY] = str(SCHEMA_VERSION).encode()
+    table = table.replace_schema_metadata(md)
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        pq.write_table(table, tmp, compression="zstd")
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def read_table(path: Path, columns: Sequence[str] | None = None) -> pa.Table:
+    """Read a Parquet table of this project, refusing missing files and other schema versions."""
+    path = Path(path)
+    if not path.is_file():
+        msg = f"{path}: no such table; build it first (see `care --help`)."
+        raise StoreError(msg)
+    _check_version(pq.read_schema(path), path)
+    return pq.read_table(path, columns=list(columns) if columns else None)
+
+
+class StoreWriter:
+    """Streams views and features into a new store, committing it atomically on success.
+
+    Use as a context manager: on an exception the temporary directory is removed and any
+    previous store at ``path`` is left as it was.
+    """
+
+    def __init__(
+        self, path: Path, encoder: EncoderInfo | None, *, rows_per_group: int = 16
+    ) -> None:
+        self.path = Path(path)
+        self.encoder = encoder
+        self.rows_per_group = rows_per_group
+        self.tmp = self.path.with_name(f".{self.path.name}.tmp-{os.getpid()}")
+        self.num_views = 0
+        self._views: list[dict[str, Any]] = []
+        self._features: list[dict[str, Any]] = []
+        self._views_writer: pq.ParquetWriter | None = None
+        self._features_writer: pq.ParquetWriter | None = None
+        self._text: pa.Table | None = None
+
+    def __enter__(self) -> StoreWriter:
+        if self.tmp.exists():
+            shutil.rmtree(self.tmp)
+        self.tmp.mkdir(parents=True)
+        self._views_writer = pq.ParquetWriter(self.tmp / "views.parquet", VIEWS_SCHEMA)
+        if self.encoder is not None:
+            schema = FEATURES_SCHEMA.with_metadata(self.encoder.metadata())
+            self._features_writer = pq.ParquetWriter(self.tmp / "features.parquet", schema)
+        return self
+
+    def add(self, frame: Frame, features: np.ndarray | None = None) -> int:
+        """Append one view (and its (fh, fw, d) feature map); returns its view id."""
+        view_id = self.num_views
+        depth_mm = np.clip(np.round(np.nan_to_num(frame.depth_m) / DEPTH_SCALE), 0, 65535)
+        row: dict[str, Any] = {
+            "view_id": view_id,
+            "stamp_ns": int(frame.stamp_ns),
+            "width": frame.width,
+            "height": frame.height,
+            "K": np.asarray(frame.K, dtype=np.float64).ravel().tolist(),
+            "cam_to_world": np.asarray(frame.cam_to_world, dtype=np.float64).ravel().tolist(),
+            "depth_scale": DEPTH_SCALE,
+            "rgb_jpeg": _encode_jpeg(frame.rgb),
+            "depth_png": encode_png(depth_mm.astype(np.uint16)),
+        }
+        for name in EXTRA_IMAGES:
+            extra = frame.extras.get(name)
+            row[f"{name}_png"] = None if extra is None else encode_png(extra.astype(np.uint16))
+        self._views.append(row)
+        if features is not None:
+            if self._features_writer is None or self.encoder is None:
+                msg = "features given to a store opened without an encoder"
+                raise StoreError(msg)
+            if features.ndim != 3 or features.shape[2] != self.encoder.dim:
+                msg = (
+                    f"feature map of shape {features.shape}, expected (fh, fw, {self.encoder.dim})"
+                )
+                raise StoreError(msg)
+            self._features.append(
+                {
+                    "view_id": view_id,
+                    "fh": features.shape[0],
+                    "fw": features.shape[1],
+                    "feature": pa.array(features.astype(np.float16).ravel(), type=pa.float16()),
+                }
+            )
+        self.num_views += 1
+        if len(self._views) >= self.rows_per_group:
+            self._flush()
+        return view_id
+
+    def set_text(self, names: Sequence[str], embeddings: np.ndarray) -> None:
+        """Cache the encoder's class-name embeddings (n, d) in the store."""
+        self._text = pa.table(
+            {
+                "name": pa.array(list(names), pa.string()),
+                "embedding": pa.array(
+                    list(np.asarray(embeddings, np.float32)), pa.list_(pa.float32())
+                ),
+            },
+            schema=TEXT_SCHEMA,
+        )
+
+    def _flush(self) -> None:
+        if self._views and self._views_writer is not None:
+            self._views_writer.write_table(pa.Table.from_pylist(self._views, schema=VIEWS_SCHEMA))
+            self._views.clear()
+        if self._features and self._features_writer is not None:
+            rows = self._features
+            table = pa.table(
+                {
+                    "view_id": pa.array([r["view_id"] for r in rows], pa.int32()),
+                    "fh": pa.array([r["fh"] for r in rows], pa.int16()),
+                    "fw": pa.array([r["fw"] for r in rows], pa.int16()),
+                    "feature": pa.array([r["feature"] for r in rows], pa.list_(pa.float16())),
+                },
+                schema=self._features_writer.schema,
+            )
+            self._features_writer.write_table(table)
+            self._features.clear()
+
+    def commit(self, meta: dict[str, Any]) -> None:
+        """Finish the tables, write ``meta.json`` last, and rename into place."""
+        self._flush()
+        for writer in (self._views_writer, self._features_writer):
+            if writer is not None:
+                writer.close()
+        self._views_writer = self._features_writer = None
+        if self._text is not None:
+            write_table_atomic(self._text, self.tmp / "text.parquet")
+        full = {
+            "schema_version": SCHEMA_VERSION,
+            "num_views": self.num_views,
+            "encoder": None
+            if self.encoder is None
+            else {
+                "name": self.encoder.name,
+                "version": self.encoder.version,
+                "dim": self.encoder.dim,
+            },
+            "created_unix": time.time(),
+            **meta,
+        }
+        (self.tmp / "meta.json").write_text(json.dumps(full, indent=2, default=str))
+        old = self.path.with_name(f".{self.path.name}.old-{os.getpid()}")
+        if self.path.exists():
+            self.path.rename(old)
+        self.tmp.rename(self.path)
+        if old.exists():
+            shutil.rmtree(old)
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        for writer in (self._views_writer, self._features_writer):
+            if writer is not None:
+                writer.close()
+        if self.tmp.exists():
+            shutil.rmtree(self.tmp)
+
+
+class Store:
+    """A complete store on disk; opening checks completeness and schema version."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        meta_path = self.path / "meta.json"
+        if not meta_path.is_file():
+            msg = f"{self.path}: not a complete feature store (no meta.json); run `care ingest` first."
+            raise StoreError(msg)
+        self.meta: dict[str, Any] = json.loads(meta_path.read_text())
+        if self.meta.get("schema_version") != SCHEMA_VERSION:
+            msg = (
+                f"{self.path}: store schema version {self.meta.get('schema_version')}, this "
+                f"program reads {SCHEMA_VERSION}; re-run `care ingest`."
+            )
+            raise StoreError(msg)
+
+    @property
+    def num_views(self) -> int:
+        return int(self.meta["num_views"])
+
+    def table_path(self, name: str) -> Path:
+        return self.path / f"{name}.parquet"
+
+    def views(self, columns: Sequence[str] | None = None) -> pa.Table:
+        """The views table (pass ``columns`` to skip the image bytes)."""
+        return read_table(self.table_path("views"), columns)
+
+    def poses(self) -> np.ndarray:
+        """(V, 4, 4) camera-to-world poses in view order."""
+        col = self.views(["cam_to_world"]).column("cam_to_world").combine_chunks()
+        return col.values.to_numpy().reshape(-1, 4, 4)
+
+    def intrinsics(self) -> np.ndarray:
+        """(V, 3, 3) intrinsics in view order."""
+        col = self.views(["K"]).column("K").combine_chunks()
+        return col.values.to_numpy().reshape(-1, 3, 3)
+
+    def iter_frames(
+        self, *, batch_size: int = 8, extras: bool = True
+    ) -> Iterator[tuple[int, Frame]]:
+        """Decoded ``(view_id, Frame)`` pairs, streamed a row group at a time."""
+        path = self.table_path("views")
+        _check_version(pq.read_schema(path), path)
+        pf = pq.ParquetFile(path)
+        for batch in pf.iter_batches(batch_size=batch_size):
+            for row in batch.to_pylist():
+                extra = {
+                    name: decode_png(row[f"{name}_png"])
+                    for name in EXTRA_IMAGES
+                    if extras and row.get(f"{name}_png") is not None
+                }
+                depth = decode_png(row["depth_png"]).astype(np.float32) * np.float32(
+                    row["depth_scale"]
+                )
+                yield (
+                    row["view_id"],
+                    Frame(
+                        stamp_ns=row["stamp_ns"],
+                        rgb=_decode_jpeg(row["rgb_jpeg"]),
+                        depth_m=depth,
+                        K=np.asarray(row["K"], dtype=np.float64).reshape(3, 3),
+                        cam_to_world=np.asarray(row["cam_to_world"], dtype=np.float64).reshape(
+                            4, 4
+                        ),
+                        extras=extra,
+                    ),
+                )
+
+    @property
+    def encoder(self) -> EncoderInfo:
+        path = self.table_path("features")
+        if not path.is_file():
+            msg = f"{self.path}: the store has no features; re-run `care ingest` with --encoder."
+            raise StoreError(msg)
+        return EncoderInfo.from_metadata(pq.read_schema(path).metadata or {})
+
+    def iter_features(self, *, batch_size: int = 8) -> Iterator[tuple[int, np.ndarray]]:
+        """``(view_id, feature map (fh, fw, d) float16)`` pairs, streamed."""
+        path = self.table_path("features")
+        info = self.encoder
+        _check_version(pq.read_schema(path), path)
+        for batch in pq.ParquetFile(path).iter_batches(batch_size=batch_size):
+            ids = batch.column("view_id").to_numpy()
+            fh = batch.column("fh").to_numpy()
+            fw = batch.column("fw").to_numpy()
+            feats = batch.column("feature")
+            for i in range(batch.num_rows):
+                flat = feats[i].values.to_numpy(zero_copy_only=False)
+                yield int(ids[i]), flat.reshape(int(fh[i]), int(fw[i]), info.dim)
+
+    def text_embeddings(self) -> tuple[list[str], np.ndarray]:
+        """Cached class names and their (n, d) float32 text embeddings."""
+        table = read_table(self.table_path("text"))
+        names = table.column("name").to_pylist()
+        emb = table.column("embedding").combine_chunks().values.to_numpy()
+        return names, emb.reshape(len(names), -1).astype(np.float32)

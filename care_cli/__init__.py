@@ -1,0 +1,1 @@
+"""The ``care`` command-line program: sits on top and imports the stages."""
