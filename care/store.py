@@ -142,7 +142,7 @@ def decode_png(data: bytes) -> np.ndarray:
 
 def _encode_jpeg(rgb: np.ndarray) -> bytes:
     buf = io.BytesIO()
-    Image.fromarray(rgb).save(buf, format="JPEG", quality=95)
+    Image.fromarray(rgb).save(buf, format="JPEG", quality=95, subsampling=0)
     return buf.getvalue()
 
 

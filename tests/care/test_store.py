@@ -1,0 +1,108 @@
+"""The feature store: round trip, atomic commit, and readability by other tools."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import duckdb
+import numpy as np
+import polars as pl
+import pytest
+
+from care.errors import StoreError
+from care.frames import Frame
+from care.store import EncoderInfo, Store, StoreWriter
+
+
+def _smooth_rgb(i: int) -> np.ndarray:
+    u, v = np.meshgrid(np.arange(32) * 8, np.arange(24) * 10)
+    return np.stack([u, v, np.full_like(u, 9 * i)], axis=-1).clip(0, 255).astype(np.uint8)
+
+
+def _frame(i: int) -> Frame:
+    rng = np.random.default_rng(i)
+    pose = np.eye(4)
+    pose[:3, 3] = [i, 0.5, 1.5]
+    return Frame(
+        stamp_ns=1_000_000_000 + i * 33_000_000,
+        rgb=_smooth_rgb(i),
+        depth_m=np.round(rng.uniform(0.5, 4.0, (24, 32)), 3).astype(np.float32),
+        K=np.array([[30.0, 0, 16], [0, 30, 12], [0, 0, 1]]),
+        cam_to_world=pose,
+        extras={"instance": rng.integers(0, 9, (24, 32), dtype=np.uint16)},
+    )
+
+
+def _features(i: int) -> np.ndarray:
+    f = np.random.default_rng(100 + i).normal(size=(3, 4, 8)).astype(np.float32)
+    return f / np.linalg.norm(f, axis=-1, keepdims=True)
+
+
+def _write(path: Path, n: int = 5) -> None:
+    info = EncoderInfo("test", "1", 8, ("chair", "table"))
+    with StoreWriter(path, info, rows_per_group=2) as writer:
+        for i in range(n):
+            writer.add(_frame(i), _features(i))
+        writer.set_text(["chair", "table"], np.eye(2, 8, dtype=np.float32))
+        writer.commit({"source": "synthetic"})
+
+
+def test_round_trip(tmp_path: Path) -> None:
+    _write(tmp_path / "s")
+    store = Store(tmp_path / "s")
+    assert store.num_views == 5
+    assert store.encoder == EncoderInfo("test", "1", 8, ("chair", "table"))
+    for (vid, frame), i in zip(store.iter_frames(), range(5), strict=True):
+        ref = _frame(i)
+        assert vid == i
+        assert frame.stamp_ns == ref.stamp_ns
+        np.testing.assert_array_equal(frame.K, ref.K)
+        np.testing.assert_array_equal(frame.cam_to_world, ref.cam_to_world)
+        np.testing.assert_allclose(frame.depth_m, ref.depth_m, atol=5e-4)  # millimetre PNG
+        np.testing.assert_array_equal(frame.extras["instance"], ref.extras["instance"])
+        assert np.abs(frame.rgb.astype(int) - ref.rgb).max() <= 8  # JPEG q95, 4:4:4
+    for vid, feat in store.iter_features():
+        np.testing.assert_allclose(feat, _features(vid), atol=1e-3)
+    names, emb = store.text_embeddings()
+    assert names == ["chair", "table"]
+    assert emb.shape == (2, 8)
+    assert store.poses().shape == (5, 4, 4)
+
+
+def test_readable_by_polars_and_duckdb(tmp_path: Path) -> None:
+    _write(tmp_path / "s")
+    views = pl.read_parquet(tmp_path / "s" / "views.parquet")
+    assert views.height == 5
+    assert views["K"].to_list()[0][0] == 30.0
+    n, length = duckdb.sql(
+        f"select count(*), max(len(feature)) from '{tmp_path / 's' / 'features.parquet'}'"
+    ).fetchall()[0]
+    assert (n, length) == (5, 3 * 4 * 8)
+
+
+def test_interrupted_write_leaves_no_store(tmp_path: Path) -> None:
+    path = tmp_path / "s"
+    with pytest.raises(RuntimeError), StoreWriter(path, None) as writer:
+        writer.add(_frame(0))
+        raise RuntimeError("interrupted")
+    assert not path.exists()
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(StoreError, match="not a complete feature store"):
+        Store(path)
+
+
+def test_rewrite_replaces_previous_store_atomically(tmp_path: Path) -> None:
+    _write(tmp_path / "s", n=3)
+    _write(tmp_path / "s", n=2)
+    assert Store(tmp_path / "s").num_views == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s"]
+
+
+def test_other_schema_version_is_refused(tmp_path: Path) -> None:
+    _write(tmp_path / "s")
+    meta = json.loads((tmp_path / "s" / "meta.json").read_text())
+    meta["schema_version"] = 99
+    (tmp_path / "s" / "meta.json").write_text(json.dumps(meta))
+    with pytest.raises(StoreError, match="schema version 99"):
+        Store(tmp_path / "s")
