@@ -83,9 +83,14 @@ def test_readable_by_polars_and_duckdb(tmp_path: Path) -> None:
 
 def test_interrupted_write_leaves_no_store(tmp_path: Path) -> None:
     path = tmp_path / "s"
-    with pytest.raises(RuntimeError), StoreWriter(path, None) as writer:
-        writer.add(_frame(0))
-        raise RuntimeError("interrupted")
+
+    def interrupted() -> None:
+        with StoreWriter(path, None) as writer:
+            writer.add(_frame(0))
+            raise RuntimeError("interrupted")
+
+    with pytest.raises(RuntimeError):
+        interrupted()
     assert not path.exists()
     assert list(tmp_path.iterdir()) == []
     with pytest.raises(StoreError, match="not a complete feature store"):
