@@ -1,9 +1,208 @@
-"""`care` commands of this stage (placeholder until its stage lands)."""
+"""``care ingest`` (a recording into a feature store) and ``care topics`` (what is in it)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Annotated
+
 import typer
+
+__all__ = ["register"]
+
+_READ = "Topics and frames"
+
+
+def _read_options(
+    rgb: str | None,
+    depth: str | None,
+    camera_info: str | None,
+    pose_source: str | None,
+    world_frame: str | None,
+    camera_frame: str | None,
+    max_dt: float,
+    static_pose: bool,
+):  # -> ReadOptions (imported lazily to keep `care --help` fast)
+    from ingest.source import ReadOptions
+
+    return ReadOptions(
+        rgb=rgb,
+        depth=depth,
+        camera_info=camera_info,
+        pose_source=pose_source,
+        world_frame=world_frame,
+        camera_frame=camera_frame,
+        max_dt=max_dt,
+        static_pose=static_pose,
+    )
+
+
+RgbOpt = Annotated[
+    str | None, typer.Option("--rgb", help="Colour image topic.", rich_help_panel=_READ)
+]
+DepthOpt = Annotated[
+    str | None,
+    typer.Option("--depth", help="Depth topic registered to colour.", rich_help_panel=_READ),
+]
+InfoOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--camera-info", help="CameraInfo topic of the colour camera.", rich_help_panel=_READ
+    ),
+]
+PoseOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--pose-source",
+        help="Odometry or PoseStamped topic giving the pose (default: TF).",
+        rich_help_panel=_READ,
+    ),
+]
+WorldOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--world-frame",
+        help="TF world frame (default map/world/odom or the TF root).",
+        rich_help_panel=_READ,
+    ),
+]
+CameraOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--camera-frame",
+        help="Optical frame of the colour camera (x right, y down, z forward).",
+        rich_help_panel=_READ,
+    ),
+]
+MaxDtOpt = Annotated[
+    float,
+    typer.Option(
+        "--max-dt", help="Seconds allowed between colour and depth stamps.", rich_help_panel=_READ
+    ),
+]
+StaticOpt = Annotated[
+    bool,
+    typer.Option(
+        "--static-pose",
+        help="Identity pose for every frame (recordings without poses).",
+        rich_help_panel=_READ,
+    ),
+]
+
+
+def ingest(
+    recording: Annotated[Path, typer.Argument(help="MCAP file, rosbag2 directory or ROS 1 .bag.")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Store directory to write.")],
+    encoder: Annotated[
+        str | None,
+        typer.Option(
+            "--encoder", help="Feature encoder (clip, labels, precomputed); none = no features."
+        ),
+    ] = None,
+    weights: Annotated[
+        str | None, typer.Option("--weights", help="Encoder weights directory or checkpoint id.")
+    ] = None,
+    precomputed: Annotated[
+        Path | None,
+        typer.Option("--precomputed", help="Parquet of per-view features (precomputed encoder)."),
+    ] = None,
+    device: Annotated[
+        str | None, typer.Option("--device", help="torch device (default CUDA if available).")
+    ] = None,
+    batch_size: Annotated[int, typer.Option("--batch-size", help="Views per encoder batch.")] = 8,
+    vocabulary: Annotated[
+        str | None,
+        typer.Option(
+            "--vocabulary", help="Vocabulary name or file whose text embeddings to cache."
+        ),
+    ] = None,
+    rrd: Annotated[
+        Path | None, typer.Option("--rrd", help="Write a Rerun recording of the ingest.")
+    ] = None,
+    rrd_every: Annotated[
+        int, typer.Option("--rrd-every", help="Log the point cloud of every Nth frame.")
+    ] = 10,
+    force: Annotated[
+        bool, typer.Option("--force", help="Rebuild even if the store is up to date.")
+    ] = False,
+    rgb: RgbOpt = None,
+    depth: DepthOpt = None,
+    camera_info: InfoOpt = None,
+    pose_source: PoseOpt = None,
+    world_frame: WorldOpt = None,
+    camera_frame: CameraOpt = None,
+    max_dt: MaxDtOpt = 0.02,
+    static_pose: StaticOpt = False,
+) -> None:
+    """Read a robot recording into a feature store (views, poses, features)."""
+    from care.encoders import EncoderOptions
+    from care.store import Store
+    from ingest.pipeline import IngestConfig, run_ingest
+
+    config = IngestConfig(
+        recording=recording,
+        out=out,
+        read=_read_options(
+            rgb, depth, camera_info, pose_source, world_frame, camera_frame, max_dt, static_pose
+        ),
+        encoder=encoder,
+        encoder_options=EncoderOptions(
+            weights=weights, device=device, batch_size=batch_size, precomputed=precomputed
+        ),
+        vocabulary=vocabulary,
+        rrd=rrd,
+        rrd_every=rrd_every,
+        force=force,
+    )
+    path = run_ingest(config)
+    store = Store(path)
+    counts = store.meta.get("counts", {})
+    dropped = counts.get("dropped") or {}
+    typer.echo(
+        f"{path}: {store.num_views} views from {counts.get('rgb_messages', '?')} colour images"
+        + (f", dropped {dropped}" if dropped else "")
+    )
+
+
+def topics(
+    recording: Annotated[Path, typer.Argument(help="MCAP file, rosbag2 directory or ROS 1 .bag.")],
+    rgb: RgbOpt = None,
+    depth: DepthOpt = None,
+    camera_info: InfoOpt = None,
+    pose_source: PoseOpt = None,
+    world_frame: WorldOpt = None,
+    camera_frame: CameraOpt = None,
+    max_dt: MaxDtOpt = 0.02,
+    static_pose: StaticOpt = False,
+) -> None:
+    """List a recording's topics, types and counts, and what ingest would pick."""
+    from care.errors import CareError
+    from ingest.readers import open_reader
+    from ingest.source import RecordingFrames
+
+    with open_reader(recording) as reader:
+        listed = reader.topics()
+    width = max((len(n) for n in listed), default=0)
+    for info in listed.values():
+        typer.echo(f"{info.name:<{width}}  {info.msgtype:<36} {info.count:>7}")
+    options = _read_options(
+        rgb, depth, camera_info, pose_source, world_frame, camera_frame, max_dt, static_pose
+    )
+    try:
+        with RecordingFrames(recording, options) as frames:
+            chosen = frames.describe()
+    except CareError as err:
+        typer.echo(f"auto-detection: {err}")
+        raise typer.Exit(1) from err
+    sel = chosen["topics"]
+    typer.echo("ingest would use:")
+    for role in ("rgb", "depth", "camera_info", "pose_source", "class_names"):
+        typer.echo(f"  {role:<12} {sel[role]}")
+    typer.echo(f"  {'tf':<12} {', '.join(sel['tf']) or None}")
+    typer.echo(f"  {'extras':<12} {sel['extras'] or None}")
+    typer.echo(f"  world frame  {chosen['world_frame']}, camera frame {chosen['camera_frame']}")
 
 
 def register(app: typer.Typer) -> None:
-    """Add this stage's commands to ``app``."""
+    """Add ``ingest`` and ``topics`` to ``app``."""
+    app.command("ingest")(ingest)
+    app.command("topics")(topics)

@@ -1,1 +1,12 @@
-"""ingest stage."""
+"""ingest stage: robot recordings (MCAP, rosbag2, ROS 1) in, feature stores out.
+
+- :mod:`ingest.write`: write frames as a recording (the sample world uses it),
+- :mod:`ingest.readers`: one reader interface over the container formats,
+- :mod:`ingest.decode`: ROS messages to numpy arrays,
+- :mod:`ingest.topics`: which topics hold what (auto-detection, overrides),
+- :mod:`ingest.tf`: the TF buffer (chains, interpolation),
+- :mod:`ingest.sync`: stamp matching of depth and labels to colour,
+- :mod:`ingest.source`: a recording as a stream of posed :class:`care.frames.Frame`,
+- :mod:`ingest.pipeline`: ``run_ingest(IngestConfig)`` into a store,
+- :mod:`ingest.viz`: Rerun logging of an ingest.
+"""

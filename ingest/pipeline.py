@@ -1,0 +1,229 @@
+"""``care ingest``: a recording in, a feature store (and optionally a Rerun file) out.
+
+Frames stream from :class:`ingest.source.RecordingFrames`, are encoded in batches and go
+straight into a :class:`care.store.StoreWriter`, so at most one batch of images is held.
+The store is committed atomically with a meta.json that records where it came from and
+what was dropped; its ``fingerprint`` (source identity + configuration) lets a re-run with
+the same inputs return at once (idempotent), while any change to the recording or to the
+options rebuilds it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from care.encoders import Encoder, EncoderOptions, RecordingContext, make_encoder
+from care.errors import IngestError
+from care.frames import Frame
+from care.store import SCHEMA_VERSION, StoreWriter
+from ingest.source import ReadOptions, RecordingFrames
+
+__all__ = ["INGEST_VERSION", "IngestConfig", "fingerprint", "run_ingest"]
+
+INGEST_VERSION = "1"
+"""Bumped when ingest's output for the same input changes; part of the fingerprint."""
+
+
+@dataclass(frozen=True)
+class IngestConfig:
+    """One ingest job; the CLI builds it from its flags."""
+
+    recording: Path
+    """MCAP file, rosbag2 directory or ROS 1 bag."""
+    out: Path
+    """Store directory to create (replaced atomically if it exists and is stale)."""
+    read: ReadOptions = field(default_factory=ReadOptions)
+    """Topic, frame and synchronisation choices."""
+    encoder: str | None = None
+    """Encoder name from ``care.encoders.ENCODERS``; None stores views without features."""
+    encoder_options: EncoderOptions = field(default_factory=EncoderOptions)
+    """Weights, device, batch size, ... of the encoder."""
+    vocabulary: str | None = None
+    """Vocabulary (bundled name or file) whose text embeddings are cached in the store;
+    default the recording's own class names if it has any."""
+    rrd: Path | None = None
+    """Write a Rerun recording of the ingest here."""
+    rrd_every: int = 10
+    """Log the back-projected point cloud of every Nth frame."""
+    force: bool = False
+    """Rebuild even if the store is up to date."""
+    progress: bool = True
+    """Show a tqdm progress bar."""
+
+
+def _source_identity(path: Path) -> dict[str, Any]:
+    """Size and mtime of a recording (every file of a bag directory)."""
+    files = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
+    return {
+        "path": str(path.resolve()),
+        "size": sum(p.stat().st_size for p in files),
+        "mtime_ns": max((p.stat().st_mtime_ns for p in files), default=0),
+        "files": [
+            [str(p.relative_to(path)) if path.is_dir() else p.name, p.stat().st_size] for p in files
+        ],
+    }
+
+
+def _jsonable(obj: Any) -> Any:
+    return json.loads(json.dumps(obj, default=str))
+
+
+def fingerprint(config: IngestConfig, encoder: Encoder | None, source: dict[str, Any]) -> str:
+    """Hash of everything the store's content depends on (not where outputs go)."""
+    options = asdict(config.encoder_options)
+    options.pop("device", None)
+    options.pop("batch_size", None)
+    key = {
+        "ingest_version": INGEST_VERSION,
+        "schema_version": SCHEMA_VERSION,
+        "source": source,
+        "read": asdict(config.read),
+        "encoder": None
+        if encoder is None
+        else {"name": encoder.name, "version": encoder.version, "dim": encoder.dim},
+        "encoder_options": options if encoder is not None else None,
+        "vocabulary": config.vocabulary,
+    }
+    return hashlib.sha256(json.dumps(_jsonable(key), sort_keys=True).encode()).hexdigest()
+
+
+def _up_to_date(config: IngestConfig, fp: str) -> bool:
+    meta_path = config.out / "meta.json"
+    if config.force or not meta_path.is_file():
+        return False
+    if config.rrd is not None and not config.rrd.is_file():
+        return False
+    try:
+        meta = json.loads(meta_path.read_text())
+    except (OSError, json.JSONDecodeError):
+        return False
+    return meta.get("fingerprint") == fp
+
+
+def _vocabulary(config: IngestConfig, label_names: tuple[str, ...]) -> list[str]:
+    if config.vocabulary is None:
+        return list(label_names)
+    from care.vocab import load_vocabulary
+
+    return list(load_vocabulary(config.vocabulary))
+
+
+def _open_logger(config: IngestConfig, frames: RecordingFrames) -> Any:
+    """A Rerun logger writing to a temporary file that :meth:`keep` renames into place."""
+    if config.rrd is None:
+        return None
+    from ingest.viz import IngestLogger
+
+    return IngestLogger(
+        config.rrd,
+        every=config.rrd_every,
+        world_frame=frames.world_frame or "map",
+        camera_frame=frames.camera_frame or "camera_optical_frame",
+    )
+
+
+def run_ingest(config: IngestConfig, encoder: Encoder | None = None) -> Path:
+    """Build the store ``config.out`` from ``config.recording``; returns the store path.
+
+    ``encoder`` overrides ``config.encoder`` with an instance (e.g. one built in a test or
+    shared across many recordings). Returns at once if the store is up to date.
+    """
+    recording = Path(config.recording)
+    if not recording.exists():
+        msg = f"{recording}: no such file or directory; check the recording path."
+        raise IngestError(msg)
+    if encoder is None and config.encoder is not None:
+        encoder = make_encoder(config.encoder, config.encoder_options)
+    source = _source_identity(recording)
+    fp = fingerprint(config, encoder, source)
+    if _up_to_date(config, fp):
+        return config.out
+    config.out.parent.mkdir(parents=True, exist_ok=True)
+    with RecordingFrames(recording, config.read) as frames:
+        vocab = _vocabulary(config, frames.label_names)
+        if encoder is not None:
+            encoder.prepare(RecordingContext(recording, frames.label_names))
+        info = encoder.info(vocab) if encoder is not None else None
+        logger = _open_logger(config, frames)
+        total = frames.topics[frames.selection.rgb].count if frames.selection else None
+        bar = tqdm(
+            total=total,
+            desc=f"ingest {recording.name}",
+            unit="frame",
+            disable=not config.progress,
+        )
+        try:
+            with StoreWriter(config.out, info) as writer:
+                _stream(frames, writer, encoder, config.encoder_options.batch_size, logger, bar)
+                if encoder is not None and vocab:
+                    writer.set_text(vocab, encoder.encode_text(vocab))
+                writer.commit(_meta(config, frames, source, fp, vocab))
+        except BaseException:
+            if logger is not None:
+                logger.close()
+                logger.discard()
+            raise
+        finally:
+            bar.close()
+        if logger is not None:
+            logger.close()
+            logger.keep()
+    return config.out
+
+
+def _stream(
+    frames: RecordingFrames,
+    writer: StoreWriter,
+    encoder: Encoder | None,
+    batch_size: int,
+    logger: Any,
+    bar: tqdm,
+) -> None:
+    batch: list[Frame] = []
+
+    def flush() -> None:
+        features = encoder.encode_views(batch) if encoder is not None else None
+        if features is not None and len(features) != len(batch):
+            msg = f"encoder {encoder.name!r} returned {len(features)} feature maps for {len(batch)} views"
+            raise IngestError(msg)
+        for i, frame in enumerate(batch):
+            writer.add(frame, None if features is None else np.asarray(features[i]))
+        batch.clear()
+
+    for frame in frames:
+        if logger is not None:
+            logger.log(writer.num_views + len(batch), frame)
+        batch.append(frame)
+        bar.update(1)
+        if len(batch) >= max(1, batch_size):
+            flush()
+    if batch:
+        flush()
+
+
+def _meta(
+    config: IngestConfig,
+    frames: RecordingFrames,
+    source: dict[str, Any],
+    fp: str,
+    vocab: list[str],
+) -> dict[str, Any]:
+    described = frames.describe()
+    return {
+        "fingerprint": fp,
+        "source": {k: source[k] for k in ("path", "size", "mtime_ns")},
+        "topics": described["topics"],
+        "world_frame": described["world_frame"],
+        "camera_frame": described["camera_frame"],
+        "label_names": described["label_names"],
+        "vocabulary": vocab,
+        "counts": frames.stats.as_dict(),
+        "config": _jsonable(asdict(config)),
+    }

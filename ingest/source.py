@@ -1,0 +1,337 @@
+"""A recording as a stream of :class:`care.frames.Frame`: topics chosen, depth matched, posed.
+
+Two passes over the recording, so memory stays bounded whatever its length:
+
+1. the small topics (camera info, ``/tf``, ``/tf_static``, a pose source, class names) are
+   read whole into a :class:`ingest.tf.TFBuffer` and a short camera-info history;
+2. the image topics are streamed through :class:`ingest.sync.StampSync`; only the
+   messages inside the matching window are held, and each matched set becomes a Frame.
+
+Frame conventions: the camera frame (``--camera-frame``, default the camera info's or the
+image's ``header.frame_id``) must be an *optical* frame, x right, y down, z forward, as
+REP 103 prescribes for image frames (``*_optical_frame``); the pose is
+``world_from_camera`` at the colour image's header stamp.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from collections.abc import Iterator
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+
+from care.errors import IngestError
+from care.frames import Frame
+from ingest import decode
+from ingest.readers import RecordingReader, TopicInfo, open_reader
+from ingest.sync import Match, StampSync
+from ingest.tf import TFBuffer
+from ingest.topics import TopicSelection, select_topics
+
+__all__ = ["ReadOptions", "ReadStats", "RecordingFrames"]
+
+_WORLD_FRAME_NAMES = ("map", "world", "odom")
+
+
+@dataclass(frozen=True)
+class ReadOptions:
+    """How to read a recording; every field has a CLI flag of the same name."""
+
+    rgb: str | None = None
+    """Colour image topic (Image or CompressedImage); default auto-detected."""
+    depth: str | None = None
+    """Depth image topic registered to colour; default auto-detected."""
+    camera_info: str | None = None
+    """CameraInfo topic of the colour camera; default auto-detected."""
+    pose_source: str | None = None
+    """Odometry or PoseStamped topic to use as the pose (its child frame, or for
+    PoseStamped the camera frame, is placed under its header frame); default TF only."""
+    world_frame: str | None = None
+    """TF frame of the world; default map, world or odom if present, else the TF root."""
+    camera_frame: str | None = None
+    """Optical frame of the colour camera; default the camera info's header.frame_id."""
+    max_dt: float = 0.02
+    """Seconds: largest stamp difference between colour and depth (and the TF
+    extrapolation allowed at the ends of a transform's samples)."""
+    static_pose: bool = False
+    """Identity pose for every frame, for recordings without any pose source."""
+
+
+@dataclass
+class ReadStats:
+    """What happened to the colour messages of a recording."""
+
+    rgb_messages: int = 0
+    frames: int = 0
+    dropped: Counter[str] = field(default_factory=Counter)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "rgb_messages": self.rgb_messages,
+            "frames": self.frames,
+            "dropped": dict(self.dropped),
+        }
+
+
+class RecordingFrames:
+    """Context manager over a recording; iterate it (once) for posed, synchronised frames."""
+
+    def __init__(self, path: Path, options: ReadOptions | None = None) -> None:
+        self.path = Path(path)
+        self.options = options or ReadOptions()
+        self.stats = ReadStats()
+        self.label_names: tuple[str, ...] = ()
+        self.topics: dict[str, TopicInfo] = {}
+        self.selection: TopicSelection | None = None
+        self.world_frame: str | None = None
+        self.camera_frame: str | None = None
+        self._reader: RecordingReader | None = None
+        self._tf = TFBuffer()
+        self._infos: list[tuple[int, np.ndarray, int, int]] = []
+        self._nearest_miss_ns: int | None = None
+
+    # -- pass 1 ---------------------------------------------------------------------------
+    def __enter__(self) -> RecordingFrames:
+        reader = open_reader(self.path)
+        self._reader = reader.__enter__()
+        try:
+            self._prepare()
+        except IngestError as err:
+            self.close()
+            if str(err).startswith(str(self.path)):
+                raise
+            msg = f"{self.path}: {err}"
+            raise IngestError(msg) from err
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self._reader is not None:
+            reader, self._reader = self._reader, None
+            reader.__exit__(None, None, None)
+
+    def _prepare(self) -> None:
+        assert self._reader is not None
+        o = self.options
+        self.topics = self._reader.topics()
+        sel = select_topics(
+            self.topics,
+            path=str(self.path),
+            rgb=o.rgb,
+            depth=o.depth,
+            camera_info=o.camera_info,
+            pose_source=o.pose_source,
+        )
+        self.selection = sel
+        if not o.static_pose and not sel.tf and not sel.pose_source:
+            msg = f"{self.path}: no pose source: no /tf or /tf_static messages and no nav_msgs/Odometry or geometry_msgs/PoseStamped topic; pass --static-pose to give every frame the identity pose, or --pose-source TOPIC."
+            raise IngestError(msg)
+        small = [sel.camera_info, *sel.tf, *filter(None, [sel.pose_source, sel.class_names])]
+        pose_samples: list[decode.StampedTransform] = []
+        for topic, t, msg in self._reader.messages(small):
+            if topic == sel.camera_info:
+                self._add_info(msg, t)
+            elif topic == sel.class_names:
+                self.label_names = self._parse_names(msg.data, topic)
+            elif topic == sel.pose_source:
+                pose_samples.append(decode.pose_sample(msg, t))
+            elif not o.static_pose:
+                static = topic.rstrip("/").endswith("tf_static")
+                for tf in decode.transforms(msg, t):
+                    self._tf.add(tf, static=static)
+        if not self._infos:
+            msg = f"{self.path}: camera info topic {sel.camera_info} has no messages; record camera_info or pass --camera-info TOPIC."
+            raise IngestError(msg)
+        self.camera_frame = o.camera_frame or self.camera_frame
+        if not o.static_pose and pose_samples:
+            self._add_pose_source(pose_samples)
+        if not o.static_pose and self.camera_frame:
+            self._resolve_world_frame()
+
+    def _add_pose_source(self, samples: list[decode.StampedTransform]) -> None:
+        """Put the pose source's samples into TF, replacing TF's own transform to its child."""
+        child = samples[0].child or self.camera_frame
+        if not child:
+            msg = f"{self.path}: pose source {self.options.pose_source} is a PoseStamped and the camera frame is unknown; pass --camera-frame."
+            raise IngestError(msg)
+        self._tf.drop(child)
+        for sample in samples:
+            self._tf.add(sample._replace(child=child), static=False)
+
+    def _add_info(self, msg: Any, t: int) -> None:
+        K, w, h = decode.camera_info(msg, self.selection.camera_info if self.selection else "")
+        if not self.camera_frame:
+            self.camera_frame = str(msg.header.frame_id).lstrip("/") or None
+        last = self._infos[-1] if self._infos else None
+        if last is None or not (np.array_equal(last[1], K) and last[2:] == (w, h)):
+            self._infos.append((decode.stamp_ns(msg, t), K, w, h))
+
+    def _parse_names(self, text: str, topic: str) -> tuple[str, ...]:
+        try:
+            names = json.loads(text)
+        except json.JSONDecodeError as err:
+            msg = f"{self.path}: topic {topic} is not a JSON list of class names ({err}); fix or drop the topic."
+            raise IngestError(msg) from err
+        if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+            msg = f"{self.path}: topic {topic} must hold a JSON list of strings."
+            raise IngestError(msg)
+        return tuple(names)
+
+    def _choose_world_frame(self) -> str:
+        if self.options.world_frame:
+            return self.options.world_frame
+        assert self.camera_frame is not None
+        frames = self._tf.frames
+        if self.camera_frame not in frames:
+            return next((f for f in _WORLD_FRAME_NAMES if f in frames), "map")
+        root = self._tf.root(self.camera_frame)
+        chain = {root}
+        chain.update(f for f in frames if self._tf.root(f) == root)
+        return next((f for f in _WORLD_FRAME_NAMES if f in chain), root)
+
+    def describe(self) -> dict[str, Any]:
+        """The choices made, for ``care topics`` and the store's meta.json."""
+        return {
+            "topics": self.selection.as_dict() if self.selection else None,
+            "world_frame": self.world_frame,
+            "camera_frame": self.camera_frame,
+            "label_names": list(self.label_names),
+            "options": asdict(self.options),
+        }
+
+    # -- pass 2 ---------------------------------------------------------------------------
+    def __iter__(self) -> Iterator[Frame]:
+        if self._reader is None or self.selection is None:
+            msg = "RecordingFrames must be entered (with ...) before iterating"
+            raise IngestError(msg)
+        sel = self.selection
+        streams = {sel.depth: "depth", **{topic: key for key, topic in sel.extras.items()}}
+        sync = StampSync(
+            {"depth": True, **dict.fromkeys(sel.extras, False)},
+            max_dt_ns=round(self.options.max_dt * 1e9),
+        )
+        for topic, t, msg in self._reader.messages([sel.rgb, *streams]):
+            stamp = decode.stamp_ns(msg, t)
+            if topic == sel.rgb:
+                self.stats.rgb_messages += 1
+                self._learn_camera_frame(msg)
+            for match in sync.push(None if topic == sel.rgb else streams[topic], stamp, msg):
+                frame = self._assemble(match)
+                if frame is not None:
+                    self.stats.frames += 1
+                    yield frame
+        for match in sync.finish():
+            frame = self._assemble(match)
+            if frame is not None:
+                self.stats.frames += 1
+                yield frame
+        self.stats.dropped.update(sync.dropped)
+        self._nearest_miss_ns = sync.nearest_miss.get("depth")
+        if self.stats.frames == 0:
+            raise IngestError(self._why_empty())
+
+    def _learn_camera_frame(self, msg: Any) -> None:
+        if self.camera_frame is None:
+            self.camera_frame = str(msg.header.frame_id).lstrip("/") or None
+            if self.camera_frame is None and not self.options.static_pose:
+                msg_ = f"{self.path}: neither the camera info nor the images name their frame (header.frame_id); pass --camera-frame."
+                raise IngestError(msg_)
+        if self.world_frame is None and not self.options.static_pose:
+            self._resolve_world_frame()
+
+    def _resolve_world_frame(self) -> None:
+        """Pick the world frame and fail early, naming both frames, if TF cannot join them."""
+        self.world_frame = self._choose_world_frame()
+        assert self.camera_frame is not None
+        self._tf.check_connected(self.world_frame, self.camera_frame)
+
+    def _why_empty(self) -> str:
+        sel = self.selection
+        assert sel is not None
+        d = self.stats.dropped
+        if self.stats.rgb_messages == 0:
+            return f"{self.path}: colour topic {sel.rgb} has no messages; pass --rgb TOPIC."
+        if d["no_depth"]:
+            near = (
+                ""
+                if self._nearest_miss_ns is None
+                else f" (nearest was {self._nearest_miss_ns / 1e6:.0f} ms)"
+            )
+            return f"{self.path}: no colour image on {sel.rgb} has a depth image on {sel.depth} within --max-dt {self.options.max_dt * 1e3:.0f} ms{near}; raise --max-dt or pass --depth TOPIC."
+        if d["no_valid_depth"]:
+            return f"{self.path}: depth topic {sel.depth} has no valid pixel (finite and > 0) in any of {d['no_valid_depth']} frames; check the depth topic and its encoding."
+        if d["no_pose"]:
+            return f"{self.path}: TF from {self.camera_frame!r} to {self.world_frame!r} covers none of the {d['no_pose']} colour stamps (transforms present: {self._tf.describe()}); check the recording's /tf or pass --static-pose."
+        return f"{self.path}: no frame could be read ({dict(d)})."
+
+    def _assemble(self, match: Match) -> Frame | None:
+        try:
+            return self._assemble_checked(match)
+        except IngestError as err:
+            if str(err).startswith(str(self.path)):
+                raise
+            msg = f"{self.path}: {err}"
+            raise IngestError(msg) from err
+
+    def _assemble_checked(self, match: Match) -> Frame | None:
+        sel = self.selection
+        assert sel is not None
+        rgb = decode.decode_colour(match.primary, sel.rgb)
+        depth = decode.decode_depth(match.secondary["depth"], sel.depth)
+        h, w = rgb.shape[:2]
+        if depth.shape != (h, w):
+            msg = f"{self.path}: colour images on {sel.rgb} are {w}x{h} but depth images on {sel.depth} are {depth.shape[1]}x{depth.shape[0]}; record depth registered to colour (e.g. aligned_depth_to_color) or pass --depth TOPIC."
+            raise IngestError(msg)
+        K = self._intrinsics(match.stamp_ns, w, h)
+        if not depth.any():
+            self.stats.dropped["no_valid_depth"] += 1
+            return None
+        pose = self._pose(match.stamp_ns)
+        if pose is None:
+            self.stats.dropped["no_pose"] += 1
+            return None
+        extras = {}
+        for key, msg in match.secondary.items():
+            if key == "depth" or msg is None:
+                continue
+            label = decode.decode_label(msg, sel.extras[key])
+            if label.shape != (h, w):
+                msg_ = f"{self.path}: label images on {sel.extras[key]} are {label.shape[1]}x{label.shape[0]}, colour images {w}x{h}; they must match."
+                raise IngestError(msg_)
+            extras[key] = label
+        return Frame(match.stamp_ns, rgb, depth, K, pose, extras)
+
+    def _intrinsics(self, t: int, w: int, h: int) -> np.ndarray:
+        stamps = np.array([i[0] for i in self._infos])
+        _, K, iw, ih = self._infos[int(np.argmin(np.abs(stamps - t)))]
+        if (iw, ih) != (0, 0) and (iw, ih) != (w, h):
+            sel = self.selection
+            assert sel is not None
+            msg = f"{self.path}: camera info {sel.camera_info} is for {iw}x{ih} images but {sel.rgb} has {w}x{h}; pass the colour camera's --camera-info."
+            raise IngestError(msg)
+        return K
+
+    def _pose(self, t: int) -> np.ndarray | None:
+        if self.options.static_pose:
+            return np.eye(4)
+        assert self.world_frame is not None
+        assert self.camera_frame is not None
+        T, valid = self._tf.lookup(
+            self.world_frame, self.camera_frame, np.array([t]), round(self.options.max_dt * 1e9)
+        )
+        return T[0] if valid[0] else None

@@ -1,0 +1,166 @@
+"""A TF buffer for a whole recording: chains of static and dynamic transforms, interpolated.
+
+TF for a recording is small (a few transforms per frame), so ingest reads all of it in a
+first pass and resolves camera poses in the second. Like tf2: every frame has one parent,
+``/tf_static`` transforms hold at all times, dynamic ones are interpolated between their
+stamps (linear translation, :func:`care.geometry.slerp` rotation) and not extrapolated
+beyond ``tolerance_ns`` past the first or last stamp.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from care.errors import IngestError
+from care.geometry import quaternion_to_matrix, slerp
+from ingest.decode import StampedTransform
+
+__all__ = ["TFBuffer"]
+
+
+@dataclass
+class _Edge:
+    """All samples of ``parent_from_child`` for one child frame."""
+
+    parent: str
+    static: bool
+    stamps: list[int] = field(default_factory=list)
+    translations: list[np.ndarray] = field(default_factory=list)
+    rotations: list[np.ndarray] = field(default_factory=list)
+    _arrays: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Stamps, translations and rotations sorted by stamp (cached)."""
+        if self._arrays is None:
+            order = np.argsort(np.asarray(self.stamps, np.int64), kind="stable")
+            self._arrays = (
+                np.asarray(self.stamps, np.int64)[order],
+                np.asarray(self.translations, np.float64)[order],
+                np.asarray(self.rotations, np.float64)[order],
+            )
+        return self._arrays
+
+    def at(self, times: np.ndarray, tolerance_ns: int) -> tuple[np.ndarray, np.ndarray]:
+        """(N, 4, 4) ``parent_from_child`` at ``times`` and an (N,) mask of those it covers."""
+        stamps, trans, rots = self.arrays()
+        n = len(times)
+        if self.static:
+            T = _matrices(trans[-1:], rots[-1:])
+            return np.repeat(T, n, axis=0), np.ones(n, bool)
+        valid = (times >= stamps[0] - tolerance_ns) & (times <= stamps[-1] + tolerance_ns)
+        t = np.clip(times, stamps[0], stamps[-1])
+        hi = np.clip(np.searchsorted(stamps, t, side="right"), 1, len(stamps) - 1)
+        lo = hi - 1
+        if len(stamps) == 1:
+            hi = lo = np.zeros(n, np.int64)
+        span = (stamps[hi] - stamps[lo]).astype(np.float64)
+        alpha = np.where(span > 0, (t - stamps[lo]) / np.where(span > 0, span, 1.0), 0.0)
+        translation = trans[lo] + alpha[:, None] * (trans[hi] - trans[lo])
+        rotation = slerp(rots[lo], rots[hi], alpha)
+        return _matrices(translation, rotation), valid
+
+
+def _matrices(translation: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    T = np.zeros((len(translation), 4, 4))
+    T[:, :3, :3] = quaternion_to_matrix(rotation)
+    T[:, :3, 3] = translation
+    T[:, 3, 3] = 1.0
+    return T
+
+
+class TFBuffer:
+    """Transforms by child frame; answers ``target_from_source`` at any stamps."""
+
+    def __init__(self) -> None:
+        self._edges: dict[str, _Edge] = {}
+
+    def add(self, tf: StampedTransform, *, static: bool) -> None:
+        """Add one sample; a frame that changes parent is an error (TF is a tree)."""
+        if tf.child is None or tf.child == tf.parent:
+            return
+        edge = self._edges.get(tf.child)
+        if edge is None:
+            edge = self._edges[tf.child] = _Edge(tf.parent, static)
+        elif edge.parent != tf.parent:
+            msg = f"TF frame {tf.child!r} has two parents, {edge.parent!r} and {tf.parent!r}; TF must be a tree (pick the pose source with --pose-source)."
+            raise IngestError(msg)
+        edge.static = edge.static and static
+        edge.stamps.append(int(tf.stamp_ns))
+        edge.translations.append(tf.translation)
+        edge.rotations.append(tf.rotation)
+        edge._arrays = None
+
+    def drop(self, child: str) -> None:
+        """Forget the transform into ``child`` (a pose source replaces it)."""
+        self._edges.pop(child, None)
+
+    @property
+    def frames(self) -> set[str]:
+        """Every frame named as a parent or child."""
+        return set(self._edges) | {e.parent for e in self._edges.values()}
+
+    def parent(self, frame: str) -> str | None:
+        edge = self._edges.get(frame)
+        return None if edge is None else edge.parent
+
+    def root(self, frame: str) -> str:
+        """The top of the tree holding ``frame``."""
+        return self._chain(frame)[-1]
+
+    def _chain(self, frame: str) -> list[str]:
+        chain = [frame]
+        while chain[-1] in self._edges:
+            chain.append(self._edges[chain[-1]].parent)
+            if len(chain) > len(self._edges) + 1:
+                msg = f"TF has a cycle through frame {frame!r}; the recording's transforms are inconsistent."
+                raise IngestError(msg)
+        return chain
+
+    def _up(
+        self, chain: list[str], times: np.ndarray, tolerance_ns: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``chain[-1]_from_chain[0]`` at ``times`` and where every edge covers them."""
+        T = np.repeat(np.eye(4)[None], len(times), axis=0)
+        valid = np.ones(len(times), bool)
+        for child in chain[:-1]:
+            edge_T, edge_valid = self._edges[child].at(times, tolerance_ns)
+            T = edge_T @ T
+            valid &= edge_valid
+        return T, valid
+
+    def describe(self) -> str:
+        """``child<-parent`` of every edge, for error messages."""
+        return ", ".join(f"{e.parent}->{c}" for c, e in sorted(self._edges.items())) or "none"
+
+    def check_connected(self, target: str, source: str) -> None:
+        """Raise the error a user can act on when no chain joins ``source`` to ``target``."""
+        present = ", ".join(sorted(self.frames)) or "none"
+        for role, frame in (("camera", source), ("world", target)):
+            if frame not in self.frames:
+                msg = f"no transform from camera frame {source!r} to world frame {target!r}: {role} frame {frame!r} is not in TF (frames present: {present}); pass --camera-frame/--world-frame, --pose-source, or --static-pose."
+                raise IngestError(msg)
+        if self.root(source) != self.root(target):
+            msg = f"no transform from camera frame {source!r} to world frame {target!r}: they are in separate TF trees (transforms present: {self.describe()}); pass --world-frame or --camera-frame."
+            raise IngestError(msg)
+
+    def lookup(
+        self, target: str, source: str, times: np.ndarray, tolerance_ns: int = 0
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(N, 4, 4) ``target_from_source`` at ``times`` (ns) and an (N,) mask of valid ones.
+
+        Invalid where a dynamic transform on the chain has no sample within
+        ``tolerance_ns`` of the interval it must interpolate over.
+        """
+        self.check_connected(target, source)
+        times = np.atleast_1d(np.asarray(times, np.int64))
+        up_source, up_target = self._chain(source), self._chain(target)
+        common = next(f for f in up_source if f in set(up_target))
+        root_from_source, v1 = self._up(
+            up_source[: up_source.index(common) + 1], times, tolerance_ns
+        )
+        root_from_target, v2 = self._up(
+            up_target[: up_target.index(common) + 1], times, tolerance_ns
+        )
+        return np.linalg.inv(root_from_target) @ root_from_source, v1 & v2

@@ -1,0 +1,56 @@
+"""``care ingest --rrd`` and ``care topics`` through the CLI; the .rrd read back with RrdReader."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from care.store import Store
+from care.viz import rrd_entity_counts
+from ingest import viz
+from ingest.write import write_recording
+
+
+def test_ingest_logs_rerun_entities(run_cli, tmp_path: Path, h) -> None:
+    rec = write_recording(tmp_path / "r.mcap", h.synthetic_frames(7), fmt="mcap")
+    rrd = tmp_path / "ingest.rrd"
+    code, out, err = run_cli(
+        "ingest", rec, "--out", tmp_path / "store", "--rrd", rrd, "--rrd-every", "3"
+    )
+    assert code == 0, err
+    assert "7 views from 7 colour images" in out
+    assert Store(tmp_path / "store").num_views == 7
+    counts = rrd_entity_counts(rrd)
+    e = lambda name: "/" + name  # noqa: E731
+    assert counts[(e(viz.RGB_ENTITY), "Image:buffer")] == 7
+    assert counts[(e(viz.DEPTH_ENTITY), "DepthImage:meter")] == 7
+    assert counts[(e(viz.CAMERA_ENTITY), "Pinhole:image_from_camera")] == 7
+    assert counts[(e(viz.TRANSFORM_ENTITY), "Transform3D:translation")] == 7
+    assert counts[(e(viz.TRANSFORM_ENTITY), "Transform3D:child_frame")] == 7
+    assert counts[(e(viz.POINTS_ENTITY), "Points3D:positions")] == 3  # frames 0, 3, 6
+    # trajectory so far at frames 3 and 6, then the whole one at the end
+    assert counts[(e(viz.TRAJECTORY_ENTITY), "LineStrips3D:strips")] == 3
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_topics_lists_and_shows_choice(run_cli, tmp_path: Path, h) -> None:
+    rec = write_recording(
+        tmp_path / "r.bag",
+        h.synthetic_frames(2, extras=True),
+        fmt="ros1",
+        label_names=["void", "x"],
+    )
+    code, out, _ = run_cli("topics", rec)
+    assert code == 0
+    assert "/camera/color/image_raw" in out
+    assert "sensor_msgs/msg/CameraInfo" in out
+    assert "rgb          /camera/color/image_raw" in out
+    assert "class_names  /care/class_names" in out
+    assert "world frame  map, camera frame camera_optical_frame" in out
+
+
+def test_topics_on_talker_bag(run_cli, shared_data: Path) -> None:
+    code, out, _ = run_cli("topics", shared_data / "rosbag2" / "talker_sqlite3")
+    assert code == 1
+    assert "/topic" in out
+    assert "std_msgs/msg/String" in out
+    assert "no image topic" in out
