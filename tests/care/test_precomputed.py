@@ -1,4 +1,4 @@
-"""Precomputed features written by pyarrow (as another tool would), read back by stamp."""
+"""Precomputed features written by pyarrow and polars (as another tool would), read by stamp."""
 
 from __future__ import annotations
 
@@ -10,34 +10,46 @@ import pyarrow.parquet as pq
 import pytest
 
 from care.encoders import EncoderOptions, make_encoder
-from care.encoders.precomputed import text_path_for
+from care.encoders import precomputed as pre
+from care.encoders.precomputed import PrecomputedEncoder, text_path_for
 from care.errors import EncoderError
 from care.frames import Frame
+from care.store import Store, StoreWriter
 
 STAMPS = [1_000_000_000 + i * 100_000_000 for i in range(6)]
+FH, FW, D = 3, 4, 5
 
 
 def _maps() -> np.ndarray:
-    return np.random.default_rng(0).normal(size=(len(STAMPS), 3, 4, 5)).astype(np.float32)
+    return np.random.default_rng(0).normal(size=(len(STAMPS), FH, FW, D)).astype(np.float32)
+
+
+def _unit(x: np.ndarray) -> np.ndarray:
+    return x / np.linalg.norm(x, axis=-1, keepdims=True)
+
+
+def _write(path: Path, maps: np.ndarray, stamps: list[int], **metadata: str) -> Path:
+    table = pa.table(
+        {
+            "stamp_ns": pa.array(stamps, pa.int64()),
+            "fh": pa.array([m.shape[0] for m in maps], pa.int16()),
+            "fw": pa.array([m.shape[1] for m in maps], pa.int16()),
+            "feature": pa.array(
+                [m.ravel().astype(np.float16) for m in maps], pa.list_(pa.float16())
+            ),
+        }
+    )
+    if metadata:
+        table = table.replace_schema_metadata({f"care.encoder.{k}": v for k, v in metadata.items()})
+    pq.write_table(table, path, row_group_size=2)
+    return path
 
 
 @pytest.fixture
 def feature_file(tmp_path: Path) -> Path:
-    path = tmp_path / "lseg.parquet"
-    maps = _maps()
-    table = pa.table(
-        {
-            "stamp_ns": pa.array(STAMPS[::-1], pa.int64()),  # any order
-            "fh": pa.array([3] * len(STAMPS), pa.int16()),
-            "fw": pa.array([4] * len(STAMPS), pa.int16()),
-            "feature": pa.array(
-                [m.ravel().astype(np.float16) for m in maps[::-1]], pa.list_(pa.float16())
-            ),
-        }
-    )
-    pq.write_table(table, path, row_group_size=2)
+    path = _write(tmp_path / "lseg.parquet", _maps()[::-1], STAMPS[::-1])  # any row order
     text = pa.table(
-        {"name": ["chair", "table"], "embedding": [[1.0, 0, 0, 0, 0], [0, 3.0, 0, 0, 0]]}
+        {"name": ["chair", "table"], "embedding": [[2.0, 0, 0, 0, 0], [0, 3.0, 0, 0, 4.0]]}
     )
     pq.write_table(text, text_path_for(path))
     return path
@@ -49,29 +61,155 @@ def _frame(stamp: int) -> Frame:
     )
 
 
-def test_views_found_by_stamp_and_normalised(feature_file: Path) -> None:
-    enc = make_encoder("precomputed", EncoderOptions(precomputed=feature_file))
-    assert enc.dim == 5
-    got = enc.encode_views([_frame(STAMPS[4] + 400_000), _frame(STAMPS[1])])  # within 1 ms
-    ref = _maps()[[4, 1]].astype(np.float16).astype(np.float32)
-    ref /= np.linalg.norm(ref, axis=-1, keepdims=True)
+def _encoder(path: Path) -> PrecomputedEncoder:
+    enc = make_encoder("precomputed", EncoderOptions(precomputed=path))
+    assert isinstance(enc, PrecomputedEncoder)
+    return enc
+
+
+def test_views_found_by_stamp_within_tolerance(feature_file: Path) -> None:
+    enc = _encoder(feature_file)
+    assert (enc.dim, enc.name, enc.supports_crops) == (D, "precomputed", False)
+    got = enc.encode_views(
+        [_frame(STAMPS[4] + 400_000), _frame(STAMPS[1] - 999_000), _frame(STAMPS[0])]
+    )
+    ref = _unit(_maps()[[4, 1, 0]].astype(np.float16).astype(np.float32))
+    assert got.dtype == np.float32
     np.testing.assert_allclose(got, ref, atol=1e-6)
+    assert enc.encode_views([]).shape == (0, 0, 0, D)
+
+
+def test_polars_file_float32_large_list(tmp_path: Path) -> None:
+    pl = pytest.importorskip("polars")
+    maps = _maps()
+    path = tmp_path / "other.parquet"
+    pl.DataFrame(
+        {
+            "stamp_ns": pl.Series(STAMPS, dtype=pl.Int64),
+            "fh": pl.Series([FH] * len(STAMPS), dtype=pl.Int32),
+            "fw": pl.Series([FW] * len(STAMPS), dtype=pl.Int32),
+            "feature": pl.Series([m.ravel().tolist() for m in maps], dtype=pl.List(pl.Float32)),
+        }
+    ).write_parquet(path)
+    enc = _encoder(path)
+    np.testing.assert_allclose(enc.encode_views([_frame(STAMPS[2])])[0], _unit(maps[2]), atol=1e-6)
+    assert enc.version.startswith("other.parquet:")
+
+
+def test_provenance_from_schema_metadata(tmp_path: Path) -> None:
+    path = _write(tmp_path / "f.parquet", _maps(), STAMPS, name="lseg", version="demo_e200")
+    assert _encoder(path).version.startswith("lseg:demo_e200@f.parquet:")
+
+
+def test_reads_only_the_row_groups_it_needs(
+    feature_file: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Streaming: stamps up front, then one row group of maps per lookup (spy on the real reader)."""
+    calls: list[tuple[int, tuple[str, ...]]] = []
+    real = pq.ParquetFile.read_row_group
+
+    def spy(
+        self: pq.ParquetFile, i: int, columns: list[str] | None = None, **kw: object
+    ) -> pa.Table:
+        calls.append((i, tuple(columns or ())))
+        return real(self, i, columns=columns, **kw)
+
+    monkeypatch.setattr(pq.ParquetFile, "read_row_group", spy)
+    enc = _encoder(feature_file)
+    assert enc._file.num_row_groups == 3
+    feature_reads = [c for c in calls if "feature" in c[1]]
+    assert [c for c in calls if c[1] == ("stamp_ns",)] == [(g, ("stamp_ns",)) for g in range(3)]
+    assert len(feature_reads) == 1  # one group, to learn d
+    calls.clear()
+    # Rows were written newest first: group 0 holds STAMPS[5], STAMPS[4]; group 2 STAMPS[1], [0].
+    enc.encode_views([_frame(STAMPS[5]), _frame(STAMPS[4])])
+    enc.encode_views([_frame(STAMPS[0])])
+    assert calls == [(0, ("fh", "fw", "feature")), (2, ("fh", "fw", "feature"))]
 
 
 def test_text_side(feature_file: Path) -> None:
-    enc = make_encoder("precomputed", EncoderOptions(precomputed=feature_file))
+    enc = _encoder(feature_file)
     np.testing.assert_allclose(
-        enc.encode_text(["table", "chair"]), [[0, 1, 0, 0, 0], [1, 0, 0, 0, 0]]
+        enc.encode_text(["table", "chair"]), [[0, 0.6, 0, 0, 0.8], [1, 0, 0, 0, 0]]
     )
-    with pytest.raises(EncoderError, match="no embedding for \\['sofa'\\]"):
-        enc.encode_text(["sofa"])
+    with pytest.raises(EncoderError, match=r"lseg\.text\.parquet: no embedding for 'sofa'"):
+        enc.encode_text(["chair", "sofa"])
+    text_path_for(feature_file).unlink()
+    with pytest.raises(
+        EncoderError, match=r"lseg\.text\.parquet: no text embeddings beside lseg\.parquet"
+    ):
+        enc.encode_text(["chair"])
+    pq.write_table(
+        pa.table({"name": ["chair"], "embedding": [[1.0, 0.0]]}), text_path_for(feature_file)
+    )
+    with pytest.raises(EncoderError, match=r"embeddings of length \[2\], features have d=5"):
+        enc.encode_text(["chair"])
 
 
-def test_missing_stamp_and_file_are_clear(feature_file: Path, tmp_path: Path) -> None:
-    enc = make_encoder("precomputed", EncoderOptions(precomputed=feature_file))
-    with pytest.raises(EncoderError, match="no features for the view stamped 1050000000 ns"):
-        enc.encode_views([_frame(1_050_000_000)])
-    with pytest.raises(EncoderError, match="--precomputed"):
+def test_missing_stamp_names_it(feature_file: Path) -> None:
+    enc = _encoder(feature_file)
+    with pytest.raises(
+        EncoderError,
+        match=r"lseg\.parquet: no precomputed features for image stamp 1050000000 ns "
+        r"\(nearest 1000000000 ns is 50\.000 ms away, tolerance 1 ms\)",
+    ):
+        enc.encode_views([_frame(STAMPS[2]), _frame(1_050_000_000)])
+    loose = PrecomputedEncoder(EncoderOptions(precomputed=feature_file), tolerance_ns=60_000_000)
+    assert loose.encode_views([_frame(1_050_000_000)]).shape == (1, FH, FW, D)
+
+
+def test_bad_files(tmp_path: Path) -> None:
+    with pytest.raises(EncoderError, match=r"needs --precomputed FILE\.parquet"):
         make_encoder("precomputed", EncoderOptions())
-    with pytest.raises(EncoderError, match="cannot read precomputed features"):
-        make_encoder("precomputed", EncoderOptions(precomputed=tmp_path / "absent.parquet"))
+    with pytest.raises(EncoderError, match=r"absent\.parquet: no such file"):
+        _encoder(tmp_path / "absent.parquet")
+    junk = tmp_path / "junk.parquet"
+    junk.write_text("not parquet")
+    with pytest.raises(EncoderError, match=r"junk\.parquet: not a readable Parquet file"):
+        _encoder(junk)
+    nocol = tmp_path / "nocol.parquet"
+    pq.write_table(pa.table({"stamp_ns": [1], "feature": [[1.0]]}), nocol)
+    with pytest.raises(
+        EncoderError,
+        match=r"nocol\.parquet: no column fh, fw; .*columns present: stamp_ns, feature",
+    ):
+        _encoder(nocol)
+    dup = _write(tmp_path / "dup.parquet", _maps()[:2], [STAMPS[0], STAMPS[0]])
+    with pytest.raises(EncoderError, match=r"stamp 1000000000 ns appears twice"):
+        _encoder(dup)
+    bad = tmp_path / "bad.parquet"
+    pq.write_table(
+        pa.table({"stamp_ns": [1], "fh": [2], "fw": [2], "feature": [[1.0, 2.0, 3.0]]}), bad
+    )
+    with pytest.raises(EncoderError, match=r"stamp 1: feature of length 3 is not fh \* fw \* d"):
+        _encoder(bad)
+    strings = tmp_path / "strings.parquet"
+    pq.write_table(pa.table({"stamp_ns": [1], "fh": [1], "fw": [1], "feature": [["a"]]}), strings)
+    with pytest.raises(
+        EncoderError, match=r"column feature is list<.*string.*>, expected list<float16\|float32>"
+    ):
+        _encoder(strings)
+
+
+def test_large_row_groups_refused(feature_file: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(pre, "MAX_ROW_GROUP_BYTES", 10)
+    with pytest.raises(EncoderError, match=r"row group 0 holds .* MiB.*row_group_size=64"):
+        _encoder(feature_file)
+
+
+def test_store_round_trip(feature_file: Path, tmp_path: Path) -> None:
+    """Features looked up here and written through the store come back as they went in."""
+    enc = _encoder(feature_file)
+    frames = [_frame(s) for s in STAMPS]
+    maps = enc.encode_views(frames)
+    with StoreWriter(tmp_path / "store", enc.info(["chair", "table"])) as writer:
+        for frame, fmap in zip(frames, maps, strict=True):
+            writer.add(frame, fmap)
+        writer.set_text(["chair", "table"], enc.encode_text(["chair", "table"]))
+        writer.commit({})
+    store = Store(tmp_path / "store")
+    assert store.encoder.name == "precomputed"
+    back = np.stack([m for _, m in store.iter_features()]).astype(np.float32)
+    np.testing.assert_allclose(
+        back, _unit(_maps().astype(np.float16).astype(np.float32)), atol=2e-3
+    )
