@@ -1,0 +1,75 @@
+"""`care sample make`: a dataset directory with an index, resumable, with a Rerun view."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from care.viz import rrd_entity_counts
+from care_cli.main import _register, app
+from world.groundtruth import GroundTruth
+
+
+def _make(out: Path, *extra: str):
+    _register()
+    args = ["sample", "make", "--out", str(out), "--scenes", "2", "--rooms", "1", "--width", "48",
+            "--height", "36", "--frames", "4", *extra]  # fmt: skip
+    return CliRunner().invoke(app, args)
+
+
+def test_make_dataset_index_resume_and_rrd(tmp_path: Path) -> None:
+    out = tmp_path / "ds"
+    rrd = tmp_path / "world.rrd"
+    result = _make(out, "--format", "ros2", "--workers", "2", "--rrd", str(rrd))
+    assert result.exit_code == 0, result.output
+    index = json.loads((out / "index.json").read_text())
+    recs = index["recordings"]
+    assert [r["recording"] for r in recs] == ["scene_000", "scene_001"]
+    assert recs[0]["seed"] != recs[1]["seed"]
+    for r in recs:
+        assert (out / r["recording"] / "metadata.yaml").is_file()  # a rosbag2 directory
+        gt = GroundTruth.load(out / r["recording"])
+        assert gt.instances.num_rows == r["num_instances"]
+        assert not r["skipped"]
+    counts = rrd_entity_counts(rrd)
+    for scene in ("scene_000", "scene_001"):
+        assert counts[(f"/world/{scene}/mesh", "Mesh3D:vertex_positions")] == 1
+        assert counts[(f"/world/{scene}/instances", "Boxes3D:half_sizes")] == 1
+        assert counts[(f"/world/{scene}/trajectory", "LineStrips3D:strips")] == 1
+        assert counts[(f"/world/{scene}/camera", "Transform3D:translation")] == 4
+    # re-running with the same settings skips the finished scenes
+    stamp = (out / "scene_000.gt.parquet").stat().st_mtime_ns
+    again = _make(out, "--format", "ros2", "--workers", "1")
+    assert again.exit_code == 0, again.output
+    assert all(r["skipped"] for r in json.loads((out / "index.json").read_text())["recordings"])
+    assert (out / "scene_000.gt.parquet").stat().st_mtime_ns == stamp
+
+
+def test_bad_options_are_one_line_errors(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    for args, words in (
+        (["--format", "zip"], "choose mcap, ros2 or ros1"),
+        (["--rooms", "9"], "1 to 6 rooms"),
+    ):
+        proc = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "care_cli.main",
+                "sample",
+                "make",
+                "--out",
+                str(tmp_path),
+                *args,
+            ],
+            capture_output=True,
+            text=True,
+            check=False,
+        )
+        assert proc.returncode == 1
+        assert words in proc.stderr
+        assert len(proc.stderr.strip().splitlines()) == 1

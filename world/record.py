@@ -1,0 +1,323 @@
+"""Sample-world recordings and datasets: generate, render, write with the real writers.
+
+A *dataset* is a directory of recordings (``scene_000.mcap``, or ``scene_000/`` rosbag2
+directories, or ``scene_000.bag``), each with its ground truth beside it
+(``scene_000.gt.parquet`` + ``scene_000.gt.json``), and an ``index.json`` listing them.
+Scenes are independent, so they are made in a process pool; a scene whose recording and
+ground truth already exist with the same settings is skipped, so re-running resumes.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Iterable, Iterator
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from tqdm import tqdm
+
+from care.errors import WorldError
+from care.frames import Frame
+from world.groundtruth import GroundTruth, gt_paths
+from world.render import RenderConfig, Renderer
+from world.scene import Scene, SceneConfig, generate_scene
+from world.trajectory import TrajectoryConfig, plan_trajectory
+
+__all__ = [
+    "FORMAT_SUFFIX",
+    "DatasetConfig",
+    "RecordingSummary",
+    "make_dataset",
+    "make_recording",
+    "recording_path",
+    "scene_config_of",
+    "scene_seed",
+]
+
+Format = Literal["mcap", "ros2", "ros1"]
+FORMAT_SUFFIX: dict[str, str] = {"mcap": ".mcap", "ros2": "", "ros1": ".bag"}
+MIN_VISIBLE_PIXELS = 20
+"""An object seen on fewer pixels than this over the whole recording counts as unseen."""
+
+
+@dataclass(frozen=True)
+class DatasetConfig:
+    """One ``care sample make`` job; the CLI builds it from its flags."""
+
+    out: Path
+    """Directory of the dataset (created)."""
+    scenes: int = 1
+    """Number of scenes."""
+    seed: int = 0
+    """Dataset seed; scene i gets :func:`scene_seed` (seed, i)."""
+    fmt: Format = "mcap"
+    """Container format of the recordings."""
+    width: int = 640
+    """Image width."""
+    height: int = 480
+    """Image height."""
+    frames: int | None = None
+    """Frames per recording; default 25 per room."""
+    num_rooms: int | None = None
+    """Rooms per scene (1 to 6); default drawn per scene from 2 to 5."""
+    compressed_rgb: bool = False
+    """JPEG colour (CompressedImage) instead of raw rgb8."""
+    clutter: float = 1.0
+    """Furniture density (see :class:`world.scene.SceneConfig`)."""
+    point_density_objects: float = 1500.0
+    """Ground-truth points per m^2 on objects."""
+    point_density_structure: float = 150.0
+    """Ground-truth points per m^2 on walls, floors and ceilings."""
+    workers: int = 2
+    """Processes making scenes in parallel."""
+    rrd: Path | None = None
+    """Write a Rerun recording of the scenes (meshes, ground-truth boxes, trajectories)."""
+    progress: bool = True
+    """Show a tqdm progress bar."""
+
+
+@dataclass(frozen=True)
+class RecordingSummary:
+    """What :func:`make_recording` made; one entry of ``index.json``."""
+
+    name: str
+    recording: str
+    """Path relative to the dataset directory."""
+    seed: int
+    rooms: list[str]
+    num_frames: int
+    num_instances: int
+    classes: list[str]
+    """Classes present, sorted."""
+    unseen_instances: list[int]
+    """Instances seen on fewer than MIN_VISIBLE_PIXELS pixels in the whole recording."""
+    skipped: bool = False
+    """True when an up-to-date recording was already there."""
+
+
+def scene_seed(seed: int, index: int) -> int:
+    """Seed of scene ``index`` of a dataset made with ``seed`` (independent streams)."""
+    return int(np.random.SeedSequence([seed, index]).generate_state(1)[0])
+
+
+def recording_path(out: Path, index: int, fmt: Format) -> Path:
+    """Where scene ``index`` of a dataset in ``out`` is written."""
+    return Path(out) / f"scene_{index:03d}{FORMAT_SUFFIX[fmt]}"
+
+
+def _settings(config: DatasetConfig, seed: int) -> dict[str, Any]:
+    """What determines a recording's bytes; stored in its ground truth to decide skipping."""
+    return {
+        "seed": seed,
+        "fmt": config.fmt,
+        "width": config.width,
+        "height": config.height,
+        "frames": config.frames,
+        "num_rooms": config.num_rooms,
+        "compressed_rgb": config.compressed_rgb,
+        "clutter": config.clutter,
+        "point_density_objects": config.point_density_objects,
+        "point_density_structure": config.point_density_structure,
+    }
+
+
+class _VisibilityCounter:
+    """Passes frames through while counting each instance's pixels."""
+
+    def __init__(self, frames: Iterable[Frame], bar: tqdm | None) -> None:
+        self.frames = frames
+        self.pixels: dict[int, int] = {}
+        self.count = 0
+        self.bar = bar
+
+    def __iter__(self) -> Iterator[Frame]:
+        for frame in self.frames:
+            counts = np.bincount(frame.extras["instance"].ravel())
+            for i in np.flatnonzero(counts):
+                self.pixels[int(i)] = self.pixels.get(int(i), 0) + int(counts[i])
+            self.count += 1
+            if self.bar is not None:
+                self.bar.update(1)
+            yield frame
+
+
+def make_recording(
+    path: Path,
+    scene_config: SceneConfig,
+    render_config: RenderConfig | None = None,
+    *,
+    frames: int | None = None,
+    fmt: Format = "mcap",
+    compressed_rgb: bool = False,
+    trajectory: TrajectoryConfig | None = None,
+    progress: bool = False,
+    settings: dict[str, Any] | None = None,
+) -> tuple[Scene, GroundTruth, RecordingSummary]:
+    """Generate the scene, render its exploration into a recording at ``path`` and save its
+    ground truth beside it. Returns the scene, the ground truth and a summary."""
+    from ingest.write import write_recording
+
+    path = Path(path)
+    scene = generate_scene(scene_config)
+    poses = plan_trajectory(scene, frames, trajectory)
+    renderer = Renderer(scene, render_config)
+    bar = tqdm(total=len(poses), desc=f"render {path.name}", unit="frame", disable=not progress)
+    counter = _VisibilityCounter(renderer.render_all(poses), bar)
+    try:
+        write_recording(
+            path,
+            counter,
+            fmt=fmt,
+            compressed_rgb=compressed_rgb,
+            label_names=scene.class_names,
+        )
+    finally:
+        bar.close()
+    unseen = [
+        o.instance_id
+        for o in scene.objects
+        if counter.pixels.get(o.instance_id, 0) < MIN_VISIBLE_PIXELS
+    ]
+    gt = scene.ground_truth(
+        {
+            "settings": settings or {"seed": scene_config.seed},
+            "num_frames": counter.count,
+            "unseen_instances": unseen,
+            "visible_pixels": {str(k): v for k, v in sorted(counter.pixels.items()) if k > 0},
+        }
+    )
+    gt.save(path)
+    summary = RecordingSummary(
+        name=path.name.removesuffix(FORMAT_SUFFIX[fmt]) if FORMAT_SUFFIX[fmt] else path.name,
+        recording=path.name,
+        seed=scene_config.seed,
+        rooms=[r.name for r in scene.rooms],
+        num_frames=counter.count,
+        num_instances=len(scene.objects),
+        classes=sorted({o.class_name for o in scene.objects}),
+        unseen_instances=unseen,
+    )
+    return scene, gt, summary
+
+
+def _up_to_date(path: Path, settings: dict[str, Any]) -> RecordingSummary | None:
+    pq_path, json_path = gt_paths(path)
+    if not (path.exists() and pq_path.is_file() and json_path.is_file()):
+        return None
+    try:
+        doc = json.loads(json_path.read_text())
+    except json.JSONDecodeError:
+        return None
+    info = doc.get("info", {})
+    if info.get("settings") != settings:
+        return None
+    return RecordingSummary(
+        name=path.name.removesuffix(path.suffix) if path.suffix else path.name,
+        recording=path.name,
+        seed=settings["seed"],
+        rooms=[r["name"] for r in doc["rooms"]],
+        num_frames=int(info.get("num_frames", 0)),
+        num_instances=len(doc["instances"]),
+        classes=sorted({r["class_name"] for r in doc["instances"]}),
+        unseen_instances=list(info.get("unseen_instances", [])),
+        skipped=True,
+    )
+
+
+def _make_one(config: DatasetConfig, index: int, progress: bool) -> RecordingSummary:
+    """Worker: one scene of a dataset (skipped when up to date)."""
+    seed = scene_seed(config.seed, index)
+    path = recording_path(config.out, index, config.fmt)
+    settings = _settings(config, seed)
+    done = _up_to_date(path, settings)
+    if done is not None:
+        return done
+    scene_config = scene_config_of(config, index)
+    threads = 1 if config.workers > 1 else 0
+    render = RenderConfig(width=config.width, height=config.height, threads=threads)
+    *_, summary = make_recording(
+        path,
+        scene_config,
+        render,
+        frames=config.frames,
+        fmt=config.fmt,
+        compressed_rgb=config.compressed_rgb,
+        progress=progress,
+        settings=settings,
+    )
+    return summary
+
+
+def make_dataset(config: DatasetConfig) -> Path:
+    """Make (or complete) the dataset of ``config``; returns the path of its ``index.json``."""
+    if config.scenes < 1:
+        msg = f"--scenes {config.scenes}: make at least one scene"
+        raise WorldError(msg)
+    if config.width < 16 or config.height < 16:
+        msg = f"--width/--height {config.width}x{config.height}: images must be at least 16x16"
+        raise WorldError(msg)
+    if config.num_rooms is not None and not 1 <= config.num_rooms <= 6:
+        msg = f"--rooms {config.num_rooms}: the sample world makes 1 to 6 rooms"
+        raise WorldError(msg)
+    out = Path(config.out)
+    out.mkdir(parents=True, exist_ok=True)
+    summaries: dict[int, RecordingSummary] = {}
+    workers = max(1, min(config.workers, config.scenes))
+    bar = tqdm(total=config.scenes, desc="sample scenes", unit="scene", disable=not config.progress)
+    try:
+        if workers == 1:
+            for i in range(config.scenes):
+                summaries[i] = _make_one(config, i, config.progress)
+                bar.update(1)
+        else:
+            with ProcessPoolExecutor(max_workers=workers) as pool:
+                futures = {
+                    pool.submit(_make_one, config, i, False): i for i in range(config.scenes)
+                }
+                for fut in as_completed(futures):
+                    summaries[futures[fut]] = fut.result()
+                    bar.update(1)
+    finally:
+        bar.close()
+    index = {
+        "care_sample_dataset": 1,
+        "config": {
+            k: v
+            for k, v in asdict(config).items()
+            if k not in ("out", "rrd", "workers", "progress")
+        },
+        "recordings": [asdict(summaries[i]) for i in range(config.scenes)],
+    }
+    index_path = out / "index.json"
+    tmp = index_path.with_name(f".index.json.tmp-{os.getpid()}")
+    try:
+        tmp.write_text(json.dumps(index, indent=1))
+        tmp.replace(index_path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    if config.rrd is not None:
+        from world.viz import log_dataset
+
+        scenes = [scene_config_of(config, i) for i in range(config.scenes)]
+        log_dataset(
+            config.rrd,
+            scenes,
+            config.frames,
+            RenderConfig(width=config.width, height=config.height),
+        )
+    return index_path
+
+
+def scene_config_of(config: DatasetConfig, index: int) -> SceneConfig:
+    """The scene config of scene ``index`` of a dataset."""
+    return SceneConfig(
+        seed=scene_seed(config.seed, index),
+        num_rooms=config.num_rooms,
+        clutter=config.clutter,
+        point_density_objects=config.point_density_objects,
+        point_density_structure=config.point_density_structure,
+    )
