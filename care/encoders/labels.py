@@ -1,0 +1,433 @@
+"""The ``labels`` encoder: a perception model with known, named failure modes.
+
+Sample-world recordings carry a per-pixel class image and instance image. This encoder
+turns them into dense feature maps in the same form as the ``clip`` encoder, as a
+vision-language model would perceive the view, so that everything downstream (fuse,
+query, replan, evaluate) runs unchanged while the mistakes are under control.
+
+Text side: sentence embeddings of the class names (:mod:`care.encoders.sentence`,
+all-MiniLM-L6-v2 where installed). Similar names have similar embeddings, so every
+confusion below follows meaning: a table is mistaken for a coffee table or a desk, not
+for a toilet.
+
+Image side, per view (a (fh, fw, d) map, one cell per ``stride`` x ``stride`` pixels):
+
+1. Every *segment* (a visible instance, or a structure class where the instance id is 0)
+   gets one feature vector for this view: the embedding of its *perceived* class, mixed
+   with a confusable class by a view-dependent amount, plus a little isotropic noise.
+2. A cell's feature is the mixture of the vectors of the segments whose pixels it holds,
+   each weighted by ``pixels in cell / segment area ** area_exponent`` (a small object
+   owns the cells it appears in, as a VLM's attention would), optionally *bled* with its
+   neighbours' mixtures (a spatial blur), then L2-normalised.
+
+The two mechanisms the paper argues about (``PerceptionModel``):
+
+- **persistent bias**: a fraction of instances, and a fraction of classes scene-wide (all
+  their instances), are perceived as their nearest other class by text embedding, in every
+  view and with little noise: a confident, consistent mistake ("query table, grounding
+  chair"). Multi-view fusion cannot undo it; it is what uncertainty measures must see
+  through by other means.
+- **view-dependent noise**: a level in [0, 1] per segment and view that grows with the
+  segment's mean distance, with how grazing the surfaces are seen (normals from depth),
+  with truncation at the image border and for small segments; the segment's feature is
+  pulled towards a confuser drawn (per view) from the classes similar to it by that level
+  times a per-view uniform draw. Plus bleeding of neighbouring segments near mask
+  boundaries. These mistakes change from view to view, so fusion averages them out and
+  the per-view spread (standard error, pairwise KL) is large.
+
+Everything random is a hash of ``options.seed`` with instance ids, class names and view
+stamps, so a recording encodes to the same features on every run, and a biased instance
+is biased in every view.
+"""
+
+from __future__ import annotations
+
+import zlib
+from collections.abc import Sequence
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
+
+import numpy as np
+from scipy.ndimage import gaussian_filter
+
+from care.encoders.base import Encoder, EncoderOptions, RecordingContext, l2_normalise
+from care.encoders.sentence import DIM, SentenceModel, sentence_model
+from care.errors import EncoderError
+from care.frames import Frame
+
+__all__ = ["PERCEPTION_PRESETS", "STRUCTURE_NAMES", "LabelsEncoder", "PerceptionModel"]
+
+STRUCTURE_NAMES = frozenset({"void", "unlabeled", "wall", "floor", "ceiling"})
+"""Classes that are never biased nor used as confusers (the room's shell and no-label)."""
+
+
+@dataclass(frozen=True)
+class PerceptionModel:
+    """How wrong the simulated VLM is, and why. ``ideal()`` switches everything off."""
+
+    instance_bias_rate: float = 0.10
+    """Chance of each instance to be perceived as its nearest other class in every view."""
+    class_bias_rate: float = 0.10
+    """Fraction of the object classes of a recording (rounded; scene-wide: every instance of
+    them) perceived as their nearest other class in every view."""
+    bias_noise_scale: float = 0.3
+    """Multiplies the view-dependent noise of a biased instance (its mistake is confident)."""
+    base_noise: float = 0.15
+    """Noise level of a large, near, frontal, fully visible segment."""
+    distance_gain: float = 0.12
+    """Noise level added per metre of mean segment depth beyond ``distance_free``."""
+    distance_free: float = 1.5
+    """Mean depth (metres) up to which distance adds no noise."""
+    grazing_gain: float = 0.35
+    """Noise added times ``1 - mean |cos|`` of the angle between view rays and normals."""
+    truncation_gain: float = 0.4
+    """Noise added times the segment's truncation (its pixels on the image border
+    relative to the square root of its area, capped at 1)."""
+    small_gain: float = 0.3
+    """Noise added times ``1 - area / (small_fraction * image area)`` for small segments."""
+    small_fraction: float = 0.004
+    """Segment area (fraction of the image) below which it counts as small."""
+    confusion_gain: float = 1.6
+    """A segment's feature moves towards its view's confuser by ``min(1, confusion_gain *
+    level * u)``, ``u`` uniform per view: past one half the view reads as the confuser, so
+    segments whose level stays high in most views (small, far) are misread after fusion too."""
+    confusion_temperature: float = 0.05
+    """Softmax temperature over text similarities that draws a view's confuser: lower
+    keeps confusions among the nearest classes."""
+    segment_noise: float = 0.15
+    """Scale of isotropic noise added to a segment's vector per view (times its level)."""
+    cell_noise: float = 0.03
+    """Scale of isotropic noise per cell and view (texture of the feature map)."""
+    bleed: float = 0.35
+    """Weight of the blurred neighbourhood in a cell's mixture (features bleed across
+    mask boundaries); 0 = sharp masks."""
+    bleed_sigma: float = 1.0
+    """Gaussian sigma of that blur, in cells."""
+    area_exponent: float = 1.0
+    """A segment's weight in a cell is its pixel count there over its area to this power."""
+    stride: int = 8
+    """Pixels per feature-map cell side."""
+
+    @classmethod
+    def ideal(cls) -> PerceptionModel:
+        """No bias, no noise, no bleeding: every visible instance reads as its true class."""
+        zero = {
+            f.name: 0.0
+            for f in fields(cls)
+            if f.name.endswith(("_rate", "_gain", "_noise")) or f.name == "bleed"
+        }
+        return replace(cls(), **zero)
+
+
+PERCEPTION_PRESETS: dict[str, PerceptionModel] = {
+    "default": PerceptionModel(),
+    "ideal": PerceptionModel.ideal(),
+}
+"""Presets selectable by ``EncoderOptions.perception``."""
+
+
+class LabelsEncoder(Encoder):
+    """Simulated VLM features from a recording's class and instance images.
+
+    Reads ``options.perception`` (a preset of :data:`PERCEPTION_PRESETS`), ``options.seed``
+    (the biases and noise), and ``options.weights``: ``"hashed"`` for the dependency-free
+    text embeddings, a sentence-transformers model directory, or None for the bundled
+    all-MiniLM-L6-v2 (falling back to hashed vectors if it is not installed).
+    """
+
+    name = "labels"
+    dim = DIM
+    supports_crops = False
+
+    def __init__(self, options: EncoderOptions | None = None, model: PerceptionModel | None = None):
+        options = options or EncoderOptions()
+        if model is None:
+            if options.perception not in PERCEPTION_PRESETS:
+                msg = (
+                    f"perception preset {options.perception!r}: choose one of "
+                    f"{', '.join(PERCEPTION_PRESETS)}"
+                )
+                raise EncoderError(msg)
+            model = PERCEPTION_PRESETS[options.perception]
+        self.model = model
+        self.seed = int(options.seed)
+        if options.weights == "hashed":
+            self.text_model: SentenceModel = sentence_model("hashed")
+        elif options.weights:
+            if not Path(options.weights).is_dir():
+                msg = f"labels encoder: --weights {options.weights}: not a model directory (or 'hashed')"
+                raise EncoderError(msg)
+            self.text_model = sentence_model("minilm", str(options.weights))
+        else:
+            self.text_model = sentence_model("auto")
+        self.version = f"1+{self.text_model.backend}"
+        self.label_names: tuple[str, ...] = ()
+
+    # -- text ----------------------------------------------------------------------------
+
+    def encode_text(self, names: Sequence[str]) -> np.ndarray:
+        return self.text_model.embed(list(names))
+
+    # -- recording -----------------------------------------------------------------------
+
+    def prepare(self, context: RecordingContext) -> None:
+        """Embed the recording's class names and fix each class's confusers."""
+        self.set_label_names(context.label_names, source=str(context.source))
+
+    def set_label_names(self, names: Sequence[str], source: str = "recording") -> None:
+        """Class names indexed by the ``class`` image; what :meth:`prepare` does."""
+        names = tuple(names)
+        if not names:
+            msg = (
+                f"{source}: no class names (/care/class_names); the labels encoder needs a "
+                "sample-world recording (`care sample make`); use --encoder clip for others"
+            )
+            raise EncoderError(msg)
+        self.label_names = names
+        self.text = self.text_model.embed(names)
+        n = len(names)
+        self.is_object = np.array([nm.lower() not in STRUCTURE_NAMES for nm in names])
+        sim = self.text @ self.text.T
+        allowed = self.is_object[None, :] & ~np.eye(n, dtype=bool)
+        masked = np.where(allowed, sim, -np.inf)
+        self.nearest = np.where(allowed.any(1), np.argmax(masked, axis=1), np.arange(n))
+        tau = max(self.model.confusion_temperature, 1e-6)
+        logits = np.where(allowed, (sim - sim.max(1, keepdims=True)) / tau, -np.inf)
+        weights = np.exp(logits)
+        weights[~allowed.any(1)] = np.eye(n)[~allowed.any(1)]
+        self.confusion_cdf = np.cumsum(weights / weights.sum(1, keepdims=True), axis=1)
+        # exactly round(rate * object classes) classes, the first by a seeded hash order
+        crc = np.array([zlib.crc32(nm.encode()) for nm in names], np.uint64)
+        order = np.argsort(np.where(self.is_object, _uniform(self.seed, crc, 11), np.inf))
+        n_biased = round(self.model.class_bias_rate * int(self.is_object.sum()))
+        self.class_biased = np.zeros(n, bool)
+        self.class_biased[order[:n_biased]] = True
+
+    # -- persistent bias -----------------------------------------------------------------
+
+    def biased(self, instance_ids: np.ndarray, class_ids: np.ndarray) -> np.ndarray:
+        """(N,) bool: is each (instance, true class) perceived as another class in every view."""
+        self._need_names()
+        inst = np.asarray(instance_ids, np.int64)
+        cls = np.asarray(class_ids, np.int64)
+        own = _uniform(self.seed, inst.astype(np.uint64), 7) < self.model.instance_bias_rate
+        return (inst > 0) & self.is_object[cls] & (own | self.class_biased[cls])
+
+    def perceived_class(self, instance_ids: np.ndarray, class_ids: np.ndarray) -> np.ndarray:
+        """(N,) class id each instance is persistently perceived as (its own if unbiased)."""
+        cls = np.asarray(class_ids, np.int64)
+        return np.where(self.biased(instance_ids, cls), self.nearest[cls], cls)
+
+    # -- images --------------------------------------------------------------------------
+
+    def encode_views(self, frames: Sequence[Frame]) -> np.ndarray:
+        self._need_names()
+        if not frames:
+            return np.zeros((0, 1, 1, DIM), np.float32)
+        shapes = {(f.height, f.width) for f in frames}
+        if len(shapes) > 1:
+            return np.concatenate([self.encode_views([f]) for f in frames])
+        for f in frames:
+            for key in ("instance", "class"):
+                if key not in f.extras:
+                    msg = (
+                        f"view at stamp {f.stamp_ns}: no {key!r} label image; the labels "
+                        "encoder needs sample-world recordings (/camera/instance, /camera/class)"
+                    )
+                    raise EncoderError(msg)
+        return self._encode_batch(frames)
+
+    def _encode_batch(self, frames: Sequence[Frame]) -> np.ndarray:
+        m = self.model
+        B = len(frames)
+        H, W = frames[0].height, frames[0].width
+        fh, fw = max(1, round(H / m.stride)), max(1, round(W / m.stride))
+        n_cell = fh * fw
+        inst = np.stack([f.extras["instance"] for f in frames]).astype(np.int64)
+        cls = np.stack([f.extras["class"] for f in frames]).astype(np.int64)
+        if cls.max() >= len(self.label_names):
+            msg = (
+                f"class id {int(cls.max())} in a class image but only {len(self.label_names)} "
+                "class names on /care/class_names"
+            )
+            raise EncoderError(msg)
+        depth = np.stack([f.depth_m for f in frames]).astype(np.float64)
+        depth = np.where(np.isfinite(depth), depth, 0.0)
+        stamps = np.array([int(f.stamp_ns) for f in frames], np.uint64)
+
+        # Segments: an instance (id > 0) or a structure class (instance 0) of one view,
+        # found by counting keys (O(pixels), no sort); numbered contiguously per view.
+        n_cls = len(self.label_names)
+        span = _INSTANCE_SPAN + n_cls
+        seg_key = np.where(inst > 0, inst, _INSTANCE_SPAN + cls)
+        key = (np.arange(B, dtype=np.int64)[:, None, None] * span + seg_key).ravel()
+        present = np.flatnonzero(np.bincount(key, minlength=B * span))
+        lut = np.zeros(B * span, np.int64)
+        lut[present] = np.arange(len(present))
+        inv = lut[key]
+        S = len(present)
+        seg_view = present // span
+        seg_inst = np.where(present % span < _INSTANCE_SPAN, present % span, 0)
+        seg_cls = np.zeros(S, np.int64)
+        seg_cls[inv] = cls.ravel()
+        first = np.searchsorted(seg_view, np.arange(B))
+        local = inv - first[seg_view[inv]]
+        s_max = int(np.bincount(seg_view, minlength=B).max())
+
+        level = self._noise_level(frames, inv, S, depth, H, W)
+        vectors = self._segment_vectors(seg_view, seg_inst, seg_cls, stamps, level)
+
+        # Cell mixtures: pixel counts per (view, cell, local segment), area-normalised.
+        rows = (np.arange(H) * fh) // H
+        cols = (np.arange(W) * fw) // W
+        cell = (rows[:, None] * fw + cols[None, :]).ravel()
+        flat_cell = (np.repeat(np.arange(B), H * W) * n_cell + np.tile(cell, B)) * s_max + local
+        counts = np.bincount(flat_cell, minlength=B * n_cell * s_max).reshape(B, n_cell, s_max)
+        area = np.bincount(inv, minlength=S).astype(np.float64)
+        seg_area = np.zeros((B, s_max))
+        seg_area[seg_view, np.arange(S) - first[seg_view]] = area
+        weight = counts / np.maximum(seg_area, 1.0)[:, None, :] ** m.area_exponent
+        weight /= np.maximum(weight.sum(-1, keepdims=True), 1e-12)
+        if m.bleed > 0:
+            grid = weight.reshape(B, fh, fw, s_max)
+            blurred = gaussian_filter(
+                grid, sigma=(0, m.bleed_sigma, m.bleed_sigma, 0), mode="nearest"
+            )
+            weight = ((1 - m.bleed) * grid + m.bleed * blurred).reshape(B, n_cell, s_max)
+        seg_vec = np.zeros((B, s_max, DIM))
+        seg_vec[seg_view, np.arange(S) - first[seg_view]] = vectors
+        feats = np.matmul(weight.astype(np.float32), seg_vec.astype(np.float32))
+        if m.cell_noise > 0:
+            noise = np.stack(
+                [
+                    np.random.default_rng([self.seed, int(s), 3]).standard_normal(
+                        (n_cell, DIM), dtype=np.float32
+                    )
+                    for s in stamps
+                ]
+            )
+            feats += m.cell_noise * noise / np.sqrt(DIM)
+        return l2_normalise(feats).reshape(B, fh, fw, DIM).astype(np.float32)
+
+    def _noise_level(
+        self, frames: Sequence[Frame], inv: np.ndarray, S: int, depth: np.ndarray, H: int, W: int
+    ) -> np.ndarray:
+        """(S,) view-dependent noise level of every segment, in [0, 1]."""
+        m = self.model
+        valid = (depth > 0).ravel()
+        n_valid = np.bincount(inv, weights=valid, minlength=S)
+        z_mean = np.bincount(inv, weights=depth.ravel(), minlength=S) / np.maximum(n_valid, 1)
+        # surface angles on every other pixel: a mean over a segment needs no more
+        sub = depth[:, ::2, ::2]
+        cos = _view_cosines(frames, sub, step=2).ravel()
+        inv_sub = inv.reshape(depth.shape)[:, ::2, ::2].ravel()
+        valid_sub = (sub > 0).ravel()
+        n_sub = np.bincount(inv_sub, weights=valid_sub, minlength=S)
+        cos_mean = np.bincount(inv_sub, weights=np.where(valid_sub, cos, 0.0), minlength=S)
+        cos_mean = np.where(n_sub > 0, cos_mean / np.maximum(n_sub, 1), 1.0)
+        border = np.zeros((H, W), bool)
+        border[[0, -1], :] = True
+        border[:, [0, -1]] = True
+        on_border = np.broadcast_to(border, depth.shape).ravel()
+        area = np.bincount(inv, minlength=S).astype(np.float64)
+        trunc = np.minimum(1.0, np.bincount(inv, weights=on_border, minlength=S) / np.sqrt(area))
+        small = (
+            np.clip(1.0 - area / (m.small_fraction * H * W), 0.0, 1.0)
+            if m.small_fraction > 0
+            else 0.0
+        )
+        level = (
+            m.base_noise
+            + m.distance_gain * np.maximum(0.0, z_mean - m.distance_free)
+            + m.grazing_gain * (1.0 - cos_mean)
+            + m.truncation_gain * trunc
+            + m.small_gain * small
+        )
+        return np.clip(level, 0.0, 1.0)
+
+    def _segment_vectors(
+        self,
+        seg_view: np.ndarray,
+        seg_inst: np.ndarray,
+        seg_cls: np.ndarray,
+        stamps: np.ndarray,
+        level: np.ndarray,
+    ) -> np.ndarray:
+        """(S, d) feature of each segment in its view: perceived class, confuser, noise."""
+        m = self.model
+        biased = self.biased(seg_inst, seg_cls)
+        perceived = np.where(biased, self.nearest[seg_cls], seg_cls)
+        stamp = stamps[seg_view]
+        ids = seg_inst.astype(np.uint64) * np.uint64(1 << 17) + seg_cls.astype(np.uint64)
+        u_conf = _uniform(self.seed, stamp, ids, 21)
+        u_mix = _uniform(self.seed, stamp, ids, 22)
+        confuser = np.minimum(
+            (self.confusion_cdf[perceived] < u_conf[:, None]).sum(1), len(self.label_names) - 1
+        )
+        gain = m.confusion_gain * np.where(biased, m.bias_noise_scale, 1.0)
+        mix = np.minimum(1.0, gain * level * u_mix)
+        mix = np.where(self.is_object[seg_cls] & (seg_inst > 0), mix, 0.0)
+        vec = (1 - mix)[:, None] * self.text[perceived] + mix[:, None] * self.text[confuser]
+        if m.segment_noise > 0:
+            gauss = _gaussian(self.seed, stamp, ids, 23, DIM)
+            vec = vec + (m.segment_noise * level)[:, None] * gauss / np.sqrt(DIM)
+        return l2_normalise(vec)
+
+    def _need_names(self) -> None:
+        if not self.label_names:
+            msg = "labels encoder used before prepare(): it needs the recording's class names"
+            raise EncoderError(msg)
+
+
+def _view_cosines(frames: Sequence[Frame], depth: np.ndarray, step: int = 1) -> np.ndarray:
+    """(B, h, w) |cos| between view rays and surface normals from a depth image sampled
+    every ``step`` pixels."""
+    _B, h, w = depth.shape
+    K = np.stack([np.asarray(f.K, np.float64) for f in frames])
+    u = (np.arange(w) * step)[None, None, :]
+    v = (np.arange(h) * step)[None, :, None]
+    x = (u - K[:, 0, 2, None, None]) / K[:, 0, 0, None, None] * depth
+    y = (v - K[:, 1, 2, None, None]) / K[:, 1, 1, None, None] * depth
+    P = np.stack([x, y, depth], axis=-1)
+    du = np.gradient(P, axis=2)
+    dv = np.gradient(P, axis=1)
+    n = np.cross(du, dv)
+    num = np.abs((n * P).sum(-1))
+    den = np.linalg.norm(n, axis=-1) * np.linalg.norm(P, axis=-1)
+    return np.where(den > 0, num / np.maximum(den, 1e-12), 1.0)
+
+
+_INSTANCE_SPAN = 1 << 16
+"""Segment keys below this are instance ids; above, ``span + class id`` of structure."""
+
+_M1 = np.uint64(0xBF58476D1CE4E5B9)
+_M2 = np.uint64(0x94D049BB133111EB)
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+
+
+def _splitmix(x: np.ndarray) -> np.ndarray:
+    with np.errstate(over="ignore"):
+        z = x + _GOLDEN
+        z = (z ^ (z >> np.uint64(30))) * _M1
+        z = (z ^ (z >> np.uint64(27))) * _M2
+        return z ^ (z >> np.uint64(31))
+
+
+def _hash(seed: int, *parts: np.ndarray | int) -> np.ndarray:
+    h = _splitmix(np.asarray(np.uint64(seed & 0xFFFFFFFFFFFFFFFF)))
+    for p in parts:
+        h = _splitmix(h ^ np.asarray(p).astype(np.uint64))
+    return h
+
+
+def _uniform(seed: int, *parts: np.ndarray | int) -> np.ndarray:
+    """Uniform [0, 1) numbers that depend only on ``seed`` and ``parts`` (counter-based)."""
+    return (_hash(seed, *parts) >> np.uint64(11)).astype(np.float64) * 2.0**-53
+
+
+def _gaussian(seed: int, a: np.ndarray, b: np.ndarray, salt: int, dim: int) -> np.ndarray:
+    """(N, dim) standard normal numbers from counters (Box-Muller)."""
+    k = np.arange(dim, dtype=np.uint64)[None, :]
+    u1 = _uniform(seed, a[:, None], b[:, None], salt, k)
+    u2 = _uniform(seed, a[:, None], b[:, None], salt + 1000, k)
+    return np.sqrt(-2.0 * np.log1p(-u1)) * np.cos(2.0 * np.pi * u2)
