@@ -109,6 +109,15 @@ def ingest(
         str | None, typer.Option("--device", help="torch device (default CUDA if available).")
     ] = None,
     batch_size: Annotated[int, typer.Option("--batch-size", help="Views per encoder batch.")] = 8,
+    perception: Annotated[
+        str,
+        typer.Option(
+            "--perception", help="Perception preset of the labels encoder (default or ideal)."
+        ),
+    ] = "default",
+    seed: Annotated[
+        int, typer.Option("--seed", help="Seed of the labels encoder's biases and noise.")
+    ] = 0,
     vocabulary: Annotated[
         str | None,
         typer.Option(
@@ -146,7 +155,12 @@ def ingest(
         ),
         encoder=encoder,
         encoder_options=EncoderOptions(
-            weights=weights, device=device, batch_size=batch_size, precomputed=precomputed
+            weights=weights,
+            device=device,
+            batch_size=batch_size,
+            precomputed=precomputed,
+            perception=perception,
+            seed=seed,
         ),
         vocabulary=vocabulary,
         rrd=rrd,
