@@ -1,0 +1,268 @@
+"""Fusion benchmarks: grid throughput vs a per-pixel loop, linear vs pairwise pwKL, memory.
+
+Run ``python bench/fuse.py`` (``--quick`` for a smaller run). Prints three tables:
+
+1. pixels fused per second with d = 512 features at stride 8, the vectorised grid fusion
+   (``fuse.cells.view_samples`` + ``fuse.accumulate.CandidateSums``) against a naive
+   per-pixel Python loop on the same frames, and their ratio (target >= 100x);
+2. mean pairwise symmetric KL, linear identity (streamed view by view) against the pairwise
+   form, time and peak memory for m = 5, 50 and 500 views per candidate;
+3. peak memory of grid fusion against the number of frames: bounded by occupied cells.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import multiprocessing as mp
+import resource
+import sys
+import time
+import tracemalloc
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from care.frames import Frame
+from fuse.accumulate import CandidateSums
+from fuse.cells import CellIndex, view_samples
+from fuse.measures import pwkl_linear, pwkl_pairwise, pwkl_terms
+
+H, W = 480, 640
+FH, FW = 24, 32
+K = np.array([[525.0, 0, 319.5], [0, 525.0, 239.5], [0, 0, 1]])
+CELL = 0.05
+
+
+def _frame(rng: np.random.Generator, room: float = 5.0) -> Frame:
+    """A camera 1.2-1.6 m up, pitched down 15-35 degrees, inside a box room with a ceiling."""
+    yaw = rng.uniform(0, 2 * np.pi)
+    pitch = rng.uniform(np.radians(15), np.radians(35))
+    forward = np.array([np.cos(yaw) * np.cos(pitch), np.sin(yaw) * np.cos(pitch), -np.sin(pitch)])
+    right = np.array([np.sin(yaw), -np.cos(yaw), 0.0])
+    down = np.cross(forward, right)
+    pose = np.eye(4)
+    pose[:3, :3] = np.stack([right, down, forward], axis=1)
+    pose[:3, 3] = [*rng.uniform(0.5, room - 0.5, 2), rng.uniform(1.2, 1.6)]
+    # depth = distance along each pixel ray (optical z = 1) to the nearest plane of the room
+    u, v = np.meshgrid(np.arange(W), np.arange(H))
+    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u, float)], -1)
+    dirs = rays @ pose[:3, :3].T
+    depth = np.full((H, W), np.inf)
+    for axis, bounds in ((0, (0.0, room)), (1, (0.0, room)), (2, (0.0, 2.6))):
+        d = dirs[..., axis]
+        safe = np.where(np.abs(d) > 1e-9, d, 1e-9)
+        for plane in bounds:
+            t = (plane - pose[axis, 3]) / safe
+            depth = np.where((t > 0) & (t < depth), t, depth)
+    rgb = rng.integers(0, 255, (H, W, 3), dtype=np.uint8)
+    return Frame(0, rgb, depth.astype(np.float32), K, pose)
+
+
+def _features(rng: np.random.Generator, d: int) -> np.ndarray:
+    f = rng.normal(size=(FH, FW, d)).astype(np.float32)
+    return f / np.linalg.norm(f, axis=-1, keepdims=True)
+
+
+def _fuse_vectorised(frames, feats, text, stride: int) -> CandidateSums:
+    index = CellIndex()
+    sums = CandidateSums(text.shape[1], text, 100.0)
+    for frame, feat in zip(frames, feats, strict=True):
+        s = view_samples(
+            frame, feat, cell_size=CELL, stride=stride, z_min=-0.2, z_max=2.0, text=text
+        )
+        sums.add(index.lookup(s.keys), s.weight, s.feature, s.dots)
+    return sums
+
+
+def _fuse_naive(frames, feats, text, stride: int) -> dict:
+    """The same sums, the plain way: a Python loop over pixels, then over (view, cell) samples."""
+    samples: dict = defaultdict(lambda: [0, 0.0, 0.0])
+    for view, (frame, feat) in enumerate(zip(frames, feats, strict=True)):
+        T = frame.cam_to_world
+        for v in range(0, H, stride):
+            for u in range(0, W, stride):
+                z = float(frame.depth_m[v, u])
+                if z <= 0:
+                    continue
+                p = T @ np.array([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z, 1.0])
+                if not -0.2 <= p[2] <= 2.0:
+                    continue
+                key = (math.floor(p[0] / CELL), math.floor(p[1] / CELL), view)
+                s = samples[key]
+                s[0] += 1
+                s[1] += math.exp(-z * z / (2 * 2.5**2))
+                s[2] = s[2] + feat[v * FH // H, u * FW // W]
+    cells: dict = {}
+    for (ix, iy, _), (_count, w, fsum) in samples.items():
+        f = fsum / np.linalg.norm(fsum)
+        logits = 100.0 * (text @ f)
+        P = np.exp(logits - logits.max())
+        P /= P.sum()
+        a = np.log(np.maximum(P, 1e-12))
+        c = cells.setdefault((ix, iy), [0.0, 0.0, 0.0, 0.0, 0, 0.0, 0.0, 0.0])
+        c[0] += w
+        c[1] += w * w
+        c[2] = c[2] + w * f
+        c[3] = c[3] + w * f * f
+        c[4] += 1
+        c[5] = c[5] + P * a
+        c[6] = c[6] + P
+        c[7] = c[7] + a
+    return cells
+
+
+def _fused_pixels(frame: Frame, stride: int) -> int:
+    """Valid depth pixels inside the height band: the pixels both methods actually fuse."""
+    from care.geometry import backproject, transform_points
+
+    points, _ = backproject(frame.depth_m, frame.K, stride)
+    z = transform_points(frame.cam_to_world, points)[:, 2]
+    return int(((z >= -0.2) & (z <= 2.0)).sum())
+
+
+def bench_throughput(
+    num_frames: int, strides: tuple[int, ...], d: int = 512, naive_pixels: int = 60_000
+) -> None:
+    """Both methods on the same frames; the naive loop on as many as fit ``naive_pixels``."""
+    rng = np.random.default_rng(0)
+    frames = [_frame(rng) for _ in range(num_frames)]
+    feats = [_features(rng, d) for _ in range(num_frames)]
+    text = _features(rng, d).reshape(-1, d)[:100]
+    _fuse_vectorised(frames[:1], feats[:1], text, 8)  # warm up torch
+    print(
+        f"\n## Grid fusion throughput (d={d}, {H}x{W} frames, {CELL} m cells, 100 classes, 1 thread)"
+    )
+    print("| stride | method | frames | fused pixels | seconds | pixels/s | ratio |")
+    print("| --- | --- | --- | --- | --- | --- | --- |")
+    for stride in strides:
+        per_frame = [_fused_pixels(f, stride) for f in frames]
+        t0 = time.perf_counter()
+        sums = _fuse_vectorised(frames, feats, text, stride)
+        sums.columns()
+        fast_s = time.perf_counter() - t0
+        fast = sum(per_frame) / fast_s
+        naive_frames = int(np.clip(naive_pixels // max(np.mean(per_frame), 1), 1, num_frames))
+        t0 = time.perf_counter()
+        _fuse_naive(frames[:naive_frames], feats[:naive_frames], text, stride)
+        slow_s = time.perf_counter() - t0
+        slow = sum(per_frame[:naive_frames]) / slow_s
+        print(
+            f"| {stride} | vectorised (view_samples + index_add_) | {num_frames} | {sum(per_frame)} | "
+            f"{fast_s:.2f} | {fast:,.0f} | {fast / slow:.1f}x |"
+        )
+        print(
+            f"| {stride} | naive per-pixel Python loop | {naive_frames} | {sum(per_frame[:naive_frames])} | "
+            f"{slow_s:.2f} | {slow:,.0f} | 1x |"
+        )
+
+
+def _pwkl_inputs(rng, n_cand: int, m: int, n: int, j: int) -> np.ndarray:
+    """Per-view distributions of view j for every candidate, deterministic in (m, j)."""
+    logits = np.random.default_rng([m, j]).normal(size=(n_cand, n)) * 3
+    P = np.exp(logits - logits.max(1, keepdims=True))
+    return P / P.sum(1, keepdims=True)
+
+
+def _linear(n_cand: int, m: int, n: int) -> np.ndarray:
+    S = np.zeros((n_cand, n))
+    Q = np.zeros((n_cand, n))
+    A = np.zeros((n_cand, n))
+    for j in range(m):  # streamed: one view of every candidate at a time
+        s, q, a = pwkl_terms(_pwkl_inputs(None, n_cand, m, n, j))
+        S += s
+        Q += q
+        A += a
+    return pwkl_linear(S, Q, A, np.full(n_cand, m))
+
+
+def _pairwise(n_cand: int, m: int, n: int) -> np.ndarray:
+    views = np.stack([_pwkl_inputs(None, n_cand, m, n, j) for j in range(m)], axis=1)
+    return pwkl_pairwise(list(views))
+
+
+def _measure(fn, *args) -> tuple[float, float, np.ndarray]:
+    t0 = time.perf_counter()
+    out = fn(*args)
+    seconds = time.perf_counter() - t0
+    tracemalloc.start()
+    fn(*args)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    return seconds, peak / 2**20, out
+
+
+def bench_pwkl(n_cand: int, n: int, sizes: tuple[int, ...]) -> None:
+    print(f"\n## pwKL: linear identity vs pairwise ({n_cand} candidates, {n} classes)")
+    print(
+        "| m views | linear s | pairwise s | speed-up | linear peak MiB | pairwise peak MiB | max rel diff |"
+    )
+    print("| --- | --- | --- | --- | --- | --- | --- |")
+    for m in sizes:
+        tl, ml, lin = _measure(_linear, n_cand, m, n)
+        tp, mp_, pair = _measure(_pairwise, n_cand, m, n)
+        rel = np.max(np.abs(lin - pair) / np.maximum(np.abs(pair), 1e-12))
+        print(f"| {m} | {tl:.4f} | {tp:.4f} | {tp / tl:.1f}x | {ml:.1f} | {mp_:.1f} | {rel:.1e} |")
+
+
+def _peak_child(num_frames: int, d: int, stride: int, queue) -> None:
+    import torch
+
+    torch.set_num_threads(1)
+    rng = np.random.default_rng(1)
+    text = _features(rng, d).reshape(-1, d)[:100]
+    index = CellIndex()
+    sums = CandidateSums(d, text, 100.0)
+    for _ in range(num_frames):  # frames made and dropped one at a time, as a store streams them
+        s = view_samples(
+            _frame(rng),
+            _features(rng, d),
+            cell_size=CELL,
+            stride=stride,
+            z_min=-0.2,
+            z_max=2.0,
+            text=text,
+        )
+        sums.add(index.lookup(s.keys), s.weight, s.feature, s.dots)
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    queue.put((index.size, sums.nbytes / 2**20, peak))
+
+
+def bench_memory(counts: tuple[int, ...], d: int = 512, stride: int = 4) -> None:
+    print(
+        f"\n## Grid fusion memory vs frames (d={d}, stride {stride}, 5 x 5 m room, fresh process each)"
+    )
+    print("| frames | occupied cells | accumulator MiB | peak RSS MiB |")
+    print("| --- | --- | --- | --- |")
+    ctx = mp.get_context("spawn")
+    for n in counts:
+        queue = ctx.Queue()
+        proc = ctx.Process(target=_peak_child, args=(n, d, stride, queue))
+        proc.start()
+        cells, state, peak = queue.get()
+        proc.join()
+        print(f"| {n} | {cells} | {state:.0f} | {peak:.0f} |")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="smaller sizes (about a minute)")
+    args = parser.parse_args()
+    import torch
+
+    torch.set_num_threads(1)  # like the naive loop: one core (and fair on a shared machine)
+    if args.quick:
+        bench_throughput(num_frames=10, strides=(8, 2))
+        bench_pwkl(n_cand=50, n=100, sizes=(5, 50, 500))
+        bench_memory((10, 40))
+    else:
+        bench_throughput(num_frames=40, strides=(8, 2, 1), naive_pixels=200_000)
+        bench_pwkl(n_cand=200, n=200, sizes=(5, 50, 500))
+        bench_memory((10, 40, 160))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,93 @@
+"""Columns for a new vocabulary or logit scale, from the per-view tables alone.
+
+The per-view tables (``cell_views.parquet``, ``instance_views.parquet``) keep every per-view
+feature, so the candidate columns can be rebuilt without re-reading the recording: the
+same :class:`fuse.accumulate.CandidateSums` as the streaming pass, fed from the table a
+record batch at a time.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from care.errors import FuseError
+from care.store import Store, read_table, write_table_atomic
+from fuse.accumulate import CandidateSums
+from fuse.measures import candidate_metadata
+from fuse.vocabulary import vocabulary_text
+
+__all__ = ["recompute_grid", "sums_from_views"]
+
+
+def sums_from_views(
+    path: Path,
+    id_column: str,
+    text: np.ndarray,
+    scale: float,
+    *,
+    num_candidates: int,
+    weight_column: str | None = None,
+) -> CandidateSums:
+    """Per-candidate sums from a per-view table (``weight_column=None``: weights 1).
+
+    ``num_candidates`` fixes the row count, so candidates without any view still get a row.
+    """
+    read_table(path, [id_column])  # checks presence and schema version
+    dim = np.asarray(text).shape[1]
+    sums = CandidateSums(dim, text, scale, capacity=max(num_candidates, 1))
+    sums.ensure(num_candidates)
+    columns = [id_column, "feature", *([weight_column] if weight_column else [])]
+    for batch in pq.ParquetFile(path).iter_batches(batch_size=65536, columns=columns):
+        ids = batch.column(id_column).to_numpy()
+        flat = batch.column("feature").values.to_numpy(zero_copy_only=False)
+        if flat.size != ids.size * dim:
+            msg = f"{path}: features of length {flat.size // max(ids.size, 1)}, vocabulary embeddings of {dim}"
+            raise FuseError(msg)
+        weights = batch.column(weight_column).to_numpy() if weight_column else np.ones(ids.size)
+        sums.add(ids, weights, flat.reshape(ids.size, dim))
+    return sums
+
+
+def recompute_grid(
+    store_path: Path, vocabulary: Sequence[str] | None = None, logit_scale: float | None = None
+) -> Path:
+    """Rewrite the candidate columns of ``cells.parquet`` for another vocabulary or scale.
+
+    The grid's own columns (position, colour, obstacle...) are kept; ``None`` keeps the
+    current logit scale, and the store's cached names when ``vocabulary`` is None.
+    """
+    from fuse.grid import CELL_VIEWS_TABLE, CELLS_TABLE
+
+    store = Store(store_path)
+    cells_path = store.table_path(CELLS_TABLE)
+    cells = read_table(cells_path)
+    md = dict(cells.schema.metadata or {})
+    scale = float(md[b"care.logit_scale"]) if logit_scale is None else float(logit_scale)
+    names, text = vocabulary_text(store, vocabulary)
+    sums = sums_from_views(
+        store.table_path(CELL_VIEWS_TABLE),
+        "cell_id",
+        text,
+        scale,
+        num_candidates=cells.num_rows,
+        weight_column="weight",
+    )
+    common = sums.columns()
+    table = pa.table(
+        {
+            name: (common.column(name) if name in common.column_names else cells.column(name))
+            for name in cells.column_names
+        }
+    )
+    md.update(candidate_metadata(names, scale, store.encoder.name))
+    config = json.loads(md.get(b"care.grid.config", b"{}"))
+    config.update(vocabulary=None if vocabulary is None else list(names), logit_scale=scale)
+    md[b"care.grid.config"] = json.dumps(config, sort_keys=True).encode()
+    write_table_atomic(table, cells_path, md)
+    return cells_path

@@ -1,0 +1,57 @@
+"""The vocabulary a map's columns are computed for, and its text embeddings.
+
+By default a map uses the class names the store cached at ingest (``text.parquet``). An
+override picks names from that cache; names the cache lacks are encoded by the store's own
+encoder (default options), so the text side always matches the features' space.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from care.errors import CareError, FuseError
+from care.store import Store
+
+__all__ = ["vocabulary_text"]
+
+
+def vocabulary_text(
+    store: Store, vocabulary: Sequence[str] | None = None
+) -> tuple[tuple[str, ...], np.ndarray]:
+    """``(names, (n, d) float32 L2-normalised embeddings)`` for ``vocabulary`` or the store's."""
+    try:
+        cached_names, cached = store.text_embeddings()
+    except CareError:
+        cached_names, cached = [], np.zeros((0, store.encoder.dim), np.float32)
+    names = tuple(cached_names) if vocabulary is None else tuple(vocabulary)
+    if not names:
+        msg = (
+            f"{store.path}: no vocabulary: the store caches no class names; "
+            "pass --vocabulary NAME[,NAME...]"
+        )
+        raise FuseError(msg)
+    index = {name: i for i, name in enumerate(cached_names)}
+    missing = [name for name in names if name not in index]
+    emb = np.zeros((len(names), store.encoder.dim), np.float32)
+    known = [i for i, name in enumerate(names) if name in index]
+    emb[known] = cached[[index[names[i]] for i in known]]
+    if missing:
+        emb[[names.index(m) for m in missing]] = _encode(store, missing)
+    norm = np.linalg.norm(emb, axis=1, keepdims=True)
+    return names, emb / np.where(norm > 0, norm, 1.0)
+
+
+def _encode(store: Store, names: list[str]) -> np.ndarray:
+    from care.encoders import make_encoder
+
+    encoder_name = store.encoder.name
+    try:
+        return np.asarray(make_encoder(encoder_name).encode_text(names), np.float32)
+    except (CareError, ImportError) as err:
+        msg = (
+            f"{store.path}: cannot embed {names} with the store's encoder {encoder_name!r} "
+            f"({err}); use names the store caches or re-ingest with that vocabulary."
+        )
+        raise FuseError(msg) from err

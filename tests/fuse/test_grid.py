@@ -1,0 +1,370 @@
+"""The grid map against a per-pixel reference written out plainly, on tiny hand-built stores."""
+
+from __future__ import annotations
+
+import json
+import math
+from collections import defaultdict
+from pathlib import Path
+
+import duckdb
+import numpy as np
+import polars as pl
+import pyarrow.parquet as pq
+import pytest
+from PIL import Image
+from scipy.special import rel_entr, softmax
+from scipy.stats import entropy as scipy_entropy
+from statsmodels.stats.weightstats import DescrStatsW
+
+from care.errors import FuseError
+from care.frames import Frame
+from care.store import EncoderInfo, StoreWriter, read_table
+from fuse import grid as grid_module
+from fuse.grid import GridConfig, GridLayout, build_grid, grid_image
+from fuse.recompute import recompute_grid
+
+H, W, D = 12, 16, 8
+K = np.array([[20.0, 0, 7.3], [0, 20.0, 5.7], [0, 0, 1]])
+NAMES = ("chair", "table", "sofa", "bed", "lamp")
+
+
+def _looking_down(x: float, y: float, height: float) -> np.ndarray:
+    """Optical frame looking straight down: x right = world x, y down = world -y."""
+    pose = np.eye(4)
+    pose[:3, :3] = np.diag([1.0, -1.0, -1.0])
+    pose[:3, 3] = [x, y, height]
+    return pose
+
+
+def _unit(x: np.ndarray) -> np.ndarray:
+    return x / np.linalg.norm(x, axis=-1, keepdims=True)
+
+
+def _frames(n: int, seed: int = 0) -> list[tuple[Frame, np.ndarray]]:
+    """A floor at z = 0 with a box top at 0.5 m, seen from above by n shifted cameras."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in range(n):
+        height = 1.5 + 0.1 * i
+        depth = np.full((H, W), height, np.float32)
+        depth[2:6, 3:9] = height - 0.5
+        depth[0, :3] = 0.0  # invalid pixels
+        depth[11, 15] = height - 2.4  # above z_max: filtered out
+        pose = _looking_down(0.0123 + 0.07 * i, 0.0311 - 0.05 * i, height)
+        rgb = rng.integers(0, 255, (H, W, 3), dtype=np.uint8)
+        feats = _unit(rng.normal(size=(3, 4, D))).astype(np.float32)
+        out.append((Frame(10**9 + i * 10**8, rgb, depth, K, pose), feats))
+    return out
+
+
+def _text() -> np.ndarray:
+    return _unit(np.random.default_rng(99).normal(size=(len(NAMES), D))).astype(np.float32)
+
+
+def _store(path: Path, n: int = 4, seed: int = 0) -> Path:
+    with StoreWriter(path, EncoderInfo("test", "1", D, NAMES)) as writer:
+        for frame, feats in _frames(n, seed):
+            writer.add(frame, feats)
+        writer.set_text(NAMES, _text())
+        writer.commit({"source": "synthetic"})
+    return path
+
+
+def _reference(frames: list[tuple[Frame, np.ndarray]], cfg: GridConfig, text: np.ndarray) -> dict:
+    """Per cell: fused feature, stderr, pwKL, entropy, views, from a plain loop over pixels.
+
+    Depths go through the store's millimetre PNG and features through float16, so the
+    frames are rounded the same way here.
+    """
+    samples: dict[tuple, dict] = defaultdict(lambda: {"f": [], "w": 0.0})
+    for view, (frame, feats) in enumerate(frames):
+        depth = np.round(frame.depth_m * 1000) / 1000
+        height, width = depth.shape
+        fh, fw = feats.shape[:2]
+        k = frame.K
+        for v in range(0, height, cfg.stride):
+            for u in range(0, width, cfg.stride):
+                z = float(depth[v, u])
+                if z <= 0:
+                    continue
+                cam = np.array([(u - k[0, 2]) * z / k[0, 0], (v - k[1, 2]) * z / k[1, 1], z, 1.0])
+                world = frame.cam_to_world @ cam
+                if not cfg.z_min <= world[2] <= cfg.z_max:
+                    continue
+                cell = (math.floor(world[0] / cfg.cell_size), math.floor(world[1] / cfg.cell_size))
+                s = samples[(cell, view)]
+                s["f"].append(
+                    feats[v * fh // height, u * fw // width].astype(np.float16).astype(np.float64)
+                )
+                s["w"] += (
+                    math.exp(-(z**2) / (2 * cfg.sigma_z**2)) if cfg.distance_weighting else 1.0
+                )
+    per_cell: dict[tuple, list] = defaultdict(list)
+    for (cell, _view), s in samples.items():
+        f = _unit(np.mean(s["f"], axis=0))
+        per_cell[cell].append((f, np.float32(s["w"])))
+    out = {}
+    for cell, items in per_cell.items():
+        f = np.array([i[0] for i in items])
+        w = np.array([i[1] for i in items], dtype=np.float64)
+        m = len(items)
+        fused = _unit((w[:, None] * f).sum(0) / w.sum()).astype(np.float16).astype(np.float64)
+        P_views = softmax(cfg.logit_scale * f @ text.T, axis=1)
+        P = softmax(cfg.logit_scale * fused @ text.T)
+        if m >= 2:
+            std = DescrStatsW(f, weights=w, ddof=0).std.mean()
+            se = std / math.sqrt(w.sum() ** 2 / (w * w).sum())
+            Pc = np.clip(P_views, 1e-12, None)
+            kl = [
+                0.5 * (rel_entr(Pc[a], Pc[b]).sum() + rel_entr(Pc[b], Pc[a]).sum())
+                for a in range(m)
+                for b in range(a + 1, m)
+            ]
+            pwkl = 2 * sum(kl) / (m * (m - 1))
+        else:
+            se = pwkl = math.inf
+        out[cell] = {
+            "views": m,
+            "feature": fused,
+            "stderr": se,
+            "pwkl": pwkl,
+            "entropy": scipy_entropy(P),
+            "weight": w.sum(),
+        }
+    return out
+
+
+def _by_cell(table) -> dict:
+    md = GridLayout.from_table(table)
+    cs = md.cell_size
+    ix = table.column("ix").to_numpy() + round(md.origin[0] / cs)
+    iy = table.column("iy").to_numpy() + round(md.origin[1] / cs)
+    return {(int(a), int(b)): i for i, (a, b) in enumerate(zip(ix, iy, strict=True))}
+
+
+@pytest.mark.parametrize(
+    "cfg",
+    [
+        GridConfig(cell_size=0.1, logit_scale=20.0),
+        GridConfig(
+            cell_size=0.07, stride=2, distance_weighting=False, z_min=0.2, logit_scale=100.0
+        ),
+    ],
+)
+def test_streaming_equals_per_pixel_reference(tmp_path: Path, cfg: GridConfig) -> None:
+    path = build_grid(_store(tmp_path / "s"), cfg)
+    table = read_table(path)
+    ref = _reference(_frames(4), cfg, _text().astype(np.float64))
+    rows = _by_cell(table)
+    assert set(rows) == set(ref)
+    assert table.column("candidate_id").to_pylist() == list(range(table.num_rows))
+    feat = np.array(table.column("feature").to_pylist(), dtype=np.float64)
+    for cell, r in ref.items():
+        i = rows[cell]
+        assert table.column("num_views")[i].as_py() == r["views"]
+        np.testing.assert_allclose(feat[i], r["feature"], atol=1e-3)
+        assert table.column("weight")[i].as_py() == pytest.approx(r["weight"], rel=1e-5)
+        assert table.column("entropy")[i].as_py() == pytest.approx(r["entropy"], rel=1e-3, abs=1e-5)
+        for name in ("stderr", "pwkl"):
+            got = table.column(name)[i].as_py()
+            if math.isinf(r[name]):
+                assert got == math.inf  # the +inf rule for one-view cells
+            else:
+                assert got == pytest.approx(r[name], rel=1e-4, abs=1e-6)
+    assert (table.column("num_views").to_numpy() == 1).any()
+    assert (table.column("num_views").to_numpy() >= 3).any()
+
+
+def test_grid_layers_and_readers(tmp_path: Path) -> None:
+    store = _store(tmp_path / "s")
+    path = build_grid(store, GridConfig(cell_size=0.1))
+    df = pl.read_parquet(path)
+    assert {"x", "y", "z_max", "obstacle", "r", "g", "b"} <= set(df.columns)
+    # the box top (0.5 m) is an obstacle, the floor is not
+    assert df.filter(pl.col("z_max") > 0.4)["obstacle"].all()
+    assert not df.filter(pl.col("z_max") < 0.05)["obstacle"].any()
+    assert df["z_max"].max() == pytest.approx(0.5, abs=2e-3)
+    ((n, views),) = duckdb.sql(f"select count(*), sum(num_views) from '{path}'").fetchall()
+    ((samples,),) = duckdb.sql(f"select count(*) from '{store / 'cell_views.parquet'}'").fetchall()
+    assert n == df.height
+    assert views == samples
+    layout = GridLayout.from_table(read_table(path))
+    rgb = np.asarray(Image.open(store / "grid_rgb.png"))
+    assert rgb.shape == (layout.shape[1], layout.shape[0], 3)
+    # the image pixel of a cell is its top colour; north is up
+    row = df.row(0, named=True)
+    assert tuple(rgb[layout.shape[1] - 1 - row["iy"], row["ix"]]) == (row["r"], row["g"], row["b"])
+    np.testing.assert_array_equal(
+        grid_image(np.array([0]), np.array([0]), np.array([7.0]), (2, 3))[2], [7.0, np.nan]
+    )
+
+
+def test_rerun_is_skipped_and_overwrite_rebuilds(tmp_path: Path) -> None:
+    store = _store(tmp_path / "s")
+    path = build_grid(store, GridConfig(cell_size=0.1))
+    stamp = path.stat().st_mtime_ns
+    build_grid(store, GridConfig(cell_size=0.1))
+    assert path.stat().st_mtime_ns == stamp
+    build_grid(store, GridConfig(cell_size=0.1, overwrite=True))
+    assert path.stat().st_mtime_ns != stamp
+    build_grid(store, GridConfig(cell_size=0.2))  # another config rebuilds
+    assert GridLayout.from_table(read_table(path)).cell_size == 0.2
+
+
+def test_interrupted_build_keeps_previous_grid(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    store = _store(tmp_path / "s")
+    path = build_grid(store, GridConfig(cell_size=0.1))
+    before = path.read_bytes(), (store / "cell_views.parquet").read_bytes()
+    real = grid_module.view_samples
+    calls = []
+
+    def failing(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:
+            raise FuseError("disk on fire")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(grid_module, "view_samples", failing)
+    with pytest.raises(FuseError, match="disk on fire"):
+        build_grid(store, GridConfig(cell_size=0.2))
+    assert (path.read_bytes(), (store / "cell_views.parquet").read_bytes()) == before
+    assert not [p for p in store.iterdir() if p.name.startswith(".")]
+
+
+def test_recompute_equals_fresh_build(tmp_path: Path) -> None:
+    store = _store(tmp_path / "s")
+    build_grid(store, GridConfig(cell_size=0.1))
+    vocab = ("lamp", "chair", "bed")
+    recomputed = read_table(recompute_grid(store, vocab, logit_scale=30.0))
+    fresh_store = _store(tmp_path / "t")
+    fresh = read_table(
+        build_grid(fresh_store, GridConfig(cell_size=0.1, vocabulary=vocab, logit_scale=30.0))
+    )
+    assert recomputed.column_names == fresh.column_names
+    for name in ("top_classes", "num_views", "ix", "iy", "obstacle"):
+        assert recomputed.column(name).to_pylist() == fresh.column(name).to_pylist()
+    # cell_views keeps per-view features as float16: equal up to that rounding
+    for name, atol in (("log_norm", 1e-2), ("entropy", 1e-3), ("stderr", 1e-5), ("pwkl", 1e-3)):
+        got, want = recomputed.column(name).to_numpy(), fresh.column(name).to_numpy()
+        np.testing.assert_allclose(got, want, rtol=1e-2, atol=atol, err_msg=name)
+    md = pq.read_schema(store / "cells.parquet").metadata
+    assert md[b"care.vocabulary"] == b'["lamp", "chair", "bed"]'
+    assert float(md[b"care.logit_scale"]) == 30.0
+
+
+def test_bad_inputs_raise_one_clear_error(tmp_path: Path) -> None:
+    store = _store(tmp_path / "s")
+    with pytest.raises(FuseError, match="no depth pixel"):
+        build_grid(store, GridConfig(z_min=5.0, z_max=6.0))
+    with pytest.raises(FuseError, match="invalid grid config"):
+        GridConfig(cell_size=0.0)
+    with pytest.raises(FuseError, match="cannot embed"):
+        build_grid(store, GridConfig(vocabulary=("unicorn",)))
+
+
+def test_rerun_layers_and_blueprint(tmp_path: Path) -> None:
+    from rerun.chunk import RrdReader
+
+    from care.store import Store
+    from care.viz import rrd_entity_counts
+    from fuse.viz_grid import GRID_CELLS_3D, MEASURE_LAYERS, map_blueprint, measure_layers
+
+    store = _store(tmp_path / "s")
+    rrd = tmp_path / "grid.rrd"
+    cells = read_table(build_grid(store, GridConfig(cell_size=0.1), rrd=rrd))
+    counts = rrd_entity_counts(rrd)
+    for name in ("rgb", *MEASURE_LAYERS):
+        assert counts[(f"/grid/{name}", "Image:buffer")] == 1
+    assert counts[(f"/{GRID_CELLS_3D}", "Points3D:positions")] == 1
+    assert RrdReader(rrd).blueprints()
+    # the confidence layers of all classes sum to one on occupied cells, NaN elsewhere
+    total = sum(measure_layers(Store(store), cells, name)["confidence"] for name in NAMES)
+    occupied = np.isfinite(total)
+    assert occupied.sum() == cells.num_rows
+    np.testing.assert_allclose(total[occupied], 1.0, rtol=1e-4)
+    assert map_blueprint(views_3d=[]) is not None
+
+
+def test_cli_grid_and_recompute(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from care_cli.main import _register, app
+
+    _register()
+    store = _store(tmp_path / "s")
+    runner = CliRunner()
+    result = runner.invoke(app, ["fuse", "grid", str(store), "--cell-size", "0.1", "--stride", "2"])
+    assert result.exit_code == 0, result.output
+    assert "candidates" in result.output
+    result = runner.invoke(
+        app, ["fuse", "grid", str(store), "--recompute", "--vocabulary", "bed,sofa"]
+    )
+    assert result.exit_code == 0, result.output
+    md = pq.read_schema(store / "cells.parquet").metadata
+    assert md[b"care.vocabulary"] == b'["bed", "sofa"]'
+    assert json.loads(md[b"care.grid.config"])["stride"] == 2
+    assert runner.invoke(app, ["fuse", "grid", "--help"]).exit_code == 0
+    assert runner.invoke(app, ["fuse", "instances", "--help"]).exit_code == 0
+    bad = runner.invoke(app, ["fuse", "instances", str(store), "--set", "no_such_field=1"])
+    assert isinstance(bad.exception, FuseError)
+    assert "no_such_field" in str(bad.exception)
+
+
+@pytest.mark.slow
+def test_sample_world_recording(tmp_path: Path) -> None:
+    """A real sample-world recording, ingested with the labels encoder: the streaming grid
+    equals the per-pixel reference, and cells carry the class of the object they show."""
+    from care.encoders import EncoderOptions, make_encoder
+    from care.store import Store
+    from ingest.pipeline import IngestConfig, run_ingest
+    from world.groundtruth import GroundTruth
+    from world.record import make_recording
+    from world.render import RenderConfig
+    from world.scene import SceneConfig
+
+    recording = tmp_path / "tiny.mcap"
+    make_recording(
+        recording, SceneConfig(seed=3, num_rooms=1), RenderConfig(width=96, height=72), frames=12
+    )
+    encoder = make_encoder("labels", EncoderOptions(perception="ideal"))
+    store_path = run_ingest(IngestConfig(recording, tmp_path / "store", progress=False), encoder)
+    cfg = GridConfig(stride=3, logit_scale=100.0)
+    table = read_table(build_grid(store_path, cfg))
+    store = Store(store_path)
+    frames = [
+        (frame, feats)
+        for (_, frame), (_, feats) in zip(
+            store.iter_frames(extras=False), store.iter_features(), strict=True
+        )
+    ]
+    ref = _reference(frames, cfg, store.text_embeddings()[1].astype(np.float64))
+    rows = _by_cell(table)
+    assert set(rows) == set(ref)
+    feat = np.array(table.column("feature").to_pylist(), dtype=np.float64)
+    for cell, r in ref.items():
+        i = rows[cell]
+        assert table.column("num_views")[i].as_py() == r["views"]
+        np.testing.assert_allclose(feat[i], r["feature"], atol=2e-3)
+        for name in ("stderr", "pwkl"):
+            want, got = r[name], table.column(name)[i].as_py()
+            assert (
+                got == pytest.approx(want, rel=1e-3, abs=1e-5)
+                if math.isfinite(want)
+                else got == math.inf
+            )
+    # the top class of a cell is the class of the ground-truth object at its highest point
+    gt = GroundTruth.load(recording)
+    xyz = np.stack([table.column(c).to_numpy() for c in ("x", "y", "z_max")], axis=1)
+    inst = gt.label_points(xyz, max_dist=0.06)
+    on_object = inst > 0
+    assert on_object.sum() > 20
+    class_of = dict(
+        zip(gt.instance_ids.tolist(), gt.instances.column("class_name").to_pylist(), strict=True)
+    )
+    vocabulary = json.loads(table.schema.metadata[b"care.vocabulary"])
+    top = [vocabulary[c[0]] for c in table.column("top_classes").to_pylist()]
+    agree = np.mean([top[i] == class_of[inst[i]] for i in np.flatnonzero(on_object)])
+    assert agree > 0.7
