@@ -1,1 +1,19 @@
-"""query stage."""
+"""Query stage: a map's candidates as arrays, confidence of target classes, free text to classes."""
+
+from __future__ import annotations
+
+from query.confidence import confidence, rank_by_confidence
+from query.map import MEASURES, CandidateMap, MapKind, load_map, map_from_table
+from query.text import TextMatch, resolve_text
+
+__all__ = [
+    "MEASURES",
+    "CandidateMap",
+    "MapKind",
+    "TextMatch",
+    "confidence",
+    "load_map",
+    "map_from_table",
+    "rank_by_confidence",
+    "resolve_text",
+]

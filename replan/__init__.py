@@ -1,1 +1,22 @@
-"""replan stage."""
+"""Replan stage: choose the next candidate after a failed attempt (``method.md``'s strategies)."""
+
+from __future__ import annotations
+
+from replan.attempts import DEFAULT_EXCLUDE_RADIUS, Attempts, Choice, next_goal, run_attempts
+from replan.expected import expected_random_success
+from replan.strategies import CRITERIA, STRATEGIES, Pick, Situation, Strategy, candidate_set
+
+__all__ = [
+    "CRITERIA",
+    "DEFAULT_EXCLUDE_RADIUS",
+    "STRATEGIES",
+    "Attempts",
+    "Choice",
+    "Pick",
+    "Situation",
+    "Strategy",
+    "candidate_set",
+    "expected_random_success",
+    "next_goal",
+    "run_attempts",
+]

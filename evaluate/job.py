@@ -1,0 +1,492 @@
+"""The evaluation job: every (scene, query) x strategy x criterion x k, attempt by attempt.
+
+A scene is a fused store (``instances.parquet``, ``cells.parquet``, ``scene_points.parquet``)
+plus the ground truth beside its recording. Scenes are independent, so they run in a local
+process pool or as Ray tasks; each scene's attempts come back as one Arrow table that the
+driver caches as ``scenes/<name>.parquet`` (keyed by the config's fingerprint), so a re-run
+skips finished scenes. Every random draw is seeded from (config seed, scene, unit, strategy,
+criterion, k, seed index) alone, so results are bit-identical whichever way they ran.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import zlib
+from collections.abc import Iterator, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+from tqdm import tqdm
+
+from care.errors import CareError, EvalError
+from care.store import read_table, write_table_atomic
+from evaluate.report import Report, write_report
+from evaluate.success import PROTOCOLS, QuerySet, grid_queries, instance_queries, scene_point_labels
+from query.confidence import confidence
+from query.map import MAP_TABLES, MEASURES, load_map
+from replan.attempts import Attempts, run_attempts
+from replan.expected import expected_random_success
+from replan.strategies import STRATEGIES, get_strategy
+from world.groundtruth import GroundTruth
+
+__all__ = [
+    "ATTEMPT_SCHEMA",
+    "EvalConfig",
+    "Scene",
+    "describe",
+    "evaluate_scene",
+    "run_eval",
+    "run_scenes",
+    "scenes_of",
+]
+
+NO_CRITERION = "-"
+"""Criterion of the strategies that do not use a candidate set (k is 0 for them)."""
+
+ATTEMPT_SCHEMA = pa.schema(
+    [
+        ("scene", pa.string()),
+        ("map", pa.string()),
+        ("protocol", pa.string()),
+        ("unit", pa.string()),
+        ("query", pa.string()),
+        ("target", pa.string()),
+        ("strategy", pa.string()),
+        ("criterion", pa.string()),
+        ("k", pa.int16()),
+        ("seed", pa.int16()),
+        ("attempt", pa.int8()),
+        ("candidate", pa.int32()),
+        ("success", pa.bool_()),
+        ("fell_back", pa.bool_()),
+        ("set_size", pa.int32()),
+        ("value", pa.float32()),
+        ("confidence", pa.float32()),
+        ("entropy", pa.float32()),
+        ("stderr", pa.float32()),
+        ("pwkl", pa.float32()),
+        ("num_views", pa.int32()),
+        ("expected", pa.float32()),
+    ]
+)
+"""One row per attempt made. ``candidate`` is the id in the scene's map table (-1: nothing
+left to choose); ``seed`` is -1 for deterministic strategies; ``expected`` is the closed-form
+success probability of the episode for the random strategies (NaN otherwise)."""
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """What an evaluation runs (shared by ``care eval``, ``care run`` and the Python API)."""
+
+    maps: tuple[str, ...] = ("instances", "grid")
+    """Map kinds to evaluate: ``instances`` (OpenMask3D-like) and/or ``grid`` (VLMaps-like)."""
+    strategies: tuple[str, ...] = tuple(STRATEGIES)
+    """Replan strategies (names of ``replan.STRATEGIES``)."""
+    criteria: tuple[str, ...] = ("confidence", "category")
+    """Selection criteria of the set-based strategies."""
+    k_instances: tuple[int, ...] = (2, 4, 8, 16, 40)
+    """k of the candidate sets on the instance map (the paper's Table 1)."""
+    k_grid: tuple[int, ...] = (4, 8, 16, 40, 100)
+    """k of the candidate sets on the grid map (the paper's Table 2)."""
+    attempts: int = 2
+    """Attempts per query: the first by max confidence, then the strategy after each failure."""
+    protocols: tuple[str, ...] = PROTOCOLS
+    """Instance-map query protocols: ``instance`` (the paper's) and/or ``class``."""
+    iou_threshold: float = 0.25
+    """An instance attempt succeeds when its mask's point IoU with the GT mask exceeds this."""
+    success_radius: float = 1.0
+    """A grid attempt succeeds within this floor-plane distance (m) of an object of the class."""
+    exclude_radius: float = 1.0
+    """After a failed grid attempt, cells within this distance (m) of it are skipped."""
+    rooms: bool = True
+    """Evaluate room by room (each room its own candidate set) where the GT has rooms."""
+    seeds: int = 10
+    """Seeds the random strategies are averaged over."""
+    seed: int = 0
+    """Base seed of every random draw."""
+    label_distance: float = 0.05
+    """Scene points farther than this (m) from every GT point get no GT label."""
+    bootstrap: int = 1000
+    """Bootstrap resamples of the queries for the 95% confidence intervals."""
+
+    def __post_init__(self) -> None:
+        for name in self.strategies:
+            get_strategy(name)
+        bad = [m for m in self.maps if m not in MAP_TABLES]
+        bad += [p for p in self.protocols if p not in PROTOCOLS]
+        bad += [c for c in self.criteria if c not in ("confidence", "category")]
+        if bad or self.attempts < 1 or self.seeds < 1:
+            msg = (
+                f"invalid evaluation config: unknown {bad}, attempts={self.attempts}, "
+                f"seeds={self.seeds}; maps: {list(MAP_TABLES)}, protocols: {list(PROTOCOLS)}, "
+                "criteria: confidence, category; attempts and seeds >= 1"
+            )
+            raise EvalError(msg)
+
+    def ks(self, kind: str) -> tuple[int, ...]:
+        return self.k_grid if kind == "grid" else self.k_instances
+
+    def fingerprint(self) -> str:
+        """Hash of everything that shapes a scene's attempts (not ``bootstrap``)."""
+        fields = asdict(self)
+        fields.pop("bootstrap")
+        return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:16]
+
+
+@dataclass(frozen=True)
+class Scene:
+    """One recording's fused store and the ground truth beside the recording."""
+
+    name: str
+    store: Path
+    recording: Path
+    """Recording path; its ``<stem>.gt.json`` / ``.gt.parquet`` hold the ground truth."""
+    extra: dict[str, str] = field(default_factory=dict, compare=False)
+
+
+def _store_recording(store: Path) -> Path:
+    meta_path = store / "meta.json"
+    if not meta_path.is_file():
+        msg = f"{store}: not a feature store (no meta.json); run `care ingest` and `care fuse`"
+        raise EvalError(msg)
+    source = json.loads(meta_path.read_text()).get("source") or {}
+    path = source.get("path") if isinstance(source, dict) else source
+    if not path:
+        msg = f"{meta_path}: no source recording recorded; the ground truth cannot be found"
+        raise EvalError(msg)
+    return Path(path)
+
+
+def _find_stores(root: Path) -> dict[Path, Path]:
+    """Recording path (resolved) -> store, for every store at most two levels below root."""
+    out: dict[Path, Path] = {}
+    for meta in [*root.glob("*/meta.json"), *root.glob("*/*/meta.json")]:
+        try:
+            out[_store_recording(meta.parent).resolve()] = meta.parent
+        except CareError:
+            continue
+    return out
+
+
+def scenes_of(dataset: Path | Sequence[Path]) -> list[Scene]:
+    """The scenes of a dataset directory (``index.json`` of recordings, their stores found
+    below the directory or named by an entry's ``store``), a single store, or a list of
+    stores (each knowing its recording from ``meta.json``)."""
+    if not isinstance(dataset, Path | str):
+        return [s for path in dataset for s in scenes_of(Path(path))]
+    dataset = Path(dataset)
+    if (dataset / "meta.json").is_file():
+        return [Scene(dataset.name, dataset, _store_recording(dataset))]
+    index = dataset / "index.json"
+    if not index.is_file():
+        msg = f"{dataset}: neither a store (meta.json) nor a dataset (index.json)"
+        raise EvalError(msg)
+    doc = json.loads(index.read_text())
+    entries = doc if isinstance(doc, list) else doc.get("recordings") or doc.get("scenes") or []
+    stores = _find_stores(dataset)
+    scenes = []
+    for entry in entries:
+        item = {"recording": entry} if isinstance(entry, str) else dict(entry)
+        rel = item.get("recording") or item.get("path")
+        if rel is None:
+            msg = f"{index}: entry {entry!r} names no recording ('recording' or 'path')"
+            raise EvalError(msg)
+        recording = (dataset / rel).resolve()
+        store = Path(dataset / item["store"]) if item.get("store") else stores.get(recording)
+        if store is None or not (store / "meta.json").is_file():
+            msg = (
+                f"{index}: no fused store for {rel}; run `care ingest {rel}` and `care fuse` "
+                "(or `care run`) first"
+            )
+            raise EvalError(msg)
+        name = str(item.get("name") or Path(rel).stem)
+        scenes.append(Scene(name, store, recording))
+    if not scenes:
+        msg = f"{index}: lists no recordings"
+        raise EvalError(msg)
+    return scenes
+
+
+def _seed_of(config: EvalConfig, *parts: object) -> np.random.Generator:
+    key = zlib.crc32("\x1f".join(map(str, parts)).encode())
+    return np.random.default_rng(np.random.SeedSequence([config.seed, key]))
+
+
+def _combos(config: EvalConfig, kind: str) -> list[tuple[str, str, int, int]]:
+    """(strategy, criterion, k, seed) of every episode to play; the oracle first."""
+    out = []
+    names = sorted(config.strategies, key=lambda n: n != "oracle")
+    for name in names:
+        s = STRATEGIES[name]
+        sets = (
+            [(c, k) for c in config.criteria for k in config.ks(kind)]
+            if s.uses_set
+            else [(NO_CRITERION, 0)]
+        )
+        seeds = range(config.seeds) if s.random else [-1]
+        out += [(name, c, k, seed) for c, k in sets for seed in seeds]
+    return out
+
+
+def _empty_attempts(n_q: int, attempts: int) -> Attempts:
+    shape = (n_q, attempts)
+    return Attempts(
+        np.full(shape, -1, np.int64), np.zeros(shape, bool), np.full(shape, np.nan),
+        np.zeros(shape, bool), np.zeros(shape, np.int64),
+    )  # fmt: skip
+
+
+def evaluate_queries(
+    qs: QuerySet, kind: str, protocol: str, scene: str, config: EvalConfig
+) -> pa.Table:
+    """Every episode of one query set, as attempt rows (:data:`ATTEMPT_SCHEMA`)."""
+    cmap = qs.cmap
+    n_q = len(qs.queries)
+    grid = kind == "grid"
+    if cmap.num_candidates:
+        conf = confidence(cmap, qs.class_ids)
+        rank = (
+            cmap.class_rank(qs.class_ids, limit=max(config.ks(kind)))
+            if "category" in config.criteria
+            else None
+        )
+    else:
+        conf = rank = None
+    columns = {m: cmap.column(m) for m in MEASURES}
+    rows: list[dict[str, np.ndarray]] = []
+    oracle: np.ndarray | None = None
+    for name, criterion, k, seed in _combos(config, kind):
+        strategy = STRATEGIES[name]
+        kw = {
+            "criterion": criterion if criterion != NO_CRITERION else "confidence",
+            "k": max(k, 1),
+            "attempts": config.attempts,
+            "rank": rank,
+            "positions": cmap.positions if grid else None,
+            "exclude_radius": config.exclude_radius if grid else 0.0,
+        }
+        if conf is None:
+            res = _empty_attempts(n_q, 1)
+            expected = np.zeros(n_q) if strategy.random else np.full(n_q, np.nan)
+        else:
+            rng = _seed_of(config, scene, kind, protocol, qs.unit, name, criterion, k, seed)
+            res = run_attempts(strategy, conf, qs.success, columns, rng=rng, **kw)
+            expected = (
+                expected_random_success(strategy, conf, qs.success, **kw)
+                if strategy.random
+                else np.full(n_q, np.nan)
+            )
+        if name == "oracle":
+            oracle = res.solved
+        elif oracle is not None and (res.solved & ~oracle).any():
+            msg = f"internal error: {name} beat the oracle in {scene}/{qs.unit}; please report"
+            raise EvalError(msg)
+        rows.append(_attempt_rows(qs, res, conf, name, criterion, k, seed, expected))
+    cols = {key: np.concatenate([r[key] for r in rows]) for key in rows[0]}
+    n = len(cols["attempt"])
+    const = {"scene": scene, "map": kind, "protocol": protocol, "unit": qs.unit}
+    arrays = {key: pa.array([value] * n, pa.string()) for key, value in const.items()}
+    arrays.update({key: pa.array(v, ATTEMPT_SCHEMA.field(key).type) for key, v in cols.items()})
+    return pa.table([arrays[f.name] for f in ATTEMPT_SCHEMA], schema=ATTEMPT_SCHEMA)
+
+
+def _attempt_rows(
+    qs: QuerySet,
+    res: Attempts,
+    conf: np.ndarray | None,
+    name: str,
+    criterion: str,
+    k: int,
+    seed: int,
+    expected: np.ndarray,
+) -> dict[str, np.ndarray]:
+    """Rows of the attempts actually made (attempt 1 always, later ones until success)."""
+    made = res.candidate >= 0
+    made[:, 0] = True
+    q, a = np.nonzero(made)
+    local = res.candidate[q, a]
+    safe = np.maximum(local, 0)
+    has = local >= 0
+    nothing = np.full(len(q), np.nan)
+
+    def col(values: np.ndarray) -> np.ndarray:
+        return np.where(has, values[safe], np.nan) if len(values) else nothing
+
+    return {
+        "query": np.asarray(qs.queries, dtype=object)[q],
+        "target": np.asarray(qs.targets, dtype=object)[q],
+        "strategy": np.full(len(q), name, dtype=object),
+        "criterion": np.full(len(q), criterion, dtype=object),
+        "k": np.full(len(q), k),
+        "seed": np.full(len(q), seed),
+        "attempt": a + 1,
+        "candidate": np.where(has, qs.candidate_ids[safe] if len(qs.candidate_ids) else -1, -1),
+        "success": res.success[q, a],
+        "fell_back": res.fell_back[q, a],
+        "set_size": res.set_size[q, a],
+        "value": res.value[q, a],
+        "confidence": nothing if conf is None else np.where(has, conf[q, safe], np.nan),
+        "entropy": col(qs.cmap.entropy),
+        "stderr": col(qs.cmap.stderr),
+        "pwkl": col(qs.cmap.pwkl),
+        "num_views": np.where(has, col(qs.cmap.num_views), 0),
+        "expected": expected[q],
+    }
+
+
+def evaluate_scene(scene: Scene, config: EvalConfig) -> pa.Table:
+    """All attempt rows of one scene (every map kind and protocol of ``config``)."""
+    gt = GroundTruth.load(scene.recording)
+    tables = []
+    for kind in config.maps:
+        if not (scene.store / f"{MAP_TABLES[kind]}.parquet").is_file():
+            msg = f"{scene.store}: no {MAP_TABLES[kind]}.parquet; run `care fuse` (or drop --maps {kind})"
+            raise EvalError(msg)
+        cmap = load_map(scene.store, kind)  # type: ignore[arg-type]
+        if kind == "instances":
+            labels = scene_point_labels(scene.store, gt, config.label_distance)
+            for protocol in config.protocols:
+                sets = instance_queries(
+                    cmap, gt, labels, protocol=protocol, rooms=config.rooms,
+                    iou_threshold=config.iou_threshold,
+                )  # fmt: skip
+                tables += [evaluate_queries(qs, kind, protocol, scene.name, config) for qs in sets]
+        else:
+            sets = grid_queries(cmap, gt, rooms=config.rooms, radius=config.success_radius)
+            tables += [evaluate_queries(qs, kind, "class", scene.name, config) for qs in sets]
+    if not tables:
+        return ATTEMPT_SCHEMA.empty_table()
+    return pa.concat_tables(tables)
+
+
+def _cache_path(out: Path, scene: Scene) -> Path:
+    return out / "scenes" / f"{scene.name}.parquet"
+
+
+def _cached(out: Path, scene: Scene, config: EvalConfig) -> bool:
+    path = _cache_path(out, scene)
+    if not path.is_file():
+        return False
+    md = pq.read_schema(path).metadata or {}
+    return md.get(b"care.eval.fingerprint") == config.fingerprint().encode()
+
+
+def _scene_task(scene: Scene, config: EvalConfig) -> pa.Table:
+    return evaluate_scene(scene, config)
+
+
+def _run_local(
+    todo: list[Scene], config: EvalConfig, workers: int
+) -> Iterator[tuple[Scene, pa.Table]]:
+    if workers <= 1 or len(todo) <= 1:
+        for scene in todo:
+            yield scene, evaluate_scene(scene, config)
+        return
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as pool:
+        futures = {pool.submit(_scene_task, scene, config): scene for scene in todo}
+        for fut in as_completed(futures):
+            yield futures[fut], fut.result()
+
+
+def _run_ray(
+    todo: list[Scene], config: EvalConfig, address: str | None
+) -> Iterator[tuple[Scene, pa.Table]]:
+    try:
+        import ray
+    except ImportError as err:
+        msg = "--ray needs Ray: pip install 'care-maps[ray]'"
+        raise EvalError(msg) from err
+    if not ray.is_initialized():
+        ray.init(address=address or None, include_dashboard=False, log_to_driver=False)
+    task = ray.remote(_scene_task)
+    refs = {task.remote(scene, config): scene for scene in todo}
+    pending = list(refs)
+    while pending:
+        done, pending = ray.wait(pending, num_returns=1)
+        yield refs[done[0]], ray.get(done[0])
+
+
+def run_scenes(
+    scenes: Sequence[Scene],
+    config: EvalConfig,
+    out: Path,
+    *,
+    workers: int | None = None,
+    ray_address: str | bool | None = None,
+    progress: bool = True,
+) -> pa.Table:
+    """Evaluate every scene not cached under ``out/scenes``; return all attempt rows.
+
+    ``ray_address``: ``None``/``False`` for a local process pool of ``workers`` processes
+    (default: the CPU count), ``True`` or ``""`` for a local Ray, an address for a cluster.
+    """
+    out = Path(out)
+    (out / "scenes").mkdir(parents=True, exist_ok=True)
+    names = [s.name for s in scenes]
+    if len(set(names)) != len(names):
+        msg = f"scene names must be unique, got {sorted(n for n in names if names.count(n) > 1)}"
+        raise EvalError(msg)
+    todo = [s for s in scenes if not _cached(out, s, config)]
+    if ray_address is not None and ray_address is not False:
+        address = None if ray_address is True else str(ray_address)
+        results = _run_ray(todo, config, address)
+    else:
+        results = _run_local(todo, config, workers or os.cpu_count() or 1)
+    md = {b"care.eval.fingerprint": config.fingerprint().encode()}
+    for scene, table in tqdm(results, total=len(todo), desc="scenes", disable=not progress):
+        write_table_atomic(table, _cache_path(out, scene), md)
+    tables = [read_table(_cache_path(out, s)).cast(ATTEMPT_SCHEMA) for s in scenes]
+    return pa.concat_tables(tables) if tables else ATTEMPT_SCHEMA.empty_table()
+
+
+def describe(config: EvalConfig, scenes: Sequence[Scene], attempts: pa.Table) -> str:
+    """The header of ``results.md``: what was evaluated and how (protocol, rooms, attempts)."""
+    units = attempts.group_by(["scene", "map", "unit"], use_threads=False).aggregate([])
+    by_room = units.filter(pc.not_equal(units.column("unit"), "scene")).num_rows
+    rooms = (
+        f"room by room ({by_room} room maps: each room's candidates are those whose centre lies in it)"
+        if by_room
+        else "whole scenes (no rooms in the ground truth, or --no-rooms)"
+    )
+    return "\n".join(
+        [
+            f"# CARe evaluation: {len(scenes)} scene(s)\n",
+            f"- maps: {', '.join(config.maps)}; instance query protocols: {', '.join(config.protocols)} "
+            "(`instance` = one query per GT instance, must match that instance, the paper's; "
+            "`class` = one query per class present, any instance of it)",
+            f"- evaluated {rooms}",
+            f"- success within {config.attempts} attempt(s); instance success: point IoU > "
+            f"{config.iou_threshold}; grid success: floor distance <= {config.success_radius} m; "
+            f"after a failed grid attempt cells within {config.exclude_radius} m are skipped",
+            f"- random strategies: mean over {config.seeds} seeds, and the closed form S/U",
+            f"- config fingerprint `{config.fingerprint()}`\n",
+        ]
+    )
+
+
+def run_eval(
+    dataset: Path | Sequence[Path],
+    config: EvalConfig,
+    out: Path,
+    *,
+    workers: int | None = None,
+    ray_address: str | bool | None = None,
+    progress: bool = True,
+) -> Report:
+    """Evaluate a dataset (see :func:`scenes_of`) and write every output under ``out``."""
+    scenes = scenes_of(dataset)
+    attempts = run_scenes(
+        scenes, config, out, workers=workers, ray_address=ray_address, progress=progress
+    )
+    ks = {kind: config.ks(kind) for kind in MAP_TABLES}
+    header = describe(config, scenes, attempts)
+    return write_report(attempts, out, ks, bootstrap=config.bootstrap, header=header)

@@ -1,0 +1,125 @@
+"""``care run``: recording(s) in, maps, the success table and Rerun files out, in one call.
+
+Chains ingest (:func:`ingest.pipeline.run_ingest`), both maps (:func:`fuse.grid.build_grid`,
+:func:`fuse.instances.build_instances`) and the evaluation (:func:`evaluate.job.run_eval`).
+Every stage skips work that is already done, so re-running is cheap. With no recording it
+runs on the bundled sample (``data/sample``).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pyarrow.parquet as pq
+
+from care.errors import EvalError
+from evaluate.job import EvalConfig, Scene, run_eval
+from evaluate.report import Report
+from evaluate.viz import write_evaluation_rrd
+from fuse.grid import GridConfig, build_grid
+from fuse.instances import InstanceConfig, build_instances
+from ingest.pipeline import IngestConfig, run_ingest
+from query.map import load_map
+from world.groundtruth import gt_paths
+
+__all__ = ["SAMPLE", "RunConfig", "RunResult", "recordings_of", "run_all"]
+
+SAMPLE = Path(__file__).resolve().parents[1] / "data" / "sample"
+"""The bundled sample dataset (one sample-world recording with ground truth)."""
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """The main job's settings (the CLI's ``care run`` options)."""
+
+    encoder: str = "labels"
+    """Encoder of ``care ingest`` (``labels``: the sample world's perception model)."""
+    grid: GridConfig = field(default_factory=lambda: GridConfig(stride=2))
+    """Grid map settings (every second depth pixel: the same map at a quarter of the work)."""
+    instances: InstanceConfig = field(default_factory=InstanceConfig)
+    """Instance map settings."""
+    evaluation: EvalConfig = field(default_factory=EvalConfig)
+    """What the evaluation runs."""
+    workers: int | None = None
+    """Local processes of the evaluation (default: one per CPU)."""
+    progress: bool = True
+    """Show progress bars."""
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """What :func:`run_all` made."""
+
+    report: Report
+    stores: tuple[Path, ...]
+    rrds: tuple[Path, ...]
+
+    def rerun_command(self) -> str:
+        return "rerun " + " ".join(str(p) for p in self.rrds)
+
+
+def recordings_of(source: Path) -> list[tuple[str, Path]]:
+    """``(name, recording)`` pairs of a dataset directory (``index.json``) or one recording."""
+    source = Path(source)
+    index = source / "index.json"
+    if source.is_dir() and index.is_file():
+        doc = json.loads(index.read_text())
+        entries = doc if isinstance(doc, list) else doc.get("recordings", [])
+        out = []
+        for entry in entries:
+            item = {"recording": entry} if isinstance(entry, str) else entry
+            if item.get("skipped"):
+                continue
+            path = source / item["recording"]
+            out.append((str(item.get("name") or path.stem), path))
+        return out
+    if not source.exists():
+        msg = f"{source}: no such recording or dataset directory"
+        raise EvalError(msg)
+    return [(source.stem if source.suffix else source.name, source)]
+
+
+def run_all(source: Path | None, out: Path, config: RunConfig | None = None) -> RunResult:
+    """Ingest, fuse and evaluate every recording of ``source`` (default the bundled sample)
+    into ``out``: ``out/stores/<name>``, ``out/<name>.{grid,instances,eval}.rrd`` and the
+    evaluation outputs (``results.md``, Parquet, plots) in ``out/eval``."""
+    config = config or RunConfig()
+    out = Path(out)
+    recordings = recordings_of(source or SAMPLE)
+    missing = [str(rec) for _, rec in recordings if not gt_paths(rec)[1].is_file()]
+    if missing:
+        msg = (
+            f"{missing[0]}: no ground truth beside it ({gt_paths(Path(missing[0]))[1].name}); "
+            "`care run` evaluates sample-world recordings; use `care ingest`, `care fuse` and "
+            "`care query` for others"
+        )
+        raise EvalError(msg)
+    scenes, rrds = [], []
+    for name, recording in recordings:
+        store = out / "stores" / name
+        run_ingest(
+            IngestConfig(
+                recording=recording, out=store, encoder=config.encoder, progress=config.progress
+            )
+        )
+        grid_rrd, inst_rrd = out / f"{name}.grid.rrd", out / f"{name}.instances.rrd"
+        fresh = not (store / "cells.parquet").is_file() or not grid_rrd.is_file()
+        build_grid(store, config.grid, rrd=grid_rrd if fresh else None)
+        fresh = not (store / "instances.parquet").is_file() or not inst_rrd.is_file()
+        build_instances(store, config.instances, rrd=inst_rrd if fresh else None)
+        scenes.append(Scene(name, store, Path(recording).resolve()))
+        rrds += [p for p in (grid_rrd, inst_rrd) if p.is_file()]
+    eval_dir = out / "eval"
+    report = run_eval(
+        [s.store for s in scenes], config.evaluation, eval_dir,
+        workers=config.workers, progress=config.progress,
+    )  # fmt: skip
+    attempts = pq.read_table(eval_dir / "attempts.parquet")
+    for scene in scenes:
+        maps = {kind: load_map(scene.store, kind) for kind in config.evaluation.maps}  # type: ignore[misc]
+        path = out / f"{scene.name}.eval.rrd"
+        write_evaluation_rrd(path, attempts, report.summary, maps, scene=scene.name)
+        rrds.append(path)
+    return RunResult(report, tuple(s.store for s in scenes), tuple(rrds))

@@ -1,0 +1,394 @@
+"""From attempt rows to the paper's tables: success rates, bootstrap CIs, per scene, AUROC, plots.
+
+Success of a query under a strategy is "some attempt succeeded" (within the configured number
+of attempts); random strategies average it over seeds first, and their closed-form
+expectation is reported as its own row. Rates are means over queries of all scenes (each
+query counts once, as in the paper); 95% confidence intervals resample queries.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+from scipy.stats import rankdata
+
+from care.store import write_table_atomic
+from replan.strategies import STRATEGIES
+
+__all__ = [
+    "AUROC_MEASURES",
+    "Report",
+    "auroc",
+    "auroc_table",
+    "markdown_tables",
+    "per_query",
+    "plot_success",
+    "summarise",
+    "write_report",
+]
+
+AUROC_MEASURES = ("confidence", "entropy", "stderr", "pwkl", "num_views")
+"""Columns of the first attempt whose power to predict its failure is reported."""
+
+QUERY_KEYS = ["scene", "map", "protocol", "unit", "query"]
+RULE_KEYS = ["strategy", "criterion", "k"]
+MAP_TITLES = {
+    "instances": "Instance map (OpenMask3D-like): retrieval success (%)",
+    "grid": "Grid map (VLMaps-like): subgoal success (%)",
+}
+
+
+def per_query(attempts: pa.Table) -> pa.Table:
+    """One row per (query, strategy, criterion, k): ``solved`` (mean over seeds of "some
+    attempt succeeded") and ``expected`` (closed form, random strategies only)."""
+    episodes = attempts.group_by([*QUERY_KEYS, *RULE_KEYS, "seed"], use_threads=False).aggregate(
+        [("success", "max"), ("expected", "max")]
+    )
+    episodes = episodes.append_column(
+        "solved", pc.cast(episodes.column("success_max"), pa.float64())
+    )
+    out = episodes.group_by([*QUERY_KEYS, *RULE_KEYS], use_threads=False).aggregate(
+        [("solved", "mean"), ("expected_max", "max")]
+    )
+    out = out.rename_columns(
+        [
+            {"solved_mean": "solved", "expected_max_max": "expected"}.get(n, n)
+            for n in out.column_names
+        ]
+    )
+    return out.sort_by([(k, "ascending") for k in [*QUERY_KEYS, *RULE_KEYS]])
+
+
+def _bootstrap(values: np.ndarray, n: int, rng: np.random.Generator) -> tuple[float, float]:
+    if len(values) == 0 or n <= 0:
+        return float("nan"), float("nan")
+    means = np.empty(n)
+    chunk = max(1, 2_000_000 // max(len(values), 1))
+    for start in range(0, n, chunk):
+        size = min(chunk, n - start)
+        means[start : start + size] = values[
+            rng.integers(0, len(values), (size, len(values)))
+        ].mean(1)
+    lo, hi = np.percentile(means, [2.5, 97.5])
+    return float(lo), float(hi)
+
+
+def summarise(
+    queries: pa.Table, *, bootstrap: int = 1000, seed: int = 0, by_scene: bool = False
+) -> pa.Table:
+    """Success rate (%) with a 95% bootstrap CI per (map, protocol, strategy, criterion, k)
+    (and scene with ``by_scene``). Random strategies add an ``<name> (expected)`` row."""
+    rows = []
+    keys = ["map", "protocol", *RULE_KEYS] + (["scene"] if by_scene else [])
+    rng = np.random.default_rng(seed)
+    groups = queries.group_by(keys, use_threads=False).aggregate([])
+    for key in groups.to_pylist():
+        mask = np.ones(queries.num_rows, bool)
+        for name, value in key.items():
+            mask &= np.asarray(queries.column(name).to_numpy(zero_copy_only=False) == value)
+        for suffix, column in (("", "solved"), (" (expected)", "expected")):
+            values = queries.column(column).to_numpy(zero_copy_only=False)[mask].astype(float)
+            if suffix and (not STRATEGIES[key["strategy"]].random or np.isnan(values).all()):
+                continue
+            values = values[~np.isnan(values)]
+            lo, hi = _bootstrap(values, 0 if by_scene else bootstrap, rng)
+            rows.append(
+                {
+                    **key,
+                    "strategy": key["strategy"] + suffix,
+                    "rate": 100 * float(values.mean()) if len(values) else float("nan"),
+                    "lo": 100 * lo,
+                    "hi": 100 * hi,
+                    "n_queries": len(values),
+                }
+            )
+    return pa.Table.from_pylist(rows)
+
+
+def auroc(score: np.ndarray, positive: np.ndarray) -> float:
+    """Area under the ROC curve of ``score`` for the ``positive`` class (Mann-Whitney U with
+    midranks for ties; infinities rank last/first as they should; NaN scores are dropped)."""
+    score = np.asarray(score, dtype=np.float64)
+    positive = np.asarray(positive, dtype=bool)
+    keep = ~np.isnan(score)
+    score, positive = score[keep], positive[keep]
+    n_pos, n_neg = int(positive.sum()), int((~positive).sum())
+    if n_pos == 0 or n_neg == 0:
+        return float("nan")
+    ranks = rankdata(score)
+    return float((ranks[positive].sum() - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg))
+
+
+def auroc_table(attempts: pa.Table) -> pa.Table:
+    """AUROC of each measure of the first attempt for predicting that it fails, per map and
+    protocol (> 0.5: a higher value means failure is more likely)."""
+    first = attempts.filter(
+        pc.and_(
+            pc.equal(attempts.column("strategy"), "no_replan"),
+            pc.equal(attempts.column("attempt"), 1),
+        )
+    )
+    rows = []
+    for key in first.group_by(["map", "protocol"], use_threads=False).aggregate([]).to_pylist():
+        part = first.filter(
+            pc.and_(
+                pc.equal(first.column("map"), key["map"]),
+                pc.equal(first.column("protocol"), key["protocol"]),
+            )
+        )
+        failed = ~part.column("success").to_numpy(zero_copy_only=False)
+        row = {**key, "n_first": part.num_rows, "n_failed": int(failed.sum())}
+        for measure in AUROC_MEASURES:
+            row[measure] = auroc(part.column(measure).to_numpy(zero_copy_only=False), failed)
+        rows.append(row)
+    return pa.Table.from_pylist(rows)
+
+
+def _rate_lookup(summary: pa.Table) -> dict[tuple, dict]:
+    return {
+        (r["map"], r["protocol"], r["strategy"], r["criterion"], r["k"]): r
+        for r in summary.to_pylist()
+    }
+
+
+def _row_order(summary: pa.Table, kind: str, protocol: str) -> list[tuple[str, str]]:
+    present = {
+        (r["strategy"], r["criterion"])
+        for r in summary.to_pylist()
+        if r["map"] == kind and r["protocol"] == protocol
+    }
+    return [
+        (strategy, criterion)
+        for name in STRATEGIES
+        for strategy in (name, f"{name} (expected)")
+        for criterion in ("-", "confidence", "category")
+        if (strategy, criterion) in present
+    ]
+
+
+def _label(strategy: str) -> str:
+    base, _, rest = strategy.partition(" (")
+    label = STRATEGIES[base].label if base in STRATEGIES else base
+    return f"{label} (closed form)" if rest else label
+
+
+def markdown_tables(summary: pa.Table, ks: dict[str, Sequence[int]], *, ci: bool = False) -> str:
+    """Tables laid out like the paper's Tables 1 and 2: rows strategy x criterion, columns k.
+
+    **Bold**: best of the column (oracle and closed-form rows excluded); *italic*: best of
+    the row over k. With ``ci`` each cell is the 95% bootstrap interval instead.
+    """
+    lookup = _rate_lookup(summary)
+    out = []
+    for kind, protocol in sorted({(r["map"], r["protocol"]) for r in summary.to_pylist()}):
+        kvals = list(ks[kind])
+        rows = _row_order(summary, kind, protocol)
+
+        grid = np.array(
+            [
+                [
+                    lookup.get((kind, protocol, s, c, 0 if c == "-" else k), {}).get("rate", np.nan)
+                    for k in kvals
+                ]
+                for s, c in rows
+            ]
+        )
+        ranked = [i for i, (s, _) in enumerate(rows) if s != "oracle" and "(expected)" not in s]
+        col_best = np.nanmax(grid[ranked], axis=0) if ranked else np.full(len(kvals), np.nan)
+        n_q = max(
+            (
+                r["n_queries"]
+                for r in summary.to_pylist()
+                if r["map"] == kind and r["protocol"] == protocol
+            ),
+            default=0,
+        )
+        title = MAP_TITLES.get(kind, kind) + (
+            f", protocol `{protocol}`" if kind == "instances" else ""
+        )
+        out.append(f"### {title}{' — 95% bootstrap CI' if ci else ''} ({n_q} queries)\n")
+        out.append(
+            "| Replan strategy | Selection criteria | " + " | ".join(f"k={k}" for k in kvals) + " |"
+        )
+        out.append("|---|---|" + "---:|" * len(kvals))
+        for i, (strategy, criterion) in enumerate(rows):
+            cells = []
+            for j, k in enumerate(kvals):
+                value = grid[i, j]
+                if ci:
+                    r = lookup.get(
+                        (kind, protocol, strategy, criterion, 0 if criterion == "-" else k)
+                    )
+                    cells.append("" if r is None else f"[{r['lo']:.1f}, {r['hi']:.1f}]")
+                    continue
+                text = "" if np.isnan(value) else f"{value:.2f}"
+                if i in ranked and criterion != "-" and value == np.nanmax(grid[i]):
+                    text = f"*{text}*"
+                if i in ranked and value == col_best[j]:
+                    text = f"**{text}**"
+                cells.append(text)
+            out.append(f"| {_label(strategy)} | {criterion} | " + " | ".join(cells) + " |")
+        out.append("")
+    return "\n".join(out)
+
+
+def _best_k(summary: pa.Table) -> dict[tuple[str, str, str, str], int]:
+    """(map, protocol, strategy, criterion) -> the k of its best rate over all scenes."""
+    best: dict[tuple[str, str, str, str], tuple[float, int]] = {}
+    for r in summary.to_pylist():
+        key = (r["map"], r["protocol"], r["strategy"], r["criterion"])
+        if key not in best or r["rate"] > best[key][0]:
+            best[key] = (r["rate"], r["k"])
+    return {key: k for key, (_, k) in best.items()}
+
+
+def per_scene_markdown(summary: pa.Table, scenes: pa.Table) -> str:
+    """Per-scene success (%): baselines, oracle and each CARe rule at its best k overall."""
+    best = _best_k(summary)
+    shown = [
+        "no_replan",
+        "max_confidence",
+        "random",
+        "oracle",
+        "max_entropy",
+        "min_stderr",
+        "min_pwkl",
+    ]
+    rows = scenes.to_pylist()
+    out = []
+    for kind, protocol in sorted({(r["map"], r["protocol"]) for r in rows}):
+        cols = [
+            (s, c, best.get((kind, protocol, s, c), 0))
+            for s in shown
+            for c in ("-", "confidence", "category")
+            if (kind, protocol, s, c) in best
+        ]
+        lookup = {
+            (r["scene"], r["strategy"], r["criterion"], r["k"]): r["rate"]
+            for r in rows
+            if r["map"] == kind and r["protocol"] == protocol
+        }
+        names = sorted({r["scene"] for r in rows if r["map"] == kind and r["protocol"] == protocol})
+        out.append(f"### Per scene: {kind}, protocol `{protocol}`\n")
+        heads = [s if c == "-" else f"{s} ({c[:4]}, k={k})" for s, c, k in cols]
+        out.append("| scene | " + " | ".join(heads) + " |")
+        out.append("|---|" + "---:|" * len(cols))
+        for name in names:
+            cells = [lookup.get((name, s, c, k)) for s, c, k in cols]
+            out.append(
+                f"| {name} | " + " | ".join("" if v is None else f"{v:.1f}" for v in cells) + " |"
+            )
+        out.append("")
+    return "\n".join(out)
+
+
+def plot_success(summary: pa.Table, ks: dict[str, Sequence[int]], out_dir: Path) -> list[Path]:
+    """One PNG per (map, protocol): success vs k, a line per strategy and criterion."""
+    import matplotlib as mpl
+
+    mpl.use("Agg")
+    import matplotlib.pyplot as plt
+
+    lookup = _rate_lookup(summary)
+    paths = []
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for kind, protocol in sorted({(r["map"], r["protocol"]) for r in summary.to_pylist()}):
+        kvals = list(ks[kind])
+        fig, ax = plt.subplots(figsize=(7, 4.5))
+        for strategy, criterion in _row_order(summary, kind, protocol):
+            values = [
+                lookup.get(
+                    (kind, protocol, strategy, criterion, 0 if criterion == "-" else k), {}
+                ).get("rate", np.nan)
+                for k in kvals
+            ]
+            style = "--" if criterion == "-" else ("-" if criterion == "confidence" else ":")
+            label = strategy if criterion == "-" else f"{strategy} ({criterion})"
+            ax.plot(kvals, values, style, marker="o", markersize=3, label=label)
+        ax.set_xscale("log")
+        ax.set_xticks(kvals, [str(k) for k in kvals])
+        ax.set_xlabel("k")
+        ax.set_ylabel("success (%)")
+        ax.set_title(f"{kind}, protocol {protocol}")
+        ax.legend(fontsize=6, ncol=2)
+        fig.tight_layout()
+        path = out_dir / f"success_{kind}_{protocol}.png"
+        tmp = path.with_name(f".{path.name}.tmp.png")
+        fig.savefig(tmp, dpi=110)
+        plt.close(fig)
+        tmp.replace(path)
+        paths.append(path)
+    return paths
+
+
+@dataclass(frozen=True)
+class Report:
+    """What :func:`write_report` wrote."""
+
+    markdown: str
+    summary: pa.Table
+    auroc: pa.Table
+    paths: tuple[Path, ...]
+
+
+def _auroc_markdown(table: pa.Table) -> str:
+    out = [
+        "### How well each measure of the first attempt predicts its failure (AUROC)\n",
+        "| map | protocol | first attempts | failed | " + " | ".join(AUROC_MEASURES) + " |",
+        "|---|---|---:|---:|" + "---:|" * len(AUROC_MEASURES),
+    ]
+    for r in table.to_pylist():
+        cells = " | ".join("" if np.isnan(r[m]) else f"{r[m]:.3f}" for m in AUROC_MEASURES)
+        out.append(f"| {r['map']} | {r['protocol']} | {r['n_first']} | {r['n_failed']} | {cells} |")
+    out.append("\n> 0.5: a higher value goes with failure; < 0.5: with success.\n")
+    return "\n".join(out)
+
+
+def write_report(
+    attempts: pa.Table,
+    out: Path,
+    ks: dict[str, Sequence[int]],
+    *,
+    bootstrap: int = 1000,
+    header: str = "",
+) -> Report:
+    """Write ``attempts.parquet``, ``summary.parquet``, ``per_scene.parquet``,
+    ``auroc.parquet``, ``results.md`` and ``plots/*.png`` under ``out``."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    queries = per_query(attempts)
+    summary = summarise(queries, bootstrap=bootstrap)
+    scenes = summarise(queries, by_scene=True)
+    aucs = auroc_table(attempts)
+    paths = [
+        out / "attempts.parquet",
+        out / "summary.parquet",
+        out / "per_scene.parquet",
+        out / "auroc.parquet",
+    ]
+    for table, path in zip((attempts, summary, scenes, aucs), paths, strict=True):
+        write_table_atomic(table, path)
+    plots = plot_success(summary, ks, out / "plots")
+    md = "\n".join(
+        [
+            header,
+            "## Success rates\n",
+            "**Bold**: best of the column (oracle and closed-form rows excluded). *Italic*: best of the row over k.\n",
+            markdown_tables(summary, ks),
+            "## 95% bootstrap confidence intervals (queries resampled)\n",
+            markdown_tables(summary, ks, ci=True),
+            _auroc_markdown(aucs),
+            per_scene_markdown(summary, scenes),
+            "Plots: " + ", ".join(f"`plots/{p.name}`" for p in plots) + "\n",
+        ]
+    )
+    md_path = out / "results.md"
+    tmp = md_path.with_name(".results.md.tmp")
+    tmp.write_text(md)
+    tmp.replace(md_path)
+    return Report(md, summary, aucs, (*paths, md_path, *plots))

@@ -1,0 +1,353 @@
+"""The OpenMask3D-style instance map: proposals, their best views, fused features, measures.
+
+:func:`build_instances` runs the whole job on a store:
+
+1. ``scene_points.parquet``: the voxel-averaged scene cloud (:mod:`fuse.pointcloud`),
+   reused when it was built from the same store with the same cloud settings;
+2. class-agnostic proposals (:data:`fuse.proposals.PROPOSERS`), point-index masks;
+3. the top views of each mask by visible points (:func:`fuse.views.select_views`) and
+   their per-view features, pooled from the dense map inside the mask (``masked``) or
+   re-encoded bounding-box crops (``crops``);
+4. ``instance_views.parquet`` (every per-view feature) and ``instances.parquet`` (the
+   common candidate columns of :mod:`fuse.measures` plus the mask and its box), written
+   atomically, the per-view table first. Instance features use weights 1, so ``stderr``
+   is the plain form of method.md.
+
+A finished map with the same config, store and vocabulary is not rebuilt (``overwrite``
+forces it); :func:`recompute_instances` redoes only the columns for a new vocabulary or
+logit scale from ``instance_views.parquet``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from care.encoders import Encoder, EncoderOptions, make_encoder
+from care.errors import FuseError
+from care.store import Store, read_table, write_table_atomic
+from fuse.measures import DEFAULT_LOGIT_SCALE, candidate_metadata, list_column
+from fuse.pointcloud import (
+    SceneCloud,
+    fuse_scene_points,
+    read_scene_points,
+    write_scene_points,
+)
+from fuse.proposals import PROPOSERS, Proposals
+from fuse.recompute import sums_from_views
+from fuse.views import ViewSelection, crop_features, select_views
+from fuse.vocabulary import vocabulary_text
+
+__all__ = [
+    "INSTANCES_TABLE",
+    "INSTANCE_FEATURES",
+    "INSTANCE_VIEWS_SCHEMA",
+    "INSTANCE_VIEWS_TABLE",
+    "SCENE_POINTS_TABLE",
+    "InstanceConfig",
+    "build_instances",
+    "recompute_instances",
+]
+
+INSTANCES_TABLE = "instances"
+INSTANCE_VIEWS_TABLE = "instance_views"
+SCENE_POINTS_TABLE = "scene_points"
+INSTANCE_FEATURES = ("masked", "crops")
+"""Ways to get a per-view instance feature (``InstanceConfig.features``)."""
+
+INSTANCE_VIEWS_SCHEMA = pa.schema(
+    [
+        pa.field("instance_id", pa.int32(), nullable=False),
+        pa.field("view_id", pa.int32(), nullable=False),
+        pa.field("rank", pa.int32(), nullable=False),
+        pa.field("visible_points", pa.int32(), nullable=False),
+        pa.field("feature", pa.list_(pa.float16()), nullable=False),
+    ]
+)
+
+_CLOUD_FIELDS = ("voxel_size", "stride", "max_depth")
+
+
+@dataclass(frozen=True)
+class InstanceConfig:
+    """How an instance map is built (shared by ``care fuse instances`` and :func:`build_instances`)."""
+
+    proposals: str = "geometric"
+    """Proposal method: ``geometric`` (planes removed, then DBSCAN) or ``labels`` (oracle
+    masks from the recording's instance images)."""
+    features: str = "masked"
+    """Per-view feature: ``masked`` (dense features pooled inside the projected mask) or
+    ``crops`` (bounding-box crops re-encoded; encoders with crop support only)."""
+    voxel_size: float = 0.03
+    """Voxel edge (m) of the scene cloud."""
+    stride: int = 2
+    """Back-project every stride-th depth pixel in both image directions."""
+    max_depth: float = 8.0
+    """Depth (m) beyond which pixels are left out of the scene cloud."""
+    plane_distance: float = 0.03
+    """RANSAC inlier distance (m) of a structural plane (geometric)."""
+    max_planes: int = 20
+    """Most planes RANSAC looks for (geometric)."""
+    plane_min_points: int = 400
+    """Smallest plane (points) still considered; the plane search stops below it (geometric)."""
+    normal_radius: float = 0.1
+    """Neighbourhood radius (m) of the point normals (geometric)."""
+    normal_angle_deg: float = 30.0
+    """Angle (degrees) within which a normal counts as parallel (to the plane's, or to z)."""
+    wall_min_height: float = 1.2
+    """Vertical planes spanning at least this height (m) are walls (geometric)."""
+    floor_band: float = 0.15
+    """Horizontal planes within this height (m) of the lowest/highest points are floor/ceiling."""
+    cluster_eps: float = 0.08
+    """DBSCAN neighbourhood radius (m); about 2.5 voxels (geometric)."""
+    cluster_min_points: int = 10
+    """DBSCAN core-point neighbour count (geometric)."""
+    min_instance_points: int = 50
+    """Clusters with fewer points are dropped as noise (geometric)."""
+    min_label_points: int = 10
+    """Oracle masks with fewer points are dropped (labels); small, since a label is no noise."""
+    max_instance_extent: float = 4.0
+    """Clusters longer than this (m) on any axis are structure, not objects (geometric)."""
+    top_k: int = 5
+    """Views kept per instance (OpenMask3D keeps 5)."""
+    depth_tolerance: float = 0.1
+    """A point is visible in a view if its depth is within this (m) of the view's depth there."""
+    min_visible_points: int = 5
+    """A view with fewer visible points of an instance is not one of its views."""
+    crop_padding: float = 0.1
+    """Crops grow by this fraction of the box size on each side (``crops``)."""
+    logit_scale: float = DEFAULT_LOGIT_SCALE
+    """Scale s of the class distributions softmax(s * f . t)."""
+    vocabulary: tuple[str, ...] | None = None
+    """Class names of the columns; default: the names cached in the store."""
+    batch_size: int = 8
+    """Views projected (and crops encoded) at once."""
+    seed: int = 0
+    """Seed of RANSAC (open3d's global random seed)."""
+    overwrite: bool = False
+    """Rebuild even if an up-to-date map (or scene cloud) exists."""
+
+    def __post_init__(self) -> None:
+        if self.proposals not in PROPOSERS:
+            msg = f"unknown proposals {self.proposals!r}; choose one of {', '.join(PROPOSERS)}"
+            raise FuseError(msg)
+        if self.features not in INSTANCE_FEATURES:
+            msg = (
+                f"unknown features {self.features!r}; choose one of {', '.join(INSTANCE_FEATURES)}"
+            )
+            raise FuseError(msg)
+        sizes = {
+            "voxel_size": self.voxel_size,
+            "stride": self.stride,
+            "max_depth": self.max_depth,
+            "plane_distance": self.plane_distance,
+            "cluster_eps": self.cluster_eps,
+            "top_k": self.top_k,
+            "depth_tolerance": self.depth_tolerance,
+            "batch_size": self.batch_size,
+        }
+        bad = [f"{k}={v}" for k, v in sizes.items() if not v > 0]
+        if bad:
+            msg = f"invalid instance config: {', '.join(bad)}; these must be positive"
+            raise FuseError(msg)
+
+    def fingerprint(self, names: Sequence[str] | None = None) -> str:
+        """JSON of the settings ``names`` (default: all that shape the map, not ``overwrite``)."""
+        fields = dataclasses.asdict(self)
+        fields.pop("overwrite")
+        if names is not None:
+            fields = {k: fields[k] for k in names}
+        return json.dumps(fields, sort_keys=True)
+
+
+def _store_stamp(store: Store) -> bytes:
+    return str(store.meta.get("created_unix")).encode()
+
+
+def _scene_cloud(store: Store, config: InstanceConfig) -> SceneCloud:
+    """The scene cloud, reused from ``scene_points.parquet`` when it is current."""
+    path = store.table_path(SCENE_POINTS_TABLE)
+    key = config.fingerprint(_CLOUD_FIELDS).encode()
+    if path.is_file() and not config.overwrite:
+        md = pq.read_schema(path).metadata or {}
+        if md.get(b"care.cloud.config") == key and md.get(b"care.store.created") == _store_stamp(
+            store
+        ):
+            return read_scene_points(path)
+    cloud = fuse_scene_points(
+        store, voxel_size=config.voxel_size, stride=config.stride, max_depth=config.max_depth
+    )
+    write_scene_points(
+        cloud, path, {b"care.cloud.config": key, b"care.store.created": _store_stamp(store)}
+    )
+    return cloud
+
+
+def _is_current(store: Store, config: InstanceConfig, vocabulary: tuple[str, ...]) -> bool:
+    paths = [
+        store.table_path(n) for n in (INSTANCES_TABLE, INSTANCE_VIEWS_TABLE, SCENE_POINTS_TABLE)
+    ]
+    if config.overwrite or not all(p.is_file() for p in paths):
+        return False
+    md = pq.read_schema(paths[0]).metadata or {}
+    return (
+        md.get(b"care.instances.config") == config.fingerprint().encode()
+        and md.get(b"care.store.created") == _store_stamp(store)
+        and md.get(b"care.vocabulary") == json.dumps(list(vocabulary)).encode()
+    )
+
+
+def _per_view_features(
+    store: Store, config: InstanceConfig, selection: ViewSelection, encoder: Encoder | None
+) -> np.ndarray:
+    if config.features == "masked":
+        assert selection.features is not None  # select_views pooled them
+        return selection.features
+    if encoder is None:
+        encoder = make_encoder(store.encoder.name, EncoderOptions(batch_size=config.batch_size))
+    return crop_features(
+        store, selection, encoder, padding=config.crop_padding, batch_size=config.batch_size
+    )
+
+
+def _views_table(selection: ViewSelection, features: np.ndarray) -> pa.Table:
+    """One row per selected (instance, view), in instance then rank order."""
+    inst, rank = np.nonzero(selection.view_ids >= 0)
+    feats = features[inst, rank].astype(np.float16)
+    return pa.table(
+        {
+            "instance_id": pa.array(inst.astype(np.int32)),
+            "view_id": pa.array(selection.view_ids[inst, rank]),
+            "rank": pa.array(rank.astype(np.int32)),
+            "visible_points": pa.array(selection.visible[inst, rank]),
+            "feature": list_column(feats.reshape(len(inst), -1), pa.float16()),
+        },
+        schema=INSTANCE_VIEWS_SCHEMA,
+    )
+
+
+def _geometry_columns(points: np.ndarray, proposals: Proposals) -> dict[str, pa.Array]:
+    """``num_points``, ``point_indices``, ``bbox_min``, ``bbox_max``, ``center`` of each mask."""
+    masks = proposals.masks
+    lengths = np.array([len(m) for m in masks], np.int64)
+    flat = np.concatenate(masks).astype(np.int32) if masks else np.zeros(0, np.int32)
+    offsets = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int32)
+    if masks:
+        pts = points[flat]
+        lo = np.minimum.reduceat(pts, offsets[:-1], axis=0)
+        hi = np.maximum.reduceat(pts, offsets[:-1], axis=0)
+        centre = np.add.reduceat(pts.astype(np.float64), offsets[:-1], axis=0) / lengths[:, None]
+    else:
+        lo = hi = centre = np.zeros((0, 3))
+
+    def vec3(a: np.ndarray) -> pa.Array:
+        return pa.FixedSizeListArray.from_arrays(pa.array(a.astype(np.float32).ravel()), 3)
+
+    return {
+        "num_points": pa.array(lengths.astype(np.int32)),
+        "point_indices": pa.ListArray.from_arrays(pa.array(offsets), pa.array(flat, pa.int32())),
+        "bbox_min": vec3(lo),
+        "bbox_max": vec3(hi),
+        "center": vec3(centre),
+        "source_id": pa.array(proposals.source_ids.astype(np.int64)),
+    }
+
+
+def build_instances(
+    store_path: Path,
+    config: InstanceConfig | None = None,
+    rrd: Path | None = None,
+    *,
+    encoder: Encoder | None = None,
+) -> Path:
+    """Build ``instances.parquet`` (and ``instance_views``, ``scene_points``) in the store.
+
+    Args:
+        store_path: the feature store directory.
+        config: the build settings (default :class:`InstanceConfig`).
+        rrd: also log the map to this Rerun file (:mod:`fuse.viz_instances`).
+        encoder: the encoder for ``features="crops"``; default: the store's encoder by
+            name with default options.
+
+    Returns the path of ``instances.parquet``.
+    """
+    config = config or InstanceConfig()
+    store = Store(store_path)
+    vocabulary, text = vocabulary_text(store, config.vocabulary)
+    out = store.table_path(INSTANCES_TABLE)
+    if not _is_current(store, config, vocabulary):
+        cloud = _scene_cloud(store, config)
+        proposals = PROPOSERS[config.proposals](cloud, store, config)
+        selection = select_views(
+            store,
+            cloud.points,
+            proposals.masks,
+            top_k=config.top_k,
+            depth_tolerance=config.depth_tolerance,
+            min_visible_points=config.min_visible_points,
+            pool_features=config.features == "masked",
+            batch_size=config.batch_size,
+        )
+        views = _views_table(selection, _per_view_features(store, config, selection, encoder))
+        meta = {
+            **candidate_metadata(vocabulary, config.logit_scale, store.encoder.name),
+            b"care.instances.config": config.fingerprint().encode(),
+            b"care.store.created": _store_stamp(store),
+        }
+        views_path = store.table_path(INSTANCE_VIEWS_TABLE)
+        write_table_atomic(views, views_path, meta)
+        sums = sums_from_views(
+            views_path, "instance_id", text, config.logit_scale, num_candidates=len(proposals)
+        )
+        table = sums.columns()
+        for name, col in _geometry_columns(cloud.points, proposals).items():
+            table = table.append_column(name, col)
+        write_table_atomic(table, out, meta)
+    if rrd is not None:
+        from fuse.viz_instances import log_instances
+
+        log_instances(store.path, rrd)
+    return out
+
+
+def recompute_instances(
+    store_path: Path, vocabulary: Sequence[str] | None = None, logit_scale: float | None = None
+) -> Path:
+    """Rewrite the candidate columns of ``instances.parquet`` for a new vocabulary or scale.
+
+    Reads only ``instance_views.parquet`` and the instance table itself; the masks and
+    boxes are kept. ``None`` keeps the current scale / the store's cached names.
+    """
+    store = Store(store_path)
+    path = store.table_path(INSTANCES_TABLE)
+    table = read_table(path)
+    md = dict(table.schema.metadata or {})
+    scale = float(md[b"care.logit_scale"]) if logit_scale is None else float(logit_scale)
+    names, text = vocabulary_text(store, vocabulary)
+    sums = sums_from_views(
+        store.table_path(INSTANCE_VIEWS_TABLE),
+        "instance_id",
+        text,
+        scale,
+        num_candidates=table.num_rows,
+    )
+    common = sums.columns()
+    new = pa.table(
+        {
+            n: (common.column(n) if n in common.column_names else table.column(n))
+            for n in table.column_names
+        }
+    )
+    md.update(candidate_metadata(names, scale, store.encoder.name))
+    config = json.loads(md.get(b"care.instances.config", b"{}"))
+    config.update(vocabulary=None if vocabulary is None else list(names), logit_scale=scale)
+    md[b"care.instances.config"] = json.dumps(config, sort_keys=True).encode()
+    write_table_atomic(new, path, md)
+    return path

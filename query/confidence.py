@@ -1,0 +1,40 @@
+"""Confidence of map candidates for target classes, batched over queries as array operations.
+
+``P_c[y] = exp(s * f_c . t_y - log_norm_c)``. For maps whose (classes x candidates) table
+fits :data:`query.map.LOG_CONFIDENCE_CACHE`, the log-confidence of every class is computed
+once per map and a query is a row gather; larger maps multiply against the *distinct* query
+classes only, so a batch of 1,000 queries over 200 classes is one (N, d) x (d, <=200)
+product, not 1,000 of them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from care.errors import QueryError
+from query.map import CandidateMap
+
+__all__ = ["confidence", "rank_by_confidence"]
+
+
+def confidence(cmap: CandidateMap, class_ids: np.ndarray | int) -> np.ndarray:
+    """(Q, N) float32 confidence P_c[y] of every candidate for each query class ``y``."""
+    ids = np.atleast_1d(np.asarray(class_ids, dtype=np.int64))
+    if ids.size and (ids.min() < 0 or ids.max() >= len(cmap.vocabulary)):
+        msg = f"class id out of range 0..{len(cmap.vocabulary) - 1}: {ids.min()}..{ids.max()}"
+        raise QueryError(msg)
+    table = cmap.log_confidence_table
+    if table is not None:
+        out = table[ids]
+        return np.exp(out, out=out)
+    uniq, inverse = np.unique(ids, return_inverse=True)
+    scaled = cmap.text[uniq] * np.float32(cmap.logit_scale)
+    logits = scaled @ cmap.features.T  # (U, N)
+    logits -= cmap.log_norm[None, :]
+    np.exp(logits, out=logits)
+    return logits[inverse] if len(uniq) < len(ids) or not np.array_equal(uniq, ids) else logits
+
+
+def rank_by_confidence(conf: np.ndarray) -> np.ndarray:
+    """(Q, N) candidate ids in descending confidence, ties by lower id (a stable sort)."""
+    return np.argsort(-np.atleast_2d(conf), axis=1, kind="stable")

@@ -1,0 +1,310 @@
+"""A map's candidates as typed arrays, read once from ``cells.parquet`` / ``instances.parquet``.
+
+Queries and replan strategies are array operations over these columns; nothing here touches
+the recording again. The record maps one-to-one onto the map-table contract of the fuse stage
+(``candidate_id`` row order, ``feature``, ``log_norm``, ``top_classes``, ``entropy``,
+``stderr``, ``pwkl``, ``num_views`` plus the grid's ``x, y, z_max`` or the instances'
+``center`` and ``point_indices``).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import pyarrow as pa
+
+from care.errors import QueryError
+from care.store import read_table
+
+__all__ = [
+    "LOG_CONFIDENCE_CACHE",
+    "MAP_TABLES",
+    "MEASURES",
+    "NOT_IN_TOP",
+    "CandidateMap",
+    "MapKind",
+    "list_column",
+    "load_map",
+    "map_from_table",
+]
+
+MapKind = Literal["instances", "grid"]
+
+MAP_TABLES: dict[str, str] = {"instances": "instances", "grid": "cells"}
+"""Map kind -> table name in the store directory."""
+
+MEASURES = ("entropy", "stderr", "pwkl")
+"""Per-candidate uncertainty columns the strategies choose by."""
+
+LOG_CONFIDENCE_CACHE = 1 << 25
+"""Most entries (classes x candidates, 128 MiB of float32) of the cached log-confidence table."""
+
+NOT_IN_TOP = np.iinfo(np.int16).max
+"""Rank given to a class that is not among a candidate's stored ``top_classes``."""
+
+
+def list_column(table: pa.Table, name: str, dtype: type = np.float32) -> np.ndarray:
+    """A fixed-length ``list<...>`` column as an (N, k) array (k = 0 for an empty table)."""
+    col = table.column(name).combine_chunks()
+    if len(col) == 0:
+        return np.zeros((0, 0), dtype=dtype)
+    flat = col.flatten().to_numpy(zero_copy_only=False).astype(dtype, copy=False)
+    if flat.size % len(col):
+        msg = f"column {name!r}: rows have different lengths; the map table is malformed, rebuild it with `care fuse`"
+        raise QueryError(msg)
+    return flat.reshape(len(col), -1)
+
+
+def _ragged(table: pa.Table, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """A variable-length ``list<int32>`` column as (offsets (N+1,), values)."""
+    col = table.column(name).combine_chunks()
+    offsets = col.offsets.to_numpy().astype(np.int64)
+    values = col.values.to_numpy(zero_copy_only=False).astype(np.int64)
+    return offsets - offsets[0], values[offsets[0] : offsets[-1]]
+
+
+@dataclass(frozen=True, eq=False)
+class CandidateMap:
+    """N candidates (grid cells or instance masks) with their fused features and measures.
+
+    Confidence of class y for candidate c is ``exp(s * features[c] . text[y] - log_norm[c])``
+    (see :func:`query.confidence.confidence`).
+    """
+
+    kind: MapKind
+    vocabulary: tuple[str, ...]
+    text: np.ndarray
+    """(n, d) float32 L2-normalised text embeddings of the vocabulary, in vocabulary order."""
+    logit_scale: float
+    features: np.ndarray
+    """(N, d) float32 fused features."""
+    log_norm: np.ndarray
+    """(N,) float32 ``logsumexp_y(s * f . t_y)``."""
+    top_classes: np.ndarray
+    """(N, K) int16 classes of P_c in descending order, K = min(n, 100)."""
+    entropy: np.ndarray
+    stderr: np.ndarray
+    pwkl: np.ndarray
+    num_views: np.ndarray
+    positions: np.ndarray
+    """(N, 3) float32: instance centre, or cell centre (x, y, z_max)."""
+    point_offsets: np.ndarray = field(default_factory=lambda: np.zeros(1, np.int64))
+    """(N+1,) offsets into :attr:`point_indices` (instances; all zero for the grid)."""
+    point_indices: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    """Concatenated scene-point indices of every instance mask."""
+    encoder_name: str = ""
+    cell_size: float | None = None
+
+    def __post_init__(self) -> None:
+        n_cand = len(self.features)
+        for name in ("log_norm", "entropy", "stderr", "pwkl", "num_views", "positions"):
+            if len(getattr(self, name)) != n_cand:
+                msg = f"map column {name!r} has {len(getattr(self, name))} rows, features {n_cand}"
+                raise QueryError(msg)
+        if self.text.shape != (len(self.vocabulary), self.features.shape[1]) and n_cand:
+            msg = (
+                f"text embeddings of shape {self.text.shape} do not match a vocabulary of "
+                f"{len(self.vocabulary)} classes and features of dimension {self.features.shape[1]}"
+            )
+            raise QueryError(msg)
+
+    @property
+    def num_candidates(self) -> int:
+        return len(self.features)
+
+    def column(self, name: str) -> np.ndarray:
+        """A per-candidate measure column by name (``entropy``, ``stderr``, ``pwkl``, ``num_views``)."""
+        if name not in (*MEASURES, "num_views"):
+            msg = f"no measure column {name!r}; choose one of {', '.join(MEASURES)}"
+            raise QueryError(msg)
+        return getattr(self, name)
+
+    def class_id(self, name: str) -> int:
+        """Index of a class name in the vocabulary (case-insensitive), or a QueryError."""
+        lookup = self._class_lookup
+        key = name.strip().lower()
+        if key not in lookup:
+            msg = (
+                f"{name!r} is not a class of this map's vocabulary ({len(self.vocabulary)} classes)"
+            )
+            raise QueryError(msg)
+        return lookup[key]
+
+    @cached_property
+    def _class_lookup(self) -> dict[str, int]:
+        out: dict[str, int] = {}
+        for i, name in enumerate(self.vocabulary):
+            out.setdefault(name.strip().lower(), i)
+        return out
+
+    def mask(self, candidate: int) -> np.ndarray:
+        """Scene-point indices of one instance mask."""
+        return self.point_indices[self.point_offsets[candidate] : self.point_offsets[candidate + 1]]
+
+    def subset(self, keep: np.ndarray) -> tuple[CandidateMap, np.ndarray]:
+        """The map restricted to candidates ``keep`` (bool mask or ids), renumbered 0..M-1.
+
+        Returns the new map and the original ids of its candidates (for room-by-room maps).
+        """
+        ids = np.flatnonzero(keep) if np.asarray(keep).dtype == bool else np.asarray(keep)
+        starts, ends = self.point_offsets[ids], self.point_offsets[ids + 1]
+        lengths = ends - starts
+        offsets = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
+        pos = np.arange(offsets[-1]) - np.repeat(offsets[:-1], lengths) + np.repeat(starts, lengths)
+        sub = CandidateMap(
+            kind=self.kind,
+            vocabulary=self.vocabulary,
+            text=self.text,
+            logit_scale=self.logit_scale,
+            features=self.features[ids],
+            log_norm=self.log_norm[ids],
+            top_classes=self.top_classes[ids],
+            entropy=self.entropy[ids],
+            stderr=self.stderr[ids],
+            pwkl=self.pwkl[ids],
+            num_views=self.num_views[ids],
+            positions=self.positions[ids],
+            point_offsets=offsets if self.kind == "instances" else np.zeros(len(ids) + 1, np.int64),
+            point_indices=self.point_indices[pos.astype(np.int64)],
+            encoder_name=self.encoder_name,
+            cell_size=self.cell_size,
+        )
+        return sub, ids
+
+    @cached_property
+    def log_confidence_table(self) -> np.ndarray | None:
+        """(n, N) float32 ``s * t_y . f_c - log_norm_c`` for every class, or None when that
+        would exceed :data:`LOG_CONFIDENCE_CACHE` entries (then each query multiplies).
+
+        Built at first use: a fixed vocabulary makes every query a row gather afterwards.
+        """
+        n_cls, n_cand = len(self.vocabulary), self.num_candidates
+        if n_cls * n_cand > LOG_CONFIDENCE_CACHE or n_cand == 0:
+            return None
+        table = (self.text * np.float32(self.logit_scale)) @ self.features.T
+        table -= self.log_norm[None, :]
+        return table
+
+    @cached_property
+    def _rank_index(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+        """Every (class, candidate) pair of ``top_classes`` sorted by class, then rank:
+        ``(starts (n*K+1,), candidate, rank, K)``. One sort at first use; afterwards the
+        candidates ranking class y below k are the slice ``starts[y*K] : starts[y*K + k]``."""
+        n_top = self.top_classes.shape[1] if self.top_classes.ndim == 2 else 0
+        n_cls = len(self.vocabulary)
+        if n_top == 0:
+            empty = np.zeros(0, np.int64)
+            return np.zeros(n_cls + 1, np.int64), empty, empty, 0
+        ranks = np.broadcast_to(np.arange(n_top), self.top_classes.shape)
+        key = (self.top_classes.astype(np.int64) * n_top + ranks).reshape(-1)
+        order = np.argsort(key, kind="stable")
+        starts = np.searchsorted(key[order], np.arange(n_cls * n_top + 1))
+        return starts, order // n_top, order % n_top, n_top
+
+    def class_rank(self, class_ids: np.ndarray, limit: int | None = None) -> np.ndarray:
+        """(Q, N) int16 position of class ``class_ids[q]`` in each candidate's top classes
+        (0 = the candidate's top class), :data:`NOT_IN_TOP` where it is not stored or, with
+        ``limit``, not below ``limit`` (cheaper: only ranks < limit are written).
+
+        ``rank < k`` is the top-k category criterion (exact for every k <= limit).
+        """
+        class_ids = np.atleast_1d(np.asarray(class_ids, dtype=np.int64))
+        starts, cand, rank, n_top = self._rank_index
+        out = np.full((len(class_ids), self.num_candidates), NOT_IN_TOP, dtype=np.int16)
+        if n_top == 0:
+            return out
+        depth = n_top if limit is None else max(0, min(int(limit), n_top))
+        lo = starts[class_ids * n_top]
+        lengths = starts[class_ids * n_top + depth] - lo
+        rows = np.repeat(np.arange(len(class_ids)), lengths)
+        pos = np.arange(lengths.sum()) + np.repeat(lo - (np.cumsum(lengths) - lengths), lengths)
+        out[rows, cand[pos]] = rank[pos]
+        return out
+
+
+def _meta(table: pa.Table, key: str, path: Path) -> str:
+    md = table.schema.metadata or {}
+    value = md.get(key.encode())
+    if value is None:
+        msg = f"{path}: table metadata lacks {key}; rebuild the map with `care fuse`"
+        raise QueryError(msg)
+    return value.decode()
+
+
+def map_from_table(
+    table: pa.Table, text: np.ndarray, kind: MapKind, *, path: Path | None = None
+) -> CandidateMap:
+    """Build a :class:`CandidateMap` from a map table (with its schema metadata) and the
+    (n, d) text embeddings of its vocabulary."""
+    where = path or Path(f"<{kind} table>")
+    vocabulary = tuple(json.loads(_meta(table, "care.vocabulary", where)))
+    scale = float(_meta(table, "care.logit_scale", where))
+    md = table.schema.metadata or {}
+    n_cand = table.num_rows
+    features = list_column(table, "feature", np.float32)
+    if kind == "grid":
+        positions = np.stack(
+            [table.column(c).to_numpy().astype(np.float32) for c in ("x", "y", "z_max")], axis=1
+        ).reshape(n_cand, 3)
+        offsets, indices = np.zeros(n_cand + 1, np.int64), np.zeros(0, np.int64)
+        cell = md.get(b"care.grid.cell_size")
+        cell_size = float(cell) if cell is not None else None
+    else:
+        positions = list_column(table, "center", np.float32).reshape(n_cand, 3)
+        offsets, indices = _ragged(table, "point_indices")
+        cell_size = None
+    ids = table.column("candidate_id").to_numpy()
+    if not np.array_equal(ids, np.arange(n_cand)):
+        msg = f"{where}: candidate_id is not 0..N-1 in row order; rebuild the map with `care fuse`"
+        raise QueryError(msg)
+    return CandidateMap(
+        kind=kind,
+        vocabulary=vocabulary,
+        text=np.asarray(text, dtype=np.float32).reshape(len(vocabulary), -1),
+        logit_scale=scale,
+        features=features.reshape(n_cand, -1),
+        log_norm=table.column("log_norm").to_numpy().astype(np.float32),
+        top_classes=list_column(table, "top_classes", np.int16).reshape(n_cand, -1),
+        entropy=table.column("entropy").to_numpy().astype(np.float32),
+        stderr=table.column("stderr").to_numpy().astype(np.float32),
+        pwkl=table.column("pwkl").to_numpy().astype(np.float32),
+        num_views=table.column("num_views").to_numpy().astype(np.int32),
+        positions=positions,
+        point_offsets=offsets,
+        point_indices=indices,
+        encoder_name=(md.get(b"care.encoder.name") or b"").decode(),
+        cell_size=cell_size,
+    )
+
+
+def _vocabulary_text(store: Path, vocabulary: tuple[str, ...]) -> np.ndarray:
+    """The store's cached text embeddings, in the map's vocabulary order."""
+    table = read_table(store / "text.parquet")
+    names = table.column("name").to_pylist()
+    emb = list_column(table, "embedding", np.float32)
+    index = {name: i for i, name in enumerate(names)}
+    missing = [name for name in vocabulary if name not in index]
+    if missing:
+        msg = (
+            f"{store / 'text.parquet'}: no text embedding for {len(missing)} classes of the map "
+            f"(e.g. {missing[0]!r}); re-run `care fuse` with the store's vocabulary"
+        )
+        raise QueryError(msg)
+    return emb[[index[name] for name in vocabulary]]
+
+
+def load_map(store: Path, kind: MapKind = "instances") -> CandidateMap:
+    """Read a store's ``instances.parquet`` or ``cells.parquet`` (and ``text.parquet``)."""
+    store = Path(store)
+    if kind not in MAP_TABLES:
+        msg = f"unknown map kind {kind!r}; choose one of {', '.join(MAP_TABLES)}"
+        raise QueryError(msg)
+    path = store / f"{MAP_TABLES[kind]}.parquet"
+    table = read_table(path)
+    vocabulary = tuple(json.loads(_meta(table, "care.vocabulary", path)))
+    return map_from_table(table, _vocabulary_text(store, vocabulary), kind, path=path)

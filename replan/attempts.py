@@ -1,0 +1,226 @@
+"""Attempts: the first by max confidence, then a strategy's rule after each failure.
+
+:func:`run_attempts` plays whole episodes for a batch of queries when success is known (the
+evaluation); :func:`next_goal` is the live call a robot makes after a failed attempt, with
+only the list of visited candidates.
+
+For the grid a failed attempt also excludes every cell within ``exclude_radius`` metres (floor
+plane) of it, so the agent does not try the same object again from the next cell; instances
+exclude only the visited instance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from care.errors import ReplanError
+from query.confidence import confidence as class_confidence
+from query.map import MEASURES, CandidateMap
+from replan.strategies import Pick, Situation, Strategy, best_of, candidate_set, get_strategy
+
+__all__ = [
+    "DEFAULT_EXCLUDE_RADIUS",
+    "Attempts",
+    "Choice",
+    "available_after",
+    "next_goal",
+    "run_attempts",
+]
+
+DEFAULT_EXCLUDE_RADIUS = 1.0
+"""Metres around a failed grid cell that later attempts skip (the success radius)."""
+
+
+@dataclass(frozen=True)
+class Attempts:
+    """Every attempt of Q episodes (A attempts at most; ``-1`` where none was made)."""
+
+    candidate: np.ndarray
+    """(Q, A) int64 chosen candidate per attempt."""
+    success: np.ndarray
+    """(Q, A) bool."""
+    value: np.ndarray
+    """(Q, A) float64 measure value that chose the candidate (confidence for attempt 1)."""
+    fell_back: np.ndarray
+    """(Q, A) bool: the candidate set was empty and max confidence chose."""
+    set_size: np.ndarray
+    """(Q, A) int64 size of the candidate set the rule chose from (0 where not set-based)."""
+
+    @property
+    def solved(self) -> np.ndarray:
+        """(Q,) bool: some attempt succeeded."""
+        return self.success.any(axis=1)
+
+
+def available_after(
+    available: np.ndarray,
+    chosen: np.ndarray,
+    positions: np.ndarray | None,
+    exclude_radius: float,
+) -> np.ndarray:
+    """``available`` without each row's ``chosen`` candidate and, with positions (grid), the
+    candidates within ``exclude_radius`` of it on the floor plane."""
+    out = available.copy()
+    rows = np.flatnonzero(chosen >= 0)
+    out[rows, chosen[rows]] = False
+    if positions is not None and exclude_radius > 0 and len(rows):
+        xy = positions[:, :2]
+        d2 = ((xy[None, :, :] - xy[chosen[rows]][:, None, :]) ** 2).sum(-1)
+        out[rows] &= d2 > exclude_radius**2
+    return out
+
+
+def _step(
+    strategy: Strategy,
+    conf: np.ndarray,
+    available: np.ndarray,
+    columns: dict[str, np.ndarray],
+    *,
+    criterion: str,
+    k: int,
+    rank: np.ndarray | None,
+    rng: np.random.Generator | None,
+    success: np.ndarray | None,
+) -> tuple[Pick, np.ndarray]:
+    cset = candidate_set(criterion, conf, available, k, rank) if strategy.uses_set else available
+    situation = Situation(conf, available, cset, columns, rng, success)
+    if strategy.rule is None:
+        msg = f"strategy {strategy.name!r} makes no further attempt"
+        raise ReplanError(msg)
+    size = cset.sum(axis=1) if strategy.uses_set else np.zeros(len(conf), np.int64)
+    return strategy.rule(situation), size
+
+
+def run_attempts(
+    strategy: Strategy | str,
+    conf: np.ndarray,
+    success: np.ndarray,
+    columns: dict[str, np.ndarray],
+    *,
+    criterion: str = "confidence",
+    k: int = 4,
+    attempts: int = 2,
+    rank: np.ndarray | None = None,
+    positions: np.ndarray | None = None,
+    exclude_radius: float = 0.0,
+    rng: np.random.Generator | None = None,
+) -> Attempts:
+    """Play Q episodes: attempt 1 by max confidence, then ``strategy`` on what remains after
+    each failure, up to ``attempts`` attempts; an episode stops at its first success.
+
+    ``conf``/``success``/``rank`` are (Q, N); ``positions`` (N, 3) turns on the grid's radius
+    exclusion. ``no_replan`` makes one attempt whatever ``attempts`` says.
+    """
+    strategy = get_strategy(strategy) if isinstance(strategy, str) else strategy
+    if attempts < 1:
+        msg = f"attempts must be at least 1, got {attempts}"
+        raise ReplanError(msg)
+    n_q, n_c = conf.shape
+    n_a = 1 if strategy.rule is None else attempts
+    cand = np.full((n_q, attempts), -1, np.int64)
+    ok = np.zeros((n_q, attempts), bool)
+    value = np.full((n_q, attempts), np.nan)
+    fell = np.zeros((n_q, attempts), bool)
+    size = np.zeros((n_q, attempts), np.int64)
+    available = np.ones((n_q, n_c), bool)
+    first, found = best_of(conf, available, conf, maximise=True)
+    chosen = np.where(found, first, -1)
+    rows = np.arange(n_q)
+    for a in range(n_a):
+        if a > 0:
+            live = ~ok[:, :a].any(axis=1) & (cand[:, a - 1] >= 0)
+            available = available_after(
+                available, np.where(live, cand[:, a - 1], -1), positions, exclude_radius
+            )
+            available[~live] = False
+            pick, set_size = _step(
+                strategy, conf, available, columns,
+                criterion=criterion, k=k, rank=rank, rng=rng, success=success,
+            )  # fmt: skip
+            chosen = np.where(live, pick.candidate, -1)
+            value[:, a] = np.where(live, pick.value, np.nan)
+            fell[:, a] = live & pick.fell_back
+            size[:, a] = np.where(live, set_size, 0)
+        else:
+            value[:, 0] = np.where(found, conf[rows, np.maximum(chosen, 0)], np.nan)
+        cand[:, a] = chosen
+        ok[:, a] = (chosen >= 0) & success[rows, np.maximum(chosen, 0)]
+    return Attempts(cand, ok, value, fell, size)
+
+
+@dataclass(frozen=True)
+class Choice:
+    """The live answer: where to go next, and why."""
+
+    candidate: int
+    """Candidate id, ``-1`` when every candidate has been visited or excluded."""
+    strategy: str
+    """The rule that chose: ``max_confidence`` for a first attempt or a fallback."""
+    measure: str | None
+    value: float
+    """Value of ``measure`` for the chosen candidate."""
+    confidence: float
+    fell_back: bool
+    """The candidate set was empty, so max confidence chose instead of the strategy."""
+    set_size: int
+
+
+def next_goal(
+    cmap: CandidateMap,
+    query: str | int,
+    visited: list[int] | np.ndarray = (),  # type: ignore[assignment]
+    *,
+    strategy: str = "min_stderr",
+    criterion: str = "confidence",
+    k: int = 4,
+    exclude_radius: float | None = None,
+    seed: int = 0,
+) -> Choice:
+    """The next candidate to try for ``query`` after the ``visited`` (failed) ones.
+
+    With nothing visited this is the first attempt (max confidence); afterwards ``strategy``
+    over ``criterion``'s top-k set among unvisited candidates. ``exclude_radius`` (grid only,
+    default 1 m) also skips cells near failed ones.
+    """
+    y = cmap.class_id(query) if isinstance(query, str) else int(query)
+    conf = class_confidence(cmap, np.array([y]))
+    visited_ids = np.asarray(visited, dtype=np.int64).reshape(-1)
+    if visited_ids.size and (visited_ids.min() < 0 or visited_ids.max() >= cmap.num_candidates):
+        msg = f"visited candidate ids must lie in 0..{cmap.num_candidates - 1}"
+        raise ReplanError(msg)
+    available = np.ones_like(conf, dtype=bool)
+    radius = (
+        (DEFAULT_EXCLUDE_RADIUS if exclude_radius is None else exclude_radius)
+        if cmap.kind == "grid"
+        else 0.0
+    )
+    positions = cmap.positions if cmap.kind == "grid" else None
+    for v in visited_ids:
+        available = available_after(available, np.array([v]), positions, radius)
+    chosen = get_strategy(strategy)
+    first = visited_ids.size == 0 or chosen.rule is None
+    if first:
+        cand, found = best_of(conf, available, conf, maximise=True)
+        pick = Pick(np.where(found, cand, -1), conf[0, cand].astype(np.float64), np.zeros(1, bool))
+        size = np.zeros(1, np.int64)
+    else:
+        rank = cmap.class_rank(np.array([y]), limit=k) if criterion == "category" else None
+        columns = {name: cmap.column(name) for name in MEASURES}
+        pick, size = _step(
+            chosen, conf, available, columns, criterion=criterion, k=k, rank=rank,
+            rng=np.random.default_rng(seed), success=None,
+        )  # fmt: skip
+    c = int(pick.candidate[0])
+    fell = bool(pick.fell_back[0])
+    used = "max_confidence" if first or fell else chosen.name
+    return Choice(
+        candidate=c,
+        strategy=used,
+        measure="confidence" if first or fell else chosen.measure,
+        value=float(pick.value[0]) if c >= 0 else float("nan"),
+        confidence=float(conf[0, c]) if c >= 0 else float("nan"),
+        fell_back=fell,
+        set_size=int(size[0]),
+    )

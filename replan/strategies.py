@@ -1,0 +1,317 @@
+"""The replan strategies of ``method.md``, each a small rule over precomputed columns.
+
+Every rule works on a batch of Q queries over the N candidates of one map at once: it sees the
+(Q, N) confidence, which candidates are still *available* (unvisited and not excluded), the
+*candidate set* of the selection criterion, and the per-candidate measure columns, and returns
+one candidate per query. Ties break by higher confidence, then lower id. A rule over an empty
+candidate set falls back to the max-confidence rule and says so (``Pick.fell_back``).
+
+Selection criteria (:data:`CRITERIA`), among available candidates:
+
+- ``confidence``: the k candidates of highest confidence. After a failed first attempt this is
+  ranks 2..k+1, as in the authors' code;
+- ``category``: every candidate whose k highest classes contain the target class.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from care.errors import ReplanError
+
+__all__ = [
+    "CRITERIA",
+    "STRATEGIES",
+    "Pick",
+    "Situation",
+    "Strategy",
+    "best_of",
+    "candidate_set",
+    "get_strategy",
+    "topk_category",
+    "topk_confidence",
+    "uniform_of",
+]
+
+
+@dataclass(frozen=True)
+class Situation:
+    """What a strategy sees at one attempt, for Q queries over N candidates."""
+
+    confidence: np.ndarray
+    """(Q, N) P_c[y] of each query's target class."""
+    available: np.ndarray
+    """(Q, N) bool: not visited and not excluded by a failed attempt nearby."""
+    candidate_set: np.ndarray
+    """(Q, N) bool: the selection criterion's set (a subset of ``available``)."""
+    columns: Mapping[str, np.ndarray]
+    """(N,) measure columns by name: ``entropy``, ``stderr``, ``pwkl``."""
+    rng: np.random.Generator | None = None
+    """Source of the random strategies' draws (seeded by the caller)."""
+    success: np.ndarray | None = None
+    """(Q, N) bool ground truth; only the oracle reads it."""
+
+
+@dataclass(frozen=True)
+class Pick:
+    """One chosen candidate per query (``-1`` where nothing is available)."""
+
+    candidate: np.ndarray
+    """(Q,) int64 candidate ids."""
+    value: np.ndarray
+    """(Q,) float64 the value of the measure that chose it (NaN for random draws)."""
+    fell_back: np.ndarray
+    """(Q,) bool: the candidate set was empty and max confidence chose instead."""
+
+
+def best_of(
+    values: np.ndarray, mask: np.ndarray, confidence: np.ndarray, *, maximise: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """Row-wise best of ``values`` within ``mask``; ties by higher confidence, then lower id.
+
+    Returns ``(candidate (Q,), found (Q,))``; NaN values count as the worst. Infinite values
+    are legitimate (a one-view candidate has stderr = +inf, the worst under *min*). Rows
+    with a tie are resolved apart, so the common case costs a few passes over (Q, N).
+    """
+    if values is confidence and maximise:
+        # max confidence: the confidence tie-break is moot, argmax's first maximum is the lower id
+        if mask.all():
+            return confidence.argmax(axis=1), np.full(len(mask), mask.shape[1] > 0)
+        return np.where(mask, confidence, -np.inf).argmax(axis=1), mask.any(axis=1)
+    values = np.asarray(values)
+    if values.ndim == 1 and np.isnan(values).any():
+        values = np.where(np.isnan(values), -np.inf if maximise else np.inf, values)
+    if np.count_nonzero(mask) * 8 < mask.size:
+        return _best_of_sparse(values, mask, confidence, maximise=maximise)
+    score = np.where(mask, values if maximise else -values, -np.inf)
+    best = score.max(axis=1, keepdims=True) if score.shape[1] else score[:, :1]
+    tie = score == best
+    found = mask.any(axis=1)
+    if score.shape[1] == 0:
+        return np.zeros(len(score), np.int64), found
+    n_tie = tie.sum(axis=1)
+    multi = np.flatnonzero((n_tie > 1) | ~np.isfinite(best[:, 0]))
+    if len(multi):
+        sub = tie[multi] & mask[multi]
+        conf = np.where(sub, np.broadcast_to(confidence, mask.shape)[multi], -np.inf)
+        sub &= conf == conf.max(axis=1, keepdims=True)
+        tie[multi] = sub
+    return tie.argmax(axis=1), found
+
+
+def _best_of_sparse(
+    values: np.ndarray, mask: np.ndarray, confidence: np.ndarray, *, maximise: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`best_of` for a sparse mask (a top-k set), over its (row, id) pairs in row-major
+    order: per-row maxima by ``reduceat``, so the cost follows the set, not Q x N."""
+    n_q, n_c = mask.shape
+    rows, cols = np.divmod(np.flatnonzero(mask), n_c)
+    out, found = np.zeros(n_q, np.int64), np.zeros(n_q, bool)
+    if len(rows) == 0:
+        return out, found
+    vals = values[cols] if values.ndim == 1 else values[rows, cols]
+    score = np.where(np.isnan(vals), -np.inf, vals if maximise else -vals)
+    conf = np.broadcast_to(confidence, mask.shape)[rows, cols]
+    starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1]])
+    sizes = np.diff(np.r_[starts, len(rows)])
+    tie = score == np.repeat(np.maximum.reduceat(score, starts), sizes)
+    tied_conf = np.where(tie, conf, -np.inf)
+    tie &= tied_conf == np.repeat(np.maximum.reduceat(tied_conf, starts), sizes)
+    idx = np.flatnonzero(tie)  # ids ascend within a row: the first tie is the lower id
+    first = idx[np.r_[True, rows[idx][1:] != rows[idx][:-1]]]
+    out[rows[first]] = cols[first]
+    found[rows[first]] = True
+    return out, found
+
+
+def uniform_of(mask: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """One candidate drawn uniformly from each row's ``mask``: ``(candidate, found)``."""
+    draw = rng.random(mask.shape)
+    return np.where(mask, draw, -1.0).argmax(axis=1), mask.any(axis=1)
+
+
+SMALL_K = 32
+"""Up to this k the top-k set is found by k row-wise argmaxes (exact ties, fast); above it
+by a partition."""
+
+
+def topk_confidence(
+    confidence: np.ndarray, available: np.ndarray, k: int, rank: np.ndarray | None = None
+) -> np.ndarray:
+    """(Q, N) bool: the k available candidates of highest confidence (ties: lower id)."""
+    key = np.where(available, confidence, -np.inf)
+    n_q, n_cand = key.shape
+    if k >= n_cand:
+        return available.copy()
+    if k <= SMALL_K:
+        out = np.zeros(key.shape, bool)
+        rows = np.arange(n_q)
+        for _ in range(k):
+            top = key.argmax(axis=1)  # the first maximum: ties go to the lower id
+            out[rows, top] = True
+            key[rows, top] = -np.inf
+        return out & available
+    kth = -np.partition(-key, k - 1, axis=1)[:, k - 1 : k]
+    above = key > kth
+    equal = available & (key == kth)
+    room = k - above.sum(axis=1, keepdims=True)
+    return available & (above | (equal & (np.cumsum(equal, axis=1) <= room)))
+
+
+def topk_category(
+    confidence: np.ndarray, available: np.ndarray, k: int, rank: np.ndarray | None = None
+) -> np.ndarray:
+    """(Q, N) bool: available candidates whose k highest classes contain the target class.
+
+    ``rank`` is :meth:`query.map.CandidateMap.class_rank` of the query classes.
+    """
+    if rank is None:
+        msg = "the category criterion needs the class ranks of the candidates"
+        raise ReplanError(msg)
+    return available & (rank < k)
+
+
+CRITERIA: dict[str, Callable[..., np.ndarray]] = {
+    "confidence": topk_confidence,
+    "category": topk_category,
+}
+"""Selection criterion name -> ``f(confidence, available, k, rank) -> (Q, N) bool``."""
+
+
+def candidate_set(
+    criterion: str,
+    confidence: np.ndarray,
+    available: np.ndarray,
+    k: int,
+    rank: np.ndarray | None = None,
+) -> np.ndarray:
+    """The candidate set of ``criterion`` with parameter ``k`` among available candidates."""
+    if criterion not in CRITERIA:
+        msg = f"unknown selection criterion {criterion!r}; choose one of {', '.join(CRITERIA)}"
+        raise ReplanError(msg)
+    if k < 1:
+        msg = f"k must be at least 1, got {k}"
+        raise ReplanError(msg)
+    return CRITERIA[criterion](confidence, available, k, rank)
+
+
+def _pick(
+    s: Situation, candidate: np.ndarray, found: np.ndarray, values: np.ndarray | None
+) -> Pick:
+    """Complete a rule's choice: max confidence where its set was empty, -1 where nothing is."""
+    candidate = np.where(found, candidate, -1)
+    fell_back = np.zeros(len(candidate), bool)
+    empty = np.flatnonzero(~found)
+    if len(empty):  # max confidence where the rule's set was empty
+        conf = s.confidence[empty]
+        fallback, any_left = best_of(conf, s.available[empty], conf, maximise=True)
+        candidate[empty] = np.where(any_left, fallback, -1)
+        fell_back[empty] = any_left
+    rows = np.arange(len(candidate))
+    safe = np.maximum(candidate, 0)
+    if values is None:
+        value = np.full(len(candidate), np.nan)
+    else:
+        value = np.broadcast_to(values, s.available.shape)[rows, safe].astype(np.float64)
+    value = np.where(fell_back, s.confidence[rows, safe], value)
+    return Pick(candidate.astype(np.int64), np.where(candidate >= 0, value, np.nan), fell_back)
+
+
+def _max_confidence(s: Situation) -> Pick:
+    cand, found = best_of(s.confidence, s.available, s.confidence, maximise=True)
+    return _pick(s, cand, found, s.confidence)
+
+
+def _random(s: Situation) -> Pick:
+    if s.rng is None:
+        msg = "the random strategies need a seeded generator (Situation.rng)"
+        raise ReplanError(msg)
+    cand, found = uniform_of(s.available, s.rng)
+    return _pick(s, cand, found, None)
+
+
+def _random_topk(s: Situation) -> Pick:
+    if s.rng is None:
+        msg = "the random strategies need a seeded generator (Situation.rng)"
+        raise ReplanError(msg)
+    cand, found = uniform_of(s.candidate_set, s.rng)
+    return _pick(s, cand, found, None)
+
+
+def _by_measure(column: str, maximise: bool) -> Callable[[Situation], Pick]:
+    def rule(s: Situation) -> Pick:
+        values = s.columns[column]
+        cand, found = best_of(values, s.candidate_set, s.confidence, maximise=maximise)
+        return _pick(s, cand, found, values)
+
+    rule.__name__ = f"{'max' if maximise else 'min'}_{column}"
+    return rule
+
+
+def _oracle(s: Situation) -> Pick:
+    if s.success is None:
+        msg = "the oracle needs ground truth; it exists only in evaluation (`care eval`)"
+        raise ReplanError(msg)
+    cand, found = best_of(s.confidence, s.available & s.success, s.confidence, maximise=True)
+    return _pick(s, cand, found, s.confidence)
+
+
+@dataclass(frozen=True)
+class Strategy:
+    """A named replan rule and how the evaluation treats it."""
+
+    name: str
+    label: str
+    """Row label of the paper's tables."""
+    rule: Callable[[Situation], Pick] | None
+    """The rule for the second and later attempts; ``None``: no further attempt."""
+    measure: str | None = None
+    """Column the rule chooses by (``confidence``, ``entropy``, ``stderr``, ``pwkl``)."""
+    uses_set: bool = False
+    """Chooses within the candidate set of a criterion and k (else k does not matter)."""
+    random: bool = False
+    needs_truth: bool = False
+    ablation: bool = False
+
+
+STRATEGIES: dict[str, Strategy] = {
+    s.name: s
+    for s in (
+        Strategy("no_replan", "No replan (top1 acc)", None),
+        Strategy("oracle", "Oracle", _oracle, "confidence", needs_truth=True),
+        Strategy("max_confidence", "Max confidence (top2 acc)", _max_confidence, "confidence"),
+        Strategy("random", "Random replan", _random, random=True),
+        Strategy("random_topk", "Random from top-k", _random_topk, uses_set=True, random=True),
+        Strategy("max_entropy", "Max entropy", _by_measure("entropy", True), "entropy", True),
+        Strategy("min_stderr", "Min stderr", _by_measure("stderr", False), "stderr", True),
+        Strategy("min_pwkl", "Min pwKL", _by_measure("pwkl", False), "pwkl", True),
+        Strategy(
+            "min_entropy",
+            "Min entropy (ablation)",
+            _by_measure("entropy", False),
+            "entropy",
+            uses_set=True,
+            ablation=True,
+        ),
+        Strategy(
+            "max_pwkl",
+            "Max pwKL (ablation)",
+            _by_measure("pwkl", True),
+            "pwkl",
+            uses_set=True,
+            ablation=True,
+        ),
+    )
+}
+"""Strategy name -> :class:`Strategy`, in the paper's row order; the CLI's choices."""
+
+
+def get_strategy(name: str) -> Strategy:
+    """The registered strategy ``name`` or a ReplanError listing the choices."""
+    if name not in STRATEGIES:
+        msg = f"unknown replan strategy {name!r}; choose one of {', '.join(STRATEGIES)}"
+        raise ReplanError(msg)
+    return STRATEGIES[name]

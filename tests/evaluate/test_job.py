@@ -1,0 +1,218 @@
+"""The evaluation job end to end on hand-built scenes, against brute-force references."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pyarrow.compute as pc
+import pytest
+from scipy.special import softmax
+from sklearn.metrics import roc_auc_score
+
+from care.errors import EvalError
+from evaluate.job import EvalConfig, evaluate_scene, run_eval, run_scenes, scenes_of
+from evaluate.report import auroc, per_query
+from query import load_map
+from world.groundtruth import GroundTruth
+
+SMALL = EvalConfig(seeds=3, bootstrap=200, k_instances=(1, 2, 4), k_grid=(4, 16))
+
+
+def _same(a, b) -> bool:
+    """Column-by-column equality with NaN equal to NaN (Arrow's ``equals`` says NaN != NaN)."""
+    if a.schema != b.schema or a.num_rows != b.num_rows:
+        return False
+    for name in a.column_names:
+        x = a.column(name).to_numpy(zero_copy_only=False)
+        y = b.column(name).to_numpy(zero_copy_only=False)
+        if x.dtype.kind == "f":
+            if not np.array_equal(x, y, equal_nan=True):
+                return False
+        elif not np.array_equal(x, y):
+            return False
+    return True
+
+
+def _rows(table, **eq):
+    mask = None
+    for key, value in eq.items():
+        m = pc.equal(table.column(key), value)
+        mask = m if mask is None else pc.and_(mask, m)
+    return table.filter(mask)
+
+
+def test_first_attempt_matches_brute_force(dataset) -> None:
+    scene = scenes_of(dataset)[1]
+    table = evaluate_scene(scene, SMALL)
+    gt = GroundTruth.load(scene.recording)
+    cmap = load_map(scene.store, "instances")
+    vocab = list(cmap.vocabulary)
+    P = softmax(
+        cmap.logit_scale * cmap.features.astype(np.float64) @ cmap.text.T.astype(np.float64), axis=1
+    )
+    first = _rows(table, map="instances", protocol="instance", strategy="no_replan")
+    assert first.num_rows == 6  # one query per GT instance
+    for row in first.to_pylist():
+        cls, inst = row["query"].split("#")
+        in_room = np.flatnonzero((cmap.positions[:, 0] < 5) == (row["unit"] == "living"))
+        best = in_room[np.argmax(P[in_room, vocab.index(cls)])]
+        truth = set(np.flatnonzero(gt.point_instance == int(inst)).tolist())
+        pred = set(cmap.mask(best).tolist())
+        assert row["candidate"] == best
+        assert row["success"] == (len(truth & pred) / len(truth | pred) > 0.25)
+        assert np.isclose(row["confidence"], P[best, vocab.index(cls)], rtol=1e-4)
+
+
+def test_oracle_bounds_and_random_seeds_against_closed_form(dataset) -> None:
+    table = evaluate_scene(scenes_of(dataset)[0], SMALL)
+    q = per_query(table)
+    keys = ["map", "protocol", "unit", "query"]
+    oracle = {
+        tuple(r[k] for k in keys): r["solved"] for r in _rows(q, strategy="oracle").to_pylist()
+    }
+    for r in q.to_pylist():
+        assert r["solved"] <= oracle[tuple(r[k] for k in keys)] + 1e-12, r
+    rand = _rows(table, strategy="random")
+    assert set(rand.column("seed").to_pylist()) == {0, 1, 2}
+    exp = rand.column("expected").to_numpy()
+    assert np.all((exp >= 0) & (exp <= 1))
+    # attempts never repeat a candidate within an episode
+    two = _rows(table, strategy="min_stderr", attempt=2)
+    assert two.num_rows > 0
+    assert set(table.column("attempt").to_pylist()) <= {1, 2}
+
+
+def test_run_resumes_and_writes_every_output(dataset, tmp_path) -> None:
+    out = tmp_path / "eval"
+    report = run_eval(dataset, SMALL, out, workers=1, progress=False)
+    for name in (
+        "attempts.parquet",
+        "summary.parquet",
+        "per_scene.parquet",
+        "auroc.parquet",
+        "results.md",
+    ):
+        assert (out / name).is_file(), name
+    pngs = sorted((out / "plots").glob("*.png"))
+    assert [p.name for p in pngs] == [
+        "success_grid_class.png",
+        "success_instances_class.png",
+        "success_instances_instance.png",
+    ]
+    assert all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in pngs)
+    md = report.markdown
+    assert "room by room (12 room maps" in md
+    assert "| Min stderr | confidence |" in md
+    assert "| Random replan (closed form) | - |" in md
+    assert "**" in md
+    assert "k=40" not in md.split("Grid map")[0]
+    cached = {p: p.stat().st_mtime_ns for p in (out / "scenes").glob("*.parquet")}
+    assert len(cached) == 3
+    again = run_eval(dataset, SMALL, out, workers=1, progress=False)
+    assert {p: p.stat().st_mtime_ns for p in (out / "scenes").glob("*.parquet")} == cached
+    assert _same(again.summary, report.summary)
+    # a changed config recomputes
+    run_scenes(
+        scenes_of(dataset)[:1],
+        EvalConfig(seeds=2, k_instances=(1,), k_grid=(4,)),
+        out,
+        workers=1,
+        progress=False,
+    )
+    assert (out / "scenes" / "scene_0.parquet").stat().st_mtime_ns != cached[
+        out / "scenes" / "scene_0.parquet"
+    ]
+
+
+def test_auroc_matches_sklearn(dataset) -> None:
+    rng = np.random.default_rng(1)
+    score = np.round(rng.random(200), 1)
+    score[:5] = np.inf
+    label = rng.random(200) < 0.4
+    finite = np.where(np.isinf(score), 1e9, score)
+    assert np.isclose(auroc(score, label), roc_auc_score(label, finite))
+    assert np.isnan(auroc(score, np.zeros(200, bool)))
+
+
+def test_process_pool_and_ray_are_bit_identical(dataset, tmp_path, ray_session) -> None:
+    scenes = scenes_of(dataset)
+    local = run_scenes(scenes, SMALL, tmp_path / "a", workers=1, progress=False)
+    pool = run_scenes(scenes, SMALL, tmp_path / "b", workers=2, progress=False)
+    ray_run = run_scenes(scenes, SMALL, tmp_path / "c", ray_address=True, progress=False)
+    assert _same(local, pool)
+    assert _same(local, ray_run)
+
+
+def test_bad_inputs_are_one_line_errors(dataset, tmp_path) -> None:
+    with pytest.raises(EvalError, match="neither a store"):
+        scenes_of(tmp_path)
+    (tmp_path / "index.json").write_text('{"recordings": ["nothing.mcap"]}')
+    with pytest.raises(EvalError, match=r"no fused store for nothing\.mcap"):
+        scenes_of(tmp_path)
+    with pytest.raises(EvalError, match="invalid evaluation config"):
+        EvalConfig(maps=("voxels",))
+
+
+def test_cli_eval_query_replan(dataset, tmp_path) -> None:
+    store = dataset / "stores" / "scene_0"
+    run = [sys.executable, "-m", "care_cli.main"]
+    q = subprocess.run(
+        [*run, "query", str(store), "Chair", "--top", "3"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert "class 'chair'" in q.stdout
+    assert len(q.stdout.strip().splitlines()) == 5
+    r = subprocess.run(
+        [
+            *run,
+            "replan",
+            str(store),
+            "chair",
+            "--visited",
+            "0",
+            "--strategy",
+            "max_confidence",
+            "--map",
+            "grid",
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert '"strategy": "max_confidence"' in r.stdout
+    bad = subprocess.run(
+        [*run, "replan", str(store), "chair", "--strategy", "best", "--visited", "1"],
+        capture_output=True,
+        text=True,
+    )
+    assert bad.returncode == 1
+    assert bad.stderr.startswith("error: unknown replan strategy")
+    e = subprocess.run(
+        [
+            *run,
+            "eval",
+            str(dataset),
+            "--out",
+            str(tmp_path / "o"),
+            "--seeds",
+            "2",
+            "--bootstrap",
+            "50",
+            "--k-instances",
+            "1,2",
+            "--k-grid",
+            "4",
+            "--maps",
+            "instances",
+            "--workers",
+            "1",
+        ],
+        capture_output=True,
+        text=True,
+    )
+    assert e.returncode == 0, e.stderr
+    assert "| No replan (top1 acc) | - |" in e.stdout
