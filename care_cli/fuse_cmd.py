@@ -166,8 +166,28 @@ def instances(
         )
         path = build_instances(store, config, rrd=rrd)
     _summary(path)
+    _proposal_quality(store)
     if rrd is not None:
         typer.echo(f"rerun {rrd}")
+
+
+def _proposal_quality(store: Path) -> None:
+    """Print how well the masks match the ground truth, when the source recording has one
+    (sample-world recordings): the figure to check before trusting any retrieval result."""
+    from care.store import Store
+    from fuse.evaluate_proposals import instance_map_iou
+    from world.groundtruth import gt_paths
+
+    source = (Store(store).meta.get("source") or {}).get("path")
+    if not source or not gt_paths(Path(source))[1].is_file():
+        return
+    ids, iou = instance_map_iou(store)
+    typer.echo(
+        f"proposals vs ground truth: mean best IoU {iou.mean():.3f} over {len(ids)} instances, "
+        f"{int((iou > 0.5).sum())} above 0.5, {int((iou > 0.25).sum())} above 0.25"
+        if len(ids)
+        else "proposals vs ground truth: no ground-truth instance in the scene cloud"
+    )
 
 
 def _field_values(cls: Any, assignments: list[str]) -> dict[str, Any]:

@@ -32,7 +32,7 @@ import pyarrow.parquet as pq
 
 from care.encoders import Encoder, EncoderOptions, make_encoder
 from care.errors import FuseError
-from care.store import Store, read_table, write_table_atomic
+from care.store import Store, write_table_atomic
 from fuse.measures import DEFAULT_LOGIT_SCALE, candidate_metadata, list_column
 from fuse.pointcloud import (
     SceneCloud,
@@ -41,7 +41,7 @@ from fuse.pointcloud import (
     write_scene_points,
 )
 from fuse.proposals import PROPOSERS, Proposals
-from fuse.recompute import sums_from_views
+from fuse.recompute import recompute_candidates, sums_from_views
 from fuse.views import ViewSelection, crop_features, select_views
 from fuse.vocabulary import vocabulary_text
 
@@ -325,29 +325,7 @@ def recompute_instances(
     Reads only ``instance_views.parquet`` and the instance table itself; the masks and
     boxes are kept. ``None`` keeps the current scale / the store's cached names.
     """
-    store = Store(store_path)
-    path = store.table_path(INSTANCES_TABLE)
-    table = read_table(path)
-    md = dict(table.schema.metadata or {})
-    scale = float(md[b"care.logit_scale"]) if logit_scale is None else float(logit_scale)
-    names, text = vocabulary_text(store, vocabulary)
-    sums = sums_from_views(
-        store.table_path(INSTANCE_VIEWS_TABLE),
-        "instance_id",
-        text,
-        scale,
-        num_candidates=table.num_rows,
-    )
-    common = sums.columns()
-    new = pa.table(
-        {
-            n: (common.column(n) if n in common.column_names else table.column(n))
-            for n in table.column_names
-        }
-    )
-    md.update(candidate_metadata(names, scale, store.encoder.name))
-    config = json.loads(md.get(b"care.instances.config", b"{}"))
-    config.update(vocabulary=None if vocabulary is None else list(names), logit_scale=scale)
-    md[b"care.instances.config"] = json.dumps(config, sort_keys=True).encode()
-    write_table_atomic(new, path, md)
-    return path
+    return recompute_candidates(
+        store_path, INSTANCES_TABLE, INSTANCE_VIEWS_TABLE, "instance_id", "instances",
+        vocabulary=vocabulary, logit_scale=logit_scale,
+    )  # fmt: skip

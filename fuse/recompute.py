@@ -22,7 +22,7 @@ from fuse.accumulate import CandidateSums
 from fuse.measures import candidate_metadata
 from fuse.vocabulary import vocabulary_text
 
-__all__ = ["recompute_grid", "sums_from_views"]
+__all__ = ["recompute_candidates", "recompute_grid", "sums_from_views"]
 
 
 def sums_from_views(
@@ -64,30 +64,54 @@ def recompute_grid(
     """
     from fuse.grid import CELL_VIEWS_TABLE, CELLS_TABLE
 
+    return recompute_candidates(
+        store_path, CELLS_TABLE, CELL_VIEWS_TABLE, "cell_id", "grid",
+        weight_column="weight", vocabulary=vocabulary, logit_scale=logit_scale,
+    )  # fmt: skip
+
+
+def recompute_candidates(
+    store_path: Path,
+    table_name: str,
+    views_table: str,
+    id_column: str,
+    kind: str,
+    *,
+    weight_column: str | None = None,
+    vocabulary: Sequence[str] | None = None,
+    logit_scale: float | None = None,
+) -> Path:
+    """Rewrite the common candidate columns of a map table from its per-view table.
+
+    Shared by both maps so a grid and an instance map recompute the same way: the map's
+    own columns (geometry, masks) are kept in place, the metadata and the map's config
+    (``care.<kind>.config``) record the new vocabulary and scale.
+    """
     store = Store(store_path)
-    cells_path = store.table_path(CELLS_TABLE)
-    cells = read_table(cells_path)
-    md = dict(cells.schema.metadata or {})
+    path = store.table_path(table_name)
+    table = read_table(path)
+    md = dict(table.schema.metadata or {})
     scale = float(md[b"care.logit_scale"]) if logit_scale is None else float(logit_scale)
     names, text = vocabulary_text(store, vocabulary)
     sums = sums_from_views(
-        store.table_path(CELL_VIEWS_TABLE),
-        "cell_id",
+        store.table_path(views_table),
+        id_column,
         text,
         scale,
-        num_candidates=cells.num_rows,
-        weight_column="weight",
+        num_candidates=table.num_rows,
+        weight_column=weight_column,
     )
     common = sums.columns()
-    table = pa.table(
+    new = pa.table(
         {
-            name: (common.column(name) if name in common.column_names else cells.column(name))
-            for name in cells.column_names
+            n: (common.column(n) if n in common.column_names else table.column(n))
+            for n in table.column_names
         }
     )
     md.update(candidate_metadata(names, scale, store.encoder.name))
-    config = json.loads(md.get(b"care.grid.config", b"{}"))
+    key = f"care.{kind}.config".encode()
+    config = json.loads(md.get(key, b"{}"))
     config.update(vocabulary=None if vocabulary is None else list(names), logit_scale=scale)
-    md[b"care.grid.config"] = json.dumps(config, sort_keys=True).encode()
-    write_table_atomic(table, cells_path, md)
-    return cells_path
+    md[key] = json.dumps(config, sort_keys=True).encode()
+    write_table_atomic(new, path, md)
+    return path

@@ -401,3 +401,18 @@ def test_sample_proposals_reach_their_iou(sample_store: Path, method: str, targe
     print(f"\n{method}: mean IoU {iou.mean():.3f} over {len(ids)} GT instances")
     assert len(ids) >= 10
     assert iou.mean() > target
+
+
+@pytest.mark.slow
+def test_cli_prints_the_proposal_iou_against_ground_truth(sample_store: Path) -> None:
+    from typer.testing import CliRunner
+
+    from care_cli.main import _register, app
+
+    _register()
+    result = CliRunner().invoke(app, ["fuse", "instances", str(sample_store)])
+    assert result.exit_code == 0, result.output
+    line = next(ln for ln in result.output.splitlines() if ln.startswith("proposals vs ground"))
+    ids, iou = instance_map_iou(sample_store, SAMPLE)
+    assert f"mean best IoU {iou.mean():.3f} over {len(ids)} instances" in line
+    assert iou.mean() > 0.5
