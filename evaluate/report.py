@@ -287,36 +287,72 @@ def per_scene_markdown(summary: pa.Table, scenes: pa.Table) -> str:
     return "\n".join(out)
 
 
+_COLOURS = {
+    "no_replan": "black",
+    "oracle": "tab:gray",
+    "max_confidence": "tab:blue",
+    "random": "tab:brown",
+    "random_topk": "tab:olive",
+    "max_entropy": "tab:orange",
+    "min_stderr": "tab:green",
+    "min_pwkl": "tab:red",
+    "min_entropy": "tab:pink",
+    "max_pwkl": "tab:purple",
+}
+"""Baselines dark or muted, the paper's three CARe measures strong, the ablations paler."""
+
+
 def plot_success(summary: pa.Table, ks: dict[str, Sequence[int]], out_dir: Path) -> list[Path]:
-    """One PNG per (map, protocol): success vs k, a line per strategy and criterion."""
+    """One PNG per (map, protocol): success vs k, one panel per selection criterion.
+
+    Nineteen lines on one axis cannot be read, so each criterion gets its panel; the
+    strategies without a candidate set (no replan, oracle, max confidence, random) are
+    drawn as dashed horizontal references in both, and a strategy keeps its colour across
+    panels and files. Closed-form expectations are left out (the tables carry them).
+    """
     import matplotlib as mpl
 
     mpl.use("Agg")
     import matplotlib.pyplot as plt
 
     lookup = _rate_lookup(summary)
+    colours = {name: _COLOURS.get(name, "tab:gray") for name in STRATEGIES}
     paths = []
     out_dir.mkdir(parents=True, exist_ok=True)
     for kind, protocol in sorted({(r["map"], r["protocol"]) for r in summary.to_pylist()}):
         kvals = list(ks[kind])
-        fig, ax = plt.subplots(figsize=(7, 4.5))
-        for strategy, criterion in _row_order(summary, kind, protocol):
-            values = [
-                lookup.get(
-                    (kind, protocol, strategy, criterion, 0 if criterion == "-" else k), {}
-                ).get("rate", np.nan)
-                for k in kvals
-            ]
-            style = "--" if criterion == "-" else ("-" if criterion == "confidence" else ":")
-            label = strategy if criterion == "-" else f"{strategy} ({criterion})"
-            ax.plot(kvals, values, style, marker="o", markersize=3, label=label)
-        ax.set_xscale("log")
-        ax.set_xticks(kvals, [str(k) for k in kvals])
-        ax.set_xlabel("k")
-        ax.set_ylabel("success (%)")
-        ax.set_title(f"{kind}, protocol {protocol}")
-        ax.legend(fontsize=6, ncol=2)
-        fig.tight_layout()
+        rows = [(s, c) for s, c in _row_order(summary, kind, protocol) if "(" not in s]
+        criteria = [c for c in ("confidence", "category") if any(rc == c for _, rc in rows)]
+        fig, axes = plt.subplots(
+            1, max(len(criteria), 1), figsize=(11, 4.5), sharey=True, squeeze=False
+        )
+        for ax, panel in zip(axes[0], criteria or ["-"], strict=True):
+            for strategy, criterion in rows:
+                if criterion not in ("-", panel):
+                    continue
+                values = [
+                    lookup.get(
+                        (kind, protocol, strategy, criterion, 0 if criterion == "-" else k), {}
+                    ).get("rate", np.nan)
+                    for k in kvals
+                ]
+                ax.plot(
+                    kvals, values, "--" if criterion == "-" else "-",
+                    color=colours[strategy], marker=None if criterion == "-" else "o",
+                    markersize=4, linewidth=1.2 if criterion == "-" else 1.8,
+                    label=_label(strategy),
+                )  # fmt: skip
+            ax.set_xscale("log")
+            ax.xaxis.set_minor_locator(mpl.ticker.NullLocator())
+            ax.set_xticks(kvals, [str(k) for k in kvals])
+            ax.set_xlabel("k")
+            ax.set_title(f"candidate set: top-k {panel}" if panel != "-" else "baselines")
+            ax.grid(alpha=0.3)
+        axes[0][0].set_ylabel("success (%)")
+        handles, labels = axes[0][0].get_legend_handles_labels()
+        fig.legend(handles, labels, loc="center right", fontsize=8, frameon=False)
+        fig.suptitle(f"{MAP_TITLES.get(kind, kind)}, protocol {protocol}", fontsize=11)
+        fig.tight_layout(rect=(0, 0, 0.8, 1))
         path = out_dir / f"success_{kind}_{protocol}.png"
         tmp = path.with_name(f".{path.name}.tmp.png")
         fig.savefig(tmp, dpi=110)
