@@ -21,12 +21,17 @@ def _unit(x: np.ndarray) -> np.ndarray:
     return x / np.linalg.norm(x, axis=-1, keepdims=True)
 
 
-def _write_store(tmp_path, kind: str, n_cand: int = 9, d: int = 8, seed: int = 0):
+def _write_store(
+    tmp_path, kind: str, n_cand: int = 9, d: int = 8, seed: int = 0, scale: float = 30.0,
+    sure: bool = False,
+):  # fmt: skip
     rng = np.random.default_rng(seed)
     text = _unit(rng.normal(size=(len(VOCAB), d))).astype(np.float32)
     feats = _unit(rng.normal(size=(n_cand, d)))
+    if sure:  # candidates that are exactly a class's text embedding
+        feats[: len(VOCAB)] = text
     table = candidate_columns(
-        feats, text, 30.0, num_views=np.arange(n_cand) % 4,
+        feats, text, scale, num_views=np.arange(n_cand) % 4,
         stderr=rng.random(n_cand), pwkl=rng.random(n_cand),
     )  # fmt: skip
     if kind == "grid":
@@ -40,7 +45,7 @@ def _write_store(tmp_path, kind: str, n_cand: int = 9, d: int = 8, seed: int = 0
         masks = [np.arange(i, i + 1 + i % 3, dtype=np.int32) for i in range(n_cand)]
         table = table.append_column("point_indices", pa.array(masks, pa.list_(pa.int32())))
         name = "instances"
-    write_table_atomic(table, tmp_path / f"{name}.parquet", candidate_metadata(VOCAB, 30.0, "test"))
+    write_table_atomic(table, tmp_path / f"{name}.parquet", candidate_metadata(VOCAB, scale, "test"))
     # the store's text table lists the classes in another order: the loader must follow names
     order = np.array([3, 0, 5, 1, 2, 4])
     text_table = pa.table(
@@ -124,3 +129,13 @@ def test_sentence_model_maps_free_text(tmp_path) -> None:
     match = resolve_text(cmap, "couch")
     assert match.method == "sentence:minilm"
     assert match.names[0] == "sofa", match.describe()
+
+
+@pytest.mark.parametrize("kind", ["instances", "grid"])
+def test_confidence_of_a_sure_candidate_is_at_most_one(tmp_path, kind) -> None:
+    """At CLIP's scale of 100, float32 rounding alone would read a sure candidate as 1.00002."""
+    feats, text = _write_store(tmp_path, kind, d=16, scale=100.0, sure=True)
+    conf = confidence(load_map(tmp_path, kind), np.arange(len(VOCAB)))
+    reference = softmax(100.0 * feats @ text.T.astype(np.float64), axis=1).T
+    assert conf.max() <= 1.0
+    np.testing.assert_allclose(conf, reference, rtol=1e-3, atol=1e-6)
