@@ -33,7 +33,7 @@ from query.map import MAP_TABLES, MEASURES, load_map
 from replan.attempts import Attempts, run_attempts
 from replan.expected import expected_random_success
 from replan.strategies import STRATEGIES, get_strategy
-from world.groundtruth import GroundTruth
+from world.groundtruth import GroundTruth, gt_paths
 
 __all__ = [
     "ATTEMPT_SCHEMA",
@@ -369,12 +369,29 @@ def _cache_path(out: Path, scene: Scene) -> Path:
     return out / "scenes" / f"{scene.name}.parquet"
 
 
+EVAL_VERSION = 2
+"""Bumped whenever the attempts of an unchanged scene and config would change (2: rooms that
+share a type are separate units), so caches written by older code are recomputed."""
+
+
+def _scene_key(scene: Scene, config: EvalConfig) -> bytes:
+    """What a cached scene's attempts depend on: the config, the evaluation code's version,
+    and the size and mtime of the scene's map tables and ground-truth files (a re-fused map
+    or a regenerated scene must not be served from the cache)."""
+
+    files = [scene.store / f"{MAP_TABLES[kind]}.parquet" for kind in config.maps]
+    files += [scene.store / "scene_points.parquet", *gt_paths(scene.recording)]
+    stats = [(p.name, p.stat().st_size, p.stat().st_mtime_ns) for p in files if p.is_file()]
+    doc = json.dumps([config.fingerprint(), EVAL_VERSION, stats], sort_keys=True)
+    return hashlib.sha256(doc.encode()).hexdigest()[:16].encode()
+
+
 def _cached(out: Path, scene: Scene, config: EvalConfig) -> bool:
     path = _cache_path(out, scene)
     if not path.is_file():
         return False
     md = pq.read_schema(path).metadata or {}
-    return md.get(b"care.eval.fingerprint") == config.fingerprint().encode()
+    return md.get(b"care.eval.scene_key") == _scene_key(scene, config)
 
 
 def _scene_task(scene: Scene, config: EvalConfig) -> pa.Table:
@@ -441,8 +458,11 @@ def run_scenes(
         results = _run_ray(todo, config, address)
     else:
         results = _run_local(todo, config, workers or os.cpu_count() or 1)
-    md = {b"care.eval.fingerprint": config.fingerprint().encode()}
     for scene, table in tqdm(results, total=len(todo), desc="scenes", disable=not progress):
+        md = {
+            b"care.eval.fingerprint": config.fingerprint().encode(),
+            b"care.eval.scene_key": _scene_key(scene, config),
+        }
         write_table_atomic(table, _cache_path(out, scene), md)
     tables = [read_table(_cache_path(out, s)).cast(ATTEMPT_SCHEMA) for s in scenes]
     return pa.concat_tables(tables) if tables else ATTEMPT_SCHEMA.empty_table()

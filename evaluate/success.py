@@ -113,7 +113,17 @@ def _units(
     if not rooms or not gt.rooms:
         return [("scene", None, np.ones(cmap.num_candidates, bool))]
     room_of = gt.room_of(cmap.positions[:, :2]) if cmap.num_candidates else np.zeros(0, int)
-    return [(r.name or f"room{r.room_id}", r.room_id, room_of == r.room_id) for r in gt.rooms]
+    return [(name, r.room_id, room_of == r.room_id) for name, r in zip(_unit_names(gt), gt.rooms, strict=True)]
+
+
+def _unit_names(gt: GroundTruth) -> list[str]:
+    """A unique name per room: its type, with its id where two rooms share a type (a scene
+    with two kitchens), since results are grouped by (scene, unit, query)."""
+    names = [r.name or f"room{r.room_id}" for r in gt.rooms]
+    return [
+        f"{n} #{r.room_id}" if names.count(n) > 1 else n
+        for n, r in zip(names, gt.rooms, strict=True)
+    ]
 
 
 def _gt_instances(

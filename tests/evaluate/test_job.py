@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 
@@ -124,6 +125,16 @@ def test_run_resumes_and_writes_every_output(dataset, tmp_path) -> None:
     assert (out / "scenes" / "scene_0.parquet").stat().st_mtime_ns != cached[
         out / "scenes" / "scene_0.parquet"
     ]
+    # a re-fused map (its table rewritten) recomputes its scene alone
+    run_eval(dataset, SMALL, out, workers=1, progress=False)
+    cached = {p.name: p.stat().st_mtime_ns for p in (out / "scenes").glob("*.parquet")}
+    table = dataset / "stores" / "scene_1" / "instances.parquet"
+    st = table.stat()
+    os.utime(table, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000_000))
+    run_eval(dataset, SMALL, out, workers=1, progress=False)
+    now = {p.name: p.stat().st_mtime_ns for p in (out / "scenes").glob("*.parquet")}
+    assert now["scene_1.parquet"] != cached["scene_1.parquet"]
+    assert now["scene_0.parquet"] == cached["scene_0.parquet"]
 
 
 def test_auroc_matches_sklearn(dataset) -> None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from evaluate.success import grid_queries, grid_success, instance_iou, instance_queries
@@ -58,3 +60,18 @@ def test_query_sets_room_by_room_and_protocols(dataset) -> None:
     obj = gt.points[gt.point_instance == 5, :2]
     expected = np.linalg.norm(xy[:, None] - obj[None], axis=-1).min(1) <= 1.0
     np.testing.assert_array_equal(bedroom.success[0], expected)
+
+
+def test_rooms_of_one_type_are_separate_units(dataset) -> None:
+    """Two kitchens in one scene are two units: grouped by name they would merge their
+    queries (and a failure in one would be hidden by a success in the other)."""
+    gt = GroundTruth.load(dataset / "scene_0.mcap")
+    twins = GroundTruth(
+        gt.class_names, gt.instances,
+        [dataclasses.replace(r, name="kitchen") for r in gt.rooms], gt.points, gt.point_instance,
+    )  # fmt: skip
+    cmap = load_map(dataset / "stores" / "scene_0", "instances")
+    sets = instance_queries(cmap, twins, gt.label_points(gt.points), protocol="class")
+    assert [s.unit for s in sets] == ["kitchen #0", "kitchen #1"]
+    grid = load_map(dataset / "stores" / "scene_0", "grid")
+    assert [s.unit for s in grid_queries(grid, twins, radius=1.0)] == ["kitchen #0", "kitchen #1"]
