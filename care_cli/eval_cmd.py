@@ -151,14 +151,11 @@ def eval_(
     bootstrap: Annotated[int, typer.Option(help="Bootstrap resamples for the 95% CIs.")] = 1000,
     workers: Annotated[int, typer.Option(help="Local processes (0: one per CPU).")] = 0,
     ray: Annotated[
+        bool, typer.Option("--ray", help="Run scenes as Ray tasks (a local Ray unless --ray-address).")
+    ] = False,
+    ray_address: Annotated[
         str | None,
-        typer.Option(
-            "--ray",
-            is_flag=False,
-            flag_value="local",
-            metavar="[ADDRESS]",
-            help="Run scenes as Ray tasks: alone for a local Ray, or with a cluster address.",
-        ),
+        typer.Option(help="Address of a running Ray cluster, e.g. ray://head:10001 (implies --ray)."),
     ] = None,
 ) -> None:
     """Success of every strategy on every (scene, class) query; writes the paper's tables."""
@@ -178,8 +175,8 @@ def eval_(
         exclude_radius=exclude_radius,
         bootstrap=bootstrap,
     )
-    ray_address: str | bool | None = None if ray is None else (True if ray == "local" else ray)
-    report = run_eval(dataset, config, out, workers=workers or None, ray_address=ray_address)
+    address: str | bool | None = ray_address or (True if ray else None)
+    report = run_eval(dataset, config, out, workers=workers or None, ray_address=address)
     typer.echo(report.markdown)
     typer.echo(f"wrote {out}/results.md, attempts.parquet, summary.parquet and plots/")
 

@@ -8,6 +8,7 @@ import sys
 
 import numpy as np
 import pyarrow.compute as pc
+import pyarrow.parquet as pq
 import pytest
 from scipy.special import softmax
 from sklearn.metrics import roc_auc_score
@@ -227,3 +228,22 @@ def test_cli_eval_query_replan(dataset, tmp_path) -> None:
     )
     assert e.returncode == 0, e.stderr
     assert "| No replan (top1 acc) | - |" in e.stdout
+
+
+def test_cli_eval_with_ray_matches_the_process_pool(dataset, tmp_path, ray_session) -> None:
+    from typer.testing import CliRunner
+
+    from care_cli.main import _register, app
+
+    _register()
+    args = ["eval", str(dataset), "--seeds", "2", "--bootstrap", "20", "--k-instances", "2",
+            "--k-grid", "4"]  # fmt: skip
+    runner = CliRunner()
+    ray_run = runner.invoke(app, [*args, "--out", str(tmp_path / "r"), "--ray"])
+    assert ray_run.exit_code == 0, ray_run.output
+    local = runner.invoke(app, [*args, "--out", str(tmp_path / "l"), "--workers", "1"])
+    assert local.exit_code == 0, local.output
+    assert _same(
+        pq.read_table(tmp_path / "r" / "attempts.parquet"),
+        pq.read_table(tmp_path / "l" / "attempts.parquet"),
+    )
