@@ -341,7 +341,20 @@ def _attempt_rows(
 
 
 def evaluate_scene(scene: Scene, config: EvalConfig) -> pa.Table:
-    """All attempt rows of one scene (every map kind and protocol of ``config``)."""
+    """All attempt rows of one scene (every map kind and protocol of ``config``).
+
+    BLAS runs on one thread here: a float32 matrix product sums in an order that depends on
+    the thread count, and its last bits decide near-ties between candidates, so a Ray
+    worker (one thread) and a pool process (all cores) would otherwise choose differently.
+    Scenes run in parallel anyway.
+    """
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1):
+        return _evaluate_scene(scene, config)
+
+
+def _evaluate_scene(scene: Scene, config: EvalConfig) -> pa.Table:
     gt = GroundTruth.load(scene.recording)
     tables = []
     for kind in config.maps:
@@ -369,9 +382,10 @@ def _cache_path(out: Path, scene: Scene) -> Path:
     return out / "scenes" / f"{scene.name}.parquet"
 
 
-EVAL_VERSION = 2
+EVAL_VERSION = 3
 """Bumped whenever the attempts of an unchanged scene and config would change (2: rooms that
-share a type are separate units), so caches written by older code are recomputed."""
+share a type are separate units; 3: single-threaded BLAS), so caches written by older code are
+recomputed."""
 
 
 def _scene_key(scene: Scene, config: EvalConfig) -> bytes:

@@ -8,7 +8,7 @@ query counts once, as in the paper); 95% confidence intervals resample queries.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -78,6 +78,24 @@ def _bootstrap(values: np.ndarray, n: int, rng: np.random.Generator) -> tuple[fl
     return float(lo), float(hi)
 
 
+def _groups(table: pa.Table, keys: Sequence[str]) -> Iterator[tuple[dict, np.ndarray]]:
+    """``(key values, row indices)`` of each distinct combination of ``keys``, in order of
+    first appearance (as ``group_by`` orders them), in one sort rather than a scan per group."""
+    if table.num_rows == 0:
+        return
+    values = [table.column(k).to_numpy(zero_copy_only=False) for k in keys]
+    code = np.zeros(table.num_rows, np.int64)
+    for column in values:
+        _, inverse = np.unique(column, return_inverse=True)
+        code = code * (int(inverse.max()) + 1) + inverse
+    _, first, group = np.unique(code, return_index=True, return_inverse=True)
+    members = np.split(np.argsort(group, kind="stable"), np.cumsum(np.bincount(group))[:-1])
+    for g in np.argsort(first):
+        row = first[g]
+        key = {k: (v[row].item() if hasattr(v[row], "item") else v[row]) for k, v in zip(keys, values, strict=True)}
+        yield key, members[g]
+
+
 def summarise(
     queries: pa.Table, *, bootstrap: int = 1000, seed: int = 0, by_scene: bool = False
 ) -> pa.Table:
@@ -86,13 +104,13 @@ def summarise(
     rows = []
     keys = ["map", "protocol", *RULE_KEYS] + (["scene"] if by_scene else [])
     rng = np.random.default_rng(seed)
-    groups = queries.group_by(keys, use_threads=False).aggregate([])
-    for key in groups.to_pylist():
-        mask = np.ones(queries.num_rows, bool)
-        for name, value in key.items():
-            mask &= np.asarray(queries.column(name).to_numpy(zero_copy_only=False) == value)
+    columns = {
+        c: queries.column(c).to_numpy(zero_copy_only=False).astype(float)
+        for c in ("solved", "expected")
+    }
+    for key, idx in _groups(queries, keys):
         for suffix, column in (("", "solved"), (" (expected)", "expected")):
-            values = queries.column(column).to_numpy(zero_copy_only=False)[mask].astype(float)
+            values = columns[column][idx]
             if suffix and (not STRATEGIES[key["strategy"]].random or np.isnan(values).all()):
                 continue
             values = values[~np.isnan(values)]
