@@ -25,17 +25,16 @@ def confidence(cmap: CandidateMap, class_ids: np.ndarray | int) -> np.ndarray:
         raise QueryError(msg)
     table = cmap.log_confidence_table
     if table is not None:
-        out = table[ids]
-        np.exp(out, out=out)
-        return np.minimum(out, 1.0, out=out)
+        out = table[ids]  # capped at log 1 when the table was built
+        return np.exp(out, out=out)
     uniq, inverse = np.unique(ids, return_inverse=True)
     scaled = cmap.text[uniq] * np.float32(cmap.logit_scale)
     logits = scaled @ cmap.features.T  # (U, N)
     logits -= cmap.log_norm[None, :]
-    np.exp(logits, out=logits)
     # float32 logits at a scale of 100 carry ~1e-5 of rounding: a sure candidate would read
     # 1.00002; a probability is capped at 1 (it never changes a ranking but the tie at 1).
-    np.minimum(logits, 1.0, out=logits)
+    np.minimum(logits, 0.0, out=logits)
+    np.exp(logits, out=logits)
     return logits[inverse] if len(uniq) < len(ids) or not np.array_equal(uniq, ids) else logits
 
 

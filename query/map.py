@@ -188,7 +188,8 @@ class CandidateMap:
             return None
         table = (self.text * np.float32(self.logit_scale)) @ self.features.T
         table -= self.log_norm[None, :]
-        return table
+        # a probability is at most 1: float32 rounding at a logit scale of 100 overshoots
+        return np.minimum(table, 0.0, out=table)
 
     @cached_property
     def _rank_index(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:

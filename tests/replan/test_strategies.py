@@ -254,3 +254,18 @@ def test_best_of_sparse_and_dense_paths_match_a_loop(density, maximise) -> None:
     cand, found = best_of(values, mask, conf, maximise=maximise)
     ref = _best_reference(values, mask, conf, maximise)
     np.testing.assert_array_equal(np.where(found, cand, -1), ref)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_topk_confidence_matches_a_stable_sort(seed: int) -> None:
+    """Against the definition: sort each row by (confidence desc, id asc), take k available."""
+    rng = np.random.default_rng(seed)
+    n_q, n = rng.integers(1, 12), rng.integers(1, 700)
+    conf = rng.choice([0.1, 0.2, 0.5, 1.0], (n_q, n)) if seed % 2 else rng.random((n_q, n))
+    available = rng.random((n_q, n)) < rng.choice([0.02, 0.5, 1.0])
+    for k in (1, 2, 4, 8, 40, 100, n + 1):
+        expected = np.zeros((n_q, n), bool)
+        for q in range(n_q):
+            ids = [c for c in np.argsort(-conf[q], kind="stable") if available[q, c]][:k]
+            expected[q, ids] = True
+        np.testing.assert_array_equal(candidate_set("confidence", conf, available, k), expected)
