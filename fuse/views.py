@@ -196,7 +196,7 @@ def visible_hits(
         u = np.rint(Kf[:, None, 0, 0] * cam[..., 0] / zs + Kf[:, None, 0, 2])
         v = np.rint(Kf[:, None, 1, 1] * cam[..., 1] / zs + Kf[:, None, 1, 2])
         inside = front & (u >= 0) & (u < W) & (v >= 0) & (v < H)
-        b, n = np.nonzero(inside)
+        b, n = np.divmod(np.flatnonzero(inside), inside.shape[1])  # faster than 2-D nonzero
         ui = u[b, n].astype(np.int64)
         vi = v[b, n].astype(np.int64)
         d = depth[b, vi, ui]
