@@ -234,20 +234,21 @@ def _max_confidence(s: Situation) -> Pick:
     return _pick(s, cand, found, s.confidence)
 
 
-def _random(s: Situation) -> Pick:
+def _uniform_pick(s: Situation, mask: np.ndarray) -> Pick:
+    """A seeded uniform draw from each row's ``mask`` (the random strategies)."""
     if s.rng is None:
         msg = "the random strategies need a seeded generator (Situation.rng)"
         raise ReplanError(msg)
-    cand, found = uniform_of(s.available, s.rng)
+    cand, found = uniform_of(mask, s.rng)
     return _pick(s, cand, found, None)
+
+
+def _random(s: Situation) -> Pick:
+    return _uniform_pick(s, s.available)
 
 
 def _random_topk(s: Situation) -> Pick:
-    if s.rng is None:
-        msg = "the random strategies need a seeded generator (Situation.rng)"
-        raise ReplanError(msg)
-    cand, found = uniform_of(s.candidate_set, s.rng)
-    return _pick(s, cand, found, None)
+    return _uniform_pick(s, s.candidate_set)
 
 
 def _by_measure(column: str, maximise: bool) -> Callable[[Situation], Pick]:
