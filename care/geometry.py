@@ -81,8 +81,11 @@ def backproject(
     coordinates (u = column, v = row) of the pixels they came from, sampled every ``stride``.
     """
     d = depth_m[::stride, ::stride]
-    v, u = np.nonzero(np.isfinite(d) & (d > 0))
-    z = d[v, u].astype(np.float64)
+    flat = np.flatnonzero(d > 0)  # NaN compares False; +inf is caught below
+    z = d.reshape(-1)[flat].astype(np.float64)
+    if not np.isfinite(z).all():
+        flat, z = flat[np.isfinite(z)], z[np.isfinite(z)]
+    v, u = np.divmod(flat, d.shape[1])  # 2-D np.nonzero is several times slower
     u = u * stride
     v = v * stride
     x = (u - K[0, 2]) * z / K[0, 0]
