@@ -254,7 +254,7 @@ class StoreWriter:
                     "view_id": view_id,
                     "fh": features.shape[0],
                     "fw": features.shape[1],
-                    "feature": pa.array(features.astype(np.float16).ravel(), type=pa.float16()),
+                    "feature": np.ascontiguousarray(features, dtype=np.float16).ravel(),
                 }
             )
         self.num_views += 1
@@ -280,12 +280,17 @@ class StoreWriter:
             self._views.clear()
         if self._features and self._features_writer is not None:
             rows = self._features
+            # one flat buffer and its offsets: a list of per-view arrays would go through
+            # Python objects value by value (half the ingest time, measured)
+            sizes = np.array([r["feature"].size for r in rows], np.int64)
+            offsets = pa.array(np.concatenate([[0], np.cumsum(sizes)]).astype(np.int32))
+            flat = pa.array(np.concatenate([r["feature"] for r in rows]), pa.float16())
             table = pa.table(
                 {
                     "view_id": pa.array([r["view_id"] for r in rows], pa.int32()),
                     "fh": pa.array([r["fh"] for r in rows], pa.int16()),
                     "fw": pa.array([r["fw"] for r in rows], pa.int16()),
-                    "feature": pa.array([r["feature"] for r in rows], pa.list_(pa.float16())),
+                    "feature": pa.ListArray.from_arrays(offsets, flat),
                 },
                 schema=self._features_writer.schema,
             )
