@@ -204,13 +204,22 @@ def run(
     workers: Annotated[
         int, typer.Option(help="Local processes of the evaluation (0: one per CPU).")
     ] = 0,
+    ray: Annotated[
+        bool, typer.Option("--ray", help="Evaluate scenes as Ray tasks (a local Ray unless --ray-address).")
+    ] = False,
+    ray_address: Annotated[
+        str | None,
+        typer.Option(help="Address of a running Ray cluster, e.g. ray://head:10001 (implies --ray)."),
+    ] = None,
 ) -> None:
     """The main job: ingest, fuse both maps, evaluate every strategy; print the table."""
     from evaluate.job import EvalConfig
     from evaluate.pipeline import RunConfig, run_all
 
     config = RunConfig(
-        evaluation=EvalConfig(attempts=attempts, seeds=seeds), workers=workers or None
+        evaluation=EvalConfig(attempts=attempts, seeds=seeds),
+        workers=workers or None,
+        ray_address=ray_address or (True if ray else None),
     )
     result = run_all(recording, out, config)
     md = result.report.markdown

@@ -44,6 +44,8 @@ class RunConfig:
     """What the evaluation runs."""
     workers: int | None = None
     """Local processes of the evaluation (default: one per CPU)."""
+    ray_address: str | bool | None = None
+    """Evaluate scenes as Ray tasks: True for a local Ray, an address for a cluster."""
     progress: bool = True
     """Show progress bars."""
 
@@ -114,7 +116,7 @@ def run_all(source: Path | None, out: Path, config: RunConfig | None = None) -> 
     eval_dir = out / "eval"
     report = run_eval(
         [s.store for s in scenes], config.evaluation, eval_dir,
-        workers=config.workers, progress=config.progress,
+        workers=config.workers, ray_address=config.ray_address, progress=config.progress,
     )  # fmt: skip
     attempts = pq.read_table(eval_dir / "attempts.parquet")
     for scene in scenes:
