@@ -83,8 +83,9 @@ def backproject(
     d = depth_m[::stride, ::stride]
     flat = np.flatnonzero(d > 0)  # NaN compares False; +inf is caught below
     z = d.reshape(-1)[flat].astype(np.float64)
-    if not np.isfinite(z).all():
-        flat, z = flat[np.isfinite(z)], z[np.isfinite(z)]
+    finite = np.isfinite(z)
+    if not finite.all():
+        flat, z = flat[finite], z[finite]
     v, u = np.divmod(flat, d.shape[1])  # 2-D np.nonzero is several times slower
     u = u * stride
     v = v * stride

@@ -190,6 +190,11 @@ def read_table(path: Path, columns: Sequence[str] | None = None) -> pa.Table:
     return pq.read_table(path, columns=list(columns) if columns else None)
 
 
+_MAX_BUFFERED_VALUES = 1 << 26
+"""Feature values buffered before a row group is written whatever ``rows_per_group`` says:
+bounds the memory (128 MiB of float16) and keeps the list column's int32 offsets valid."""
+
+
 class StoreWriter:
     """Streams views and features into a new store, committing it atomically on success.
 
@@ -258,7 +263,8 @@ class StoreWriter:
                 }
             )
         self.num_views += 1
-        if len(self._views) >= self.rows_per_group:
+        buffered = sum(r["feature"].size for r in self._features)
+        if len(self._views) >= self.rows_per_group or buffered >= _MAX_BUFFERED_VALUES:
             self._flush()
         return view_id
 

@@ -18,6 +18,13 @@ __all__ = ["register"]
 StoreArg = Annotated[Path, typer.Argument(help="Store directory with fused maps (`care fuse`).")]
 TextArg = Annotated[str, typer.Argument(help="What to look for: a class name or free text.")]
 MapOpt = Annotated[str, typer.Option("--map", help="Map to ask: instances or grid.")]
+RayOpt = Annotated[
+    bool, typer.Option("--ray", help="Evaluate scenes as Ray tasks (a local Ray unless --ray-address).")
+]
+RayAddressOpt = Annotated[
+    str | None,
+    typer.Option(help="Address of a running Ray cluster, e.g. ray://head:10001 (implies --ray)."),
+]
 
 
 def _csv(value: str) -> tuple[str, ...]:
@@ -32,6 +39,11 @@ def _ints(value: str) -> tuple[int, ...]:
 
         msg = f"expected comma-separated integers, got {value!r}"
         raise EvalError(msg) from err
+
+
+def _ray_target(ray: bool, address: str | None) -> str | bool | None:
+    """What ``run_eval`` takes: a cluster address, True for a local Ray, None for no Ray."""
+    return address or (True if ray else None)
 
 
 def _resolve(store: Path, kind: str, text: str) -> tuple:
@@ -150,13 +162,8 @@ def eval_(
     ] = 1.0,
     bootstrap: Annotated[int, typer.Option(help="Bootstrap resamples for the 95% CIs.")] = 1000,
     workers: Annotated[int, typer.Option(help="Local processes (0: one per CPU).")] = 0,
-    ray: Annotated[
-        bool, typer.Option("--ray", help="Run scenes as Ray tasks (a local Ray unless --ray-address).")
-    ] = False,
-    ray_address: Annotated[
-        str | None,
-        typer.Option(help="Address of a running Ray cluster, e.g. ray://head:10001 (implies --ray)."),
-    ] = None,
+    ray: RayOpt = False,
+    ray_address: RayAddressOpt = None,
 ) -> None:
     """Success of every strategy on every (scene, class) query; writes the paper's tables."""
     from evaluate.job import EvalConfig, run_eval
@@ -175,8 +182,9 @@ def eval_(
         exclude_radius=exclude_radius,
         bootstrap=bootstrap,
     )
-    address: str | bool | None = ray_address or (True if ray else None)
-    report = run_eval(dataset, config, out, workers=workers or None, ray_address=address)
+    report = run_eval(
+        dataset, config, out, workers=workers or None, ray_address=_ray_target(ray, ray_address)
+    )
     typer.echo(report.markdown)
     typer.echo(f"wrote {out}/results.md, attempts.parquet, summary.parquet and plots/")
 
@@ -204,13 +212,8 @@ def run(
     workers: Annotated[
         int, typer.Option(help="Local processes of the evaluation (0: one per CPU).")
     ] = 0,
-    ray: Annotated[
-        bool, typer.Option("--ray", help="Evaluate scenes as Ray tasks (a local Ray unless --ray-address).")
-    ] = False,
-    ray_address: Annotated[
-        str | None,
-        typer.Option(help="Address of a running Ray cluster, e.g. ray://head:10001 (implies --ray)."),
-    ] = None,
+    ray: RayOpt = False,
+    ray_address: RayAddressOpt = None,
 ) -> None:
     """The main job: ingest, fuse both maps, evaluate every strategy; print the table."""
     from evaluate.job import EvalConfig
@@ -219,7 +222,7 @@ def run(
     config = RunConfig(
         evaluation=EvalConfig(attempts=attempts, seeds=seeds),
         workers=workers or None,
-        ray_address=ray_address or (True if ray else None),
+        ray_address=_ray_target(ray, ray_address),
     )
     result = run_all(recording, out, config)
     md = result.report.markdown

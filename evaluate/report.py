@@ -334,7 +334,6 @@ def plot_success(summary: pa.Table, ks: dict[str, Sequence[int]], out_dir: Path)
     import matplotlib.pyplot as plt
 
     lookup = _rate_lookup(summary)
-    colours = {name: _COLOURS.get(name, "tab:gray") for name in STRATEGIES}
     paths = []
     out_dir.mkdir(parents=True, exist_ok=True)
     for kind, protocol in sorted({(r["map"], r["protocol"]) for r in summary.to_pylist()}):
@@ -356,7 +355,7 @@ def plot_success(summary: pa.Table, ks: dict[str, Sequence[int]], out_dir: Path)
                 ]
                 ax.plot(
                     kvals, values, "--" if criterion == "-" else "-",
-                    color=colours[strategy], marker=None if criterion == "-" else "o",
+                    color=_COLOURS.get(strategy, "tab:gray"), marker=None if criterion == "-" else "o",
                     markersize=4, linewidth=1.2 if criterion == "-" else 1.8,
                     label=_label(strategy),
                 )  # fmt: skip

@@ -212,10 +212,12 @@ def geometric_proposals(
     labels = np.full(len(points), -1, np.int64)
     labels[rest] = labels_rest + 1  # 0 = DBSCAN noise
     masks, _ = _masks_from_labels(labels, settings.min_instance_points)
-    extent_ok = [
-        float(np.max(np.ptp(points[m], axis=0))) <= settings.max_instance_extent for m in masks
-    ]
-    masks = [m for m, ok in zip(masks, extent_ok, strict=True) if ok]
+    if masks:  # per-mask extent in one reduceat over the concatenated masks
+        starts = np.cumsum([0] + [len(m) for m in masks[:-1]])
+        pts = points[np.concatenate(masks)]
+        extent = np.maximum.reduceat(pts, starts) - np.minimum.reduceat(pts, starts)
+        keep = extent.max(axis=1) <= settings.max_instance_extent
+        masks = [m for m, ok in zip(masks, keep, strict=True) if ok]
     return Proposals(masks, np.full(len(masks), -1, np.int64))
 
 

@@ -25,17 +25,11 @@ def confidence(cmap: CandidateMap, class_ids: np.ndarray | int) -> np.ndarray:
         raise QueryError(msg)
     table = cmap.log_confidence_table
     if table is not None:
-        out = table[ids]  # capped at log 1 when the table was built
+        out = table[ids]
         return np.exp(out, out=out)
     uniq, inverse = np.unique(ids, return_inverse=True)
-    scaled = cmap.text[uniq] * np.float32(cmap.logit_scale)
-    logits = scaled @ cmap.features.T  # (U, N)
-    logits -= cmap.log_norm[None, :]
-    # float32 logits at a scale of 100 carry ~1e-5 of rounding: a sure candidate would read
-    # 1.00002; a probability is capped at 1 (it never changes a ranking but the tie at 1).
-    np.minimum(logits, 0.0, out=logits)
-    np.exp(logits, out=logits)
-    return logits[inverse] if len(uniq) < len(ids) or not np.array_equal(uniq, ids) else logits
+    out = np.exp(cmap.log_confidence_of(uniq))
+    return out[inverse] if len(uniq) < len(ids) or not np.array_equal(uniq, ids) else out
 
 
 def rank_by_confidence(conf: np.ndarray) -> np.ndarray:

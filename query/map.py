@@ -186,10 +186,17 @@ class CandidateMap:
         n_cls, n_cand = len(self.vocabulary), self.num_candidates
         if n_cls * n_cand > LOG_CONFIDENCE_CACHE or n_cand == 0:
             return None
-        table = (self.text * np.float32(self.logit_scale)) @ self.features.T
-        table -= self.log_norm[None, :]
-        # a probability is at most 1: float32 rounding at a logit scale of 100 overshoots
-        return np.minimum(table, 0.0, out=table)
+        return self.log_confidence_of(np.arange(n_cls))
+
+    def log_confidence_of(self, class_ids: np.ndarray) -> np.ndarray:
+        """(U, N) float32 ``log P_c[y]`` for the given classes, computed from the columns.
+
+        Capped at 0: float32 logits at CLIP's scale of 100 carry ~1e-5 of rounding, so a sure
+        candidate would read 1.00002 (the cap never changes a ranking but the tie at 1).
+        """
+        out = (self.text[class_ids] * np.float32(self.logit_scale)) @ self.features.T
+        out -= self.log_norm[None, :]
+        return np.minimum(out, 0.0, out=out)
 
     @cached_property
     def _rank_index(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:

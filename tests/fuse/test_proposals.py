@@ -97,3 +97,14 @@ def test_best_iou_hand_count() -> None:
     ids, iou, best = best_iou([], labels)
     assert iou.tolist() == [0.0, 0.0]
     assert best.tolist() == [-1, -1]
+
+
+def test_clusters_longer_than_the_extent_limit_are_dropped() -> None:
+    """Box extents by hand: 0.6, 0.9, 1.3 and 1.0 m; a 0.95 m limit keeps the first two."""
+    import dataclasses
+
+    pts, labels = _room(np.random.default_rng(2))
+    cloud = SceneCloud(pts, np.zeros_like(pts, dtype=np.uint8))
+    props = geometric_proposals(cloud, None, dataclasses.replace(CONFIG, max_instance_extent=0.95))
+    kept = sorted(int(np.bincount(labels[m]).argmax()) for m in props.masks)
+    assert kept == [1, 2]

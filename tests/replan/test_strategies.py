@@ -269,3 +269,20 @@ def test_topk_confidence_matches_a_stable_sort(seed: int) -> None:
             ids = [c for c in np.argsort(-conf[q], kind="stable") if available[q, c]][:k]
             expected[q, ids] = True
         np.testing.assert_array_equal(candidate_set("confidence", conf, available, k), expected)
+
+
+@pytest.mark.parametrize("attempts", [3, 4, 7])
+def test_expected_random_success_is_the_hypergeometric_tail(attempts: int) -> None:
+    """Against scipy.stats.hypergeom: after a failed first attempt, A - 1 draws without
+    replacement from the U unvisited candidates, S of them successes."""
+    from scipy.stats import hypergeom
+
+    rng = np.random.default_rng(attempts)
+    conf = rng.random((200, 12))
+    success = rng.random((200, 12)) < 0.15
+    got = expected_random_success("random", conf, success, attempts=attempts)
+    first = conf.argmax(axis=1)
+    first_ok = success[np.arange(200), first]
+    rest = success.sum(axis=1) - first_ok
+    miss = hypergeom(11, rest, attempts - 1).pmf(0)
+    np.testing.assert_allclose(got, np.where(first_ok, 1.0, 1.0 - miss), rtol=1e-12)
