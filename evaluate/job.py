@@ -437,6 +437,8 @@ def _run_ray(
         msg = "--ray needs Ray: pip install 'care-maps[ray]'"
         raise EvalError(msg) from err
     if not ray.is_initialized():
+        if address:
+            _check_reachable(address)
         ray.init(address=address or None, include_dashboard=False, log_to_driver=False)
     task = ray.remote(_scene_task)
     refs = {task.remote(scene, config): scene for scene in todo}
@@ -444,6 +446,24 @@ def _run_ray(
     while pending:
         done, pending = ray.wait(pending, num_returns=1)
         yield refs[done[0]], ray.get(done[0])
+
+
+def _check_reachable(address: str) -> None:
+    """Fail at once on a cluster address nothing listens on: ``ray.init`` would retry for
+    minutes, printing warnings, before giving up."""
+    import socket
+
+    host, _, port = address.split("://")[-1].rpartition(":")
+    if not host or not port.isdigit():
+        return  # "auto" and the like: Ray resolves them itself
+    try:
+        socket.create_connection((host, int(port)), timeout=5).close()
+    except OSError as err:
+        msg = (
+            f"cannot reach a Ray cluster at {address} ({err.strerror or err}); start one with "
+            "`ray start --head` or drop --ray-address to use a local Ray"
+        )
+        raise EvalError(msg) from err
 
 
 def run_scenes(

@@ -247,3 +247,17 @@ def test_cli_eval_with_ray_matches_the_process_pool(dataset, tmp_path, ray_sessi
         pq.read_table(tmp_path / "r" / "attempts.parquet"),
         pq.read_table(tmp_path / "l" / "attempts.parquet"),
     )
+
+
+def test_unreachable_ray_cluster_is_one_clear_error(dataset, tmp_path) -> None:
+    """Nothing listens on loopback port 1: one line at once, not minutes of Ray retries."""
+    pytest.importorskip("ray")
+    run = [sys.executable, "-m", "care_cli.main", "eval", str(dataset), "--out", str(tmp_path)]
+    bad = subprocess.run(
+        [*run, "--ray-address", "127.0.0.1:1"], capture_output=True, text=True, timeout=60
+    )
+    assert bad.returncode == 1
+    assert bad.stderr.strip().splitlines()[-1].startswith(
+        "error: cannot reach a Ray cluster at 127.0.0.1:1"
+    )
+    assert not (tmp_path / "results.md").exists()
