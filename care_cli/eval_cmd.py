@@ -19,7 +19,8 @@ StoreArg = Annotated[Path, typer.Argument(help="Store directory with fused maps 
 TextArg = Annotated[str, typer.Argument(help="What to look for: a class name or free text.")]
 MapOpt = Annotated[str, typer.Option("--map", help="Map to ask: instances or grid.")]
 RayOpt = Annotated[
-    bool, typer.Option("--ray", help="Evaluate scenes as Ray tasks (a local Ray unless --ray-address).")
+    bool,
+    typer.Option("--ray", help="Evaluate scenes as Ray tasks (a local Ray unless --ray-address)."),
 ]
 RayAddressOpt = Annotated[
     str | None,

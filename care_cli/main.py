@@ -11,6 +11,7 @@ import sys
 import typer
 
 from care.errors import CareError
+from care.malloc import keep_freed_memory
 
 app = typer.Typer(
     name="care",
@@ -30,6 +31,7 @@ def _register() -> None:
 
 def main() -> None:
     """Run the CLI, turning project errors into one line and a non-zero exit."""
+    keep_freed_memory()  # per-frame stages reuse resident pages (see care.malloc)
     _register()
     try:
         app()

@@ -92,7 +92,10 @@ def _groups(table: pa.Table, keys: Sequence[str]) -> Iterator[tuple[dict, np.nda
     members = np.split(np.argsort(group, kind="stable"), np.cumsum(np.bincount(group))[:-1])
     for g in np.argsort(first):
         row = first[g]
-        key = {k: (v[row].item() if hasattr(v[row], "item") else v[row]) for k, v in zip(keys, values, strict=True)}
+        key = {
+            k: (v[row].item() if hasattr(v[row], "item") else v[row])
+            for k, v in zip(keys, values, strict=True)
+        }
         yield key, members[g]
 
 

@@ -113,7 +113,10 @@ def _units(
     if not rooms or not gt.rooms:
         return [("scene", None, np.ones(cmap.num_candidates, bool))]
     room_of = gt.room_of(cmap.positions[:, :2]) if cmap.num_candidates else np.zeros(0, int)
-    return [(name, r.room_id, room_of == r.room_id) for name, r in zip(_unit_names(gt), gt.rooms, strict=True)]
+    return [
+        (name, r.room_id, room_of == r.room_id)
+        for name, r in zip(_unit_names(gt), gt.rooms, strict=True)
+    ]
 
 
 def _unit_names(gt: GroundTruth) -> list[str]:

@@ -4,8 +4,9 @@ Both maps fuse the same way: each view contributes weighted samples ``(candidate
 and each candidate keeps ``W1, W2, sum w f, sum w f^2``, its view count and the pwKL sums
 ``S, Q, A`` of the per-view class distributions. That is O(d + n) memory per candidate, one
 pass over the views, and no per-view state kept in memory (the per-view tables on disk keep
-the samples for recomputation). Scatter-adds go through ``torch.index_add_`` so a view's
-samples are added in one call, with capacity grown by doubling as new candidates appear.
+the samples for recomputation). All sums of a candidate are one row of a single float64
+table, so a view's samples are written into one reused row buffer and added with one
+``torch.index_add_``; capacity grows by doubling as new candidates appear.
 """
 
 from __future__ import annotations
@@ -22,6 +23,9 @@ __all__ = ["CandidateSums"]
 class CandidateSums:
     """Accumulates weighted per-view samples of candidates 0..size-1 (float64 throughout).
 
+    Float64 because the measures subtract sums: ``sum w f^2 / W1 - mu^2`` and
+    ``m S - Q A`` lose about as many digits as the views agree.
+
     Args:
         dim: feature dimension d.
         text: (n, d) L2-normalised text embeddings of the vocabulary.
@@ -31,36 +35,28 @@ class CandidateSums:
 
     def __init__(self, dim: int, text: np.ndarray, scale: float, *, capacity: int = 1024) -> None:
         self.dim = int(dim)
-        self.text = torch.as_tensor(np.asarray(text, dtype=np.float64))
+        self.text = np.asarray(text, dtype=np.float64)
         if self.text.ndim != 2 or self.text.shape[1] != self.dim:
-            msg = f"text embeddings of shape {tuple(self.text.shape)}, expected (n, {self.dim})"
+            msg = f"text embeddings of shape {self.text.shape}, expected (n, {self.dim})"
             raise ValueError(msg)
         self.scale = float(scale)
         self.size = 0
-        n = self.text.shape[0]
-        cap = max(int(capacity), 1)
-        f64 = torch.float64
-        self._W1 = torch.zeros(cap, dtype=f64)
-        self._W2 = torch.zeros(cap, dtype=f64)
-        self._count = torch.zeros(cap, dtype=torch.int64)
-        self._sum_wf = torch.zeros(cap, self.dim, dtype=f64)
-        self._sum_wf2 = torch.zeros(cap, self.dim, dtype=f64)
-        self._S = torch.zeros(cap, n, dtype=f64)
-        self._Q = torch.zeros(cap, n, dtype=f64)
-        self._A = torch.zeros(cap, n, dtype=f64)
-
-    _FIELDS = ("_W1", "_W2", "_count", "_sum_wf", "_sum_wf2", "_S", "_Q", "_A")
+        d, n = self.dim, self.text.shape[0]
+        # one row per candidate: W1, W2, views, sum w f (d), sum w f^2 (d), S (n), Q (n), A (n)
+        self._wf = slice(3, 3 + d)
+        self._wf2 = slice(3 + d, 3 + 2 * d)
+        self._S = slice(3 + 2 * d, 3 + 2 * d + n)
+        self._Q = slice(3 + 2 * d + n, 3 + 2 * d + 2 * n)
+        self._A = slice(3 + 2 * d + 2 * n, 3 + 2 * d + 3 * n)
+        width = 3 + 2 * d + 3 * n
+        self._sums = np.zeros((max(int(capacity), 1), width))
+        self._rows = np.empty((0, width))  # reused: a fresh buffer per view costs page faults
 
     def ensure(self, size: int) -> None:
         """Make room for candidates 0..size-1 (new ones start at zero)."""
-        cap = self._W1.shape[0]
-        if size > cap:
-            new_cap = max(size, 2 * cap)
-            for name in self._FIELDS:
-                old = getattr(self, name)
-                grown = torch.zeros((new_cap, *old.shape[1:]), dtype=old.dtype)
-                grown[:cap] = old
-                setattr(self, name, grown)
+        cap = self._sums.shape[0]
+        if size > cap:  # in place: realloc moves large blocks without copying; new rows are 0
+            self._sums.resize((max(size, 2 * cap), self._sums.shape[1]), refcheck=False)
         self.size = max(self.size, int(size))
 
     def add(
@@ -76,65 +72,77 @@ class CandidateSums:
         ``dots`` (k, n), the features' dot products with the text embeddings, skips the
         (k x d x n) product when the caller has them cheaper (the grid does).
         """
-        ids_t = torch.as_tensor(np.asarray(ids, dtype=np.int64))
-        if ids_t.numel() == 0:
+        ids = np.asarray(ids, dtype=np.int64)
+        k = ids.size
+        if k == 0:
             return
-        self.ensure(int(ids_t.max()) + 1)
-        w = torch.as_tensor(np.asarray(weights, dtype=np.float64))
-        f = torch.as_tensor(np.asarray(features, dtype=np.float64))
-        wf = w[:, None] * f
-        self._W1.index_add_(0, ids_t, w)
-        self._W2.index_add_(0, ids_t, w * w)
-        self._count.index_add_(0, ids_t, torch.ones_like(ids_t))
-        self._sum_wf.index_add_(0, ids_t, wf)
-        self._sum_wf2.index_add_(0, ids_t, wf * f)
-        dots_t = f @ self.text.T if dots is None else torch.as_tensor(np.asarray(dots, np.float64))
-        P = torch.softmax(self.scale * dots_t, dim=1)
-        a = torch.log(P.clamp_min(PROB_FLOOR))
-        self._S.index_add_(0, ids_t, P * a)
-        self._Q.index_add_(0, ids_t, P)
-        self._A.index_add_(0, ids_t, a)
+        self.ensure(int(ids.max()) + 1)
+        if self._rows.shape[0] < k:
+            self._rows = np.empty((max(k, 2 * self._rows.shape[0]), self._sums.shape[1]))
+        rows = self._rows[:k]
+        w = np.asarray(weights, dtype=np.float64)
+        f = np.asarray(features, dtype=np.float64)
+        rows[:, 0] = w
+        np.multiply(w, w, out=rows[:, 1])
+        rows[:, 2] = 1.0
+        np.multiply(w[:, None], f, out=rows[:, self._wf])
+        np.multiply(rows[:, self._wf], f, out=rows[:, self._wf2])
+        # the view's class distribution P and a = log max(P, floor) by a stable softmax, in
+        # the precision of the dot products (the grid passes float32 ones)
+        logits = f @ self.text.T if dots is None else np.array(dots)
+        logits *= self.scale
+        logits -= logits.max(axis=1, keepdims=True)
+        P = np.exp(logits)
+        total = P.sum(axis=1, keepdims=True)
+        P /= total
+        logits -= np.log(total)
+        a = np.maximum(logits, np.log(PROB_FLOOR), out=logits)
+        rows[:, self._Q] = P
+        rows[:, self._A] = a
+        np.multiply(rows[:, self._Q], rows[:, self._A], out=rows[:, self._S])
+        torch.from_numpy(self._sums).index_add_(0, torch.from_numpy(ids), torch.from_numpy(rows))
 
     @property
     def nbytes(self) -> int:
         """Bytes held by the accumulators: O(capacity x (d + n)), independent of the views."""
-        return sum(getattr(self, name).nbytes for name in self._FIELDS)
+        return self._sums.nbytes + self._rows.nbytes
+
+    def _column(self, columns: int | slice) -> np.ndarray:
+        return self._sums[: self.size, columns]
 
     @property
     def num_views(self) -> np.ndarray:
-        return self._count[: self.size].numpy()
+        return self._column(2).astype(np.int64)
 
     @property
     def weight(self) -> np.ndarray:
         """(N,) W1, the summed sample weights."""
-        return self._W1[: self.size].numpy()
+        return self._column(0).copy()  # a view would dangle once the table grows
 
     def fused(self) -> np.ndarray:
         """(N, d) weighted mean per-view feature (not yet re-normalised)."""
-        W1 = self._W1[: self.size, None].clamp_min(np.finfo(np.float64).tiny)
-        return (self._sum_wf[: self.size] / W1).numpy()
+        W1 = np.maximum(self._column(0), np.finfo(np.float64).tiny)
+        return self._column(self._wf) / W1[:, None]
 
     def stderr(self) -> np.ndarray:
-        s = slice(0, self.size)
         return weighted_stderr(
-            self._W1[s].numpy(),
-            self._W2[s].numpy(),
-            self._sum_wf[s].numpy(),
-            self._sum_wf2[s].numpy(),
+            self._column(0),
+            self._column(1),
+            self._column(self._wf),
+            self._column(self._wf2),
             self.num_views,
         )
 
     def pwkl(self) -> np.ndarray:
-        s = slice(0, self.size)
         return pwkl_linear(
-            self._S[s].numpy(), self._Q[s].numpy(), self._A[s].numpy(), self.num_views
+            self._column(self._S), self._column(self._Q), self._column(self._A), self.num_views
         )
 
     def columns(self) -> pa.Table:
         """The common candidate columns (:func:`fuse.measures.candidate_columns`)."""
         return candidate_columns(
             self.fused(),
-            self.text.numpy(),
+            self.text,
             self.scale,
             num_views=self.num_views,
             stderr=self.stderr(),

@@ -14,12 +14,13 @@ pixels x d.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 import torch
+from scipy import sparse
 
 from care.frames import Frame
-from care.geometry import backproject
 
 __all__ = ["CellIndex", "ViewSamples", "pack_cells", "unpack_cells", "view_samples"]
 
@@ -111,58 +112,140 @@ def _empty(dim: int, num_classes: int | None) -> ViewSamples:
     )
 
 
-def _compact(values: np.ndarray, bound: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``np.unique(values, return_inverse=True, return_counts=True)`` for ints in [0, bound).
+def _compact(values: np.ndarray, bound: int) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(values, return_inverse=True)`` for ints in [0, bound).
 
     A bincount over the bound when it is small next to the data (O(N), no sort), the sort of
     ``np.unique`` otherwise.
     """
     if bound <= max(4 * values.size, 1 << 16):
-        counts = np.bincount(values, minlength=bound)
-        uniq = np.flatnonzero(counts)
+        seen = np.bincount(values, minlength=bound)
+        uniq = np.flatnonzero(seen)
         remap = np.zeros(bound, np.int64)
         remap[uniq] = np.arange(uniq.size)
-        return uniq, remap[values], counts[uniq]
-    return np.unique(values, return_inverse=True, return_counts=True)
+        return uniq, remap[values]
+    return np.unique(values, return_inverse=True)
+
+
+@lru_cache(maxsize=16)
+def _patch_of_pixel(height: int, width: int, fh: int, fw: int, stride: int) -> np.ndarray:
+    """Flat feature-patch index of every ``stride``-th pixel, row-major (read-only, cached)."""
+    rows = np.arange(0, height, stride) * fh // height
+    cols = np.arange(0, width, stride) * fw // width
+    plane = (rows[:, None] * fw + cols[None, :]).reshape(-1)
+    plane.flags.writeable = False
+    return plane
+
+
+def _world_cells(
+    frame: Frame, stride: int, cell_size: float, z_min: float, z_max: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Kept pixels (flat index into the strided image), their depth, world height and cell.
+
+    A pixel's world point is ``z * R (xn, yn, 1) + t`` with normalised image coordinates
+    ``xn`` of its column and ``yn`` of its row, so each world axis is a depth-scaled ray plane
+    built by broadcasting a column term and a row term: a few passes over the image instead
+    of an (N, 3) @ (3, 3) product. Height comes first so only pixels in the band go on.
+    """
+    K = frame.K
+    R, t = frame.cam_to_world[:3, :3], frame.cam_to_world[:3, 3]
+    xn = (np.arange(0, frame.width, stride) - K[0, 2]) / K[0, 0]
+    yn = (np.arange(0, frame.height, stride) - K[1, 2]) / K[1, 1]
+
+    def ray(axis: int) -> np.ndarray:
+        return (R[axis, 0] * xn)[None, :] + (R[axis, 1] * yn + R[axis, 2])[:, None]
+
+    depth = frame.depth_m[::stride, ::stride]
+    z_all = depth.astype(np.float64)
+    height_all = z_all * ray(2)
+    height_all += t[2]
+    # NaN depths fail both comparisons; +inf ones the second
+    keep = (depth > 0) & (depth < np.inf) & (height_all >= z_min) & (height_all <= z_max)
+    idx = np.flatnonzero(keep)
+    z = z_all.reshape(-1)[idx]
+
+    def cell(axis: int) -> np.ndarray:
+        c = ray(axis).reshape(-1)[idx]
+        c *= z
+        c += t[axis]
+        c /= cell_size
+        return np.floor(c, out=c).astype(np.int64)
+
+    return idx, z, height_all.reshape(-1)[idx], cell(0), cell(1)
+
+
+def _runs(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Start and length of every run of equal consecutive values of ``key``."""
+    change = np.empty(key.size, bool)
+    change[0] = True
+    np.not_equal(key[1:], key[:-1], out=change[1:])
+    starts = np.flatnonzero(change)
+    return starts, np.diff(starts, append=key.size)
+
+
+def _first_highest(
+    height: np.ndarray, starts: np.ndarray, lengths: np.ndarray, run_cell: np.ndarray, k: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per cell: its greatest height and the first pixel (row-major) that reaches it.
+
+    Works on runs: the maximum of each run, the first run of each cell reaching the cell's
+    maximum, then a scan of those k runs only.
+    """
+    run_top = np.maximum.reduceat(height, starts)
+    top_z = torch.full((k,), -torch.inf, dtype=torch.float64)
+    top_z = top_z.scatter_reduce_(
+        0, torch.from_numpy(run_cell), torch.from_numpy(run_top), "amax"
+    ).numpy()
+    reaching = np.flatnonzero(run_top == top_z[run_cell])
+    _, first = np.unique(run_cell[reaching], return_index=True)  # runs are in pixel order
+    best = reaching[first]  # (k,) one run per cell, cells in order
+    lens = lengths[best]
+    ends = np.cumsum(lens)
+    seg = np.repeat(np.arange(k), lens)
+    pixel = np.arange(ends[-1]) + np.repeat(starts[best] - (ends - lens), lens)
+    hit = np.flatnonzero(height[pixel] == top_z[seg])
+    _, first_hit = np.unique(seg[hit], return_index=True)
+    return top_z, pixel[hit[first_hit]]
 
 
 def _mean_features(
-    cell_of: np.ndarray,
-    patch: np.ndarray,
+    pair_cell: np.ndarray,
+    pair_patch: np.ndarray,
+    count: np.ndarray,
     num_cells: int,
     feature_map: np.ndarray,
     text: np.ndarray | None,
 ) -> tuple[np.ndarray, np.ndarray | None]:
-    """Per-cell normalised mean of the pixels' patch features, via one term per (cell, patch).
+    """Per-cell normalised mean of the pixels' patch features, from (cell, patch) pixel counts.
 
-    With ``text`` (n, d) also the samples' dot products with the vocabulary. When the view
-    has more samples than patches they come from per-patch dot products,
-    ``t . normalise(sum_p c_p F_p) = sum_p c_p (t . F_p) / ||sum_p c_p F_p||``, so the (k, n)
-    logits cost (patches x d x n), not (k x d x n).
+    The sums are one sparse (cells x patches) count matrix times the (patches, d) feature
+    map, so the d-dimensional work grows with the pairs. With ``text`` (n, d) also the
+    samples' dot products with the vocabulary; when the view has more samples than patches
+    they come from per-patch dot products, ``t . normalise(sum_p c_p F_p) =
+    sum_p c_p (t . F_p) / ||sum_p c_p F_p||``, so the (k, n) logits cost
+    (patches x d x n), not (k x d x n).
     """
     fh, fw, d = feature_map.shape
     num_patches = fh * fw
-    pairs, _, count = _compact(cell_of * num_patches + patch, num_cells * num_patches)
-    pair_cell = torch.from_numpy(pairs // num_patches)
-    pair_patch = torch.from_numpy(pairs % num_patches)
-    weight = torch.from_numpy(count.astype(np.float32))[:, None]
-    flat = torch.from_numpy(np.ascontiguousarray(feature_map, dtype=np.float32).reshape(-1, d))
-    sums = torch.zeros(num_cells, d, dtype=torch.float32).index_add_(
-        0, pair_cell, flat[pair_patch] * weight
+    indptr = np.zeros(num_cells + 1, np.int64)
+    np.cumsum(np.bincount(pair_cell, minlength=num_cells), out=indptr[1:])
+    counts = sparse.csr_matrix(
+        (count.astype(np.float32), pair_patch, indptr), shape=(num_cells, num_patches)
     )
-    norm = torch.linalg.vector_norm(sums, dim=1, keepdim=True).clamp_min(1e-12)
-    mean = sums / norm
+    flat = np.ascontiguousarray(feature_map, dtype=np.float32).reshape(num_patches, d)
+    mean = counts @ flat
+    norm = np.sqrt(np.einsum("ij,ij->i", mean, mean))[:, None]
+    np.maximum(norm, 1e-12, out=norm)
+    mean /= norm
     dots = None
     if text is not None:
-        text_t = torch.from_numpy(np.asarray(text, dtype=np.float32))
-        used, pair_used = torch.unique(pair_patch, return_inverse=True)
-        if num_cells <= used.numel():  # fewer samples than patches: multiply directly
-            dots = (mean @ text_t.T).numpy()
+        text32 = np.asarray(text, dtype=np.float32)
+        if num_cells <= num_patches:
+            dots = mean @ text32.T
         else:
-            patch_dots = flat[used] @ text_t.T
-            raw = torch.zeros(num_cells, patch_dots.shape[1], dtype=torch.float32)
-            dots = (raw.index_add_(0, pair_cell, patch_dots[pair_used] * weight) / norm).numpy()
-    return mean.numpy(), dots
+            dots = counts @ (flat @ text32.T)
+            dots /= norm
+    return mean, dots
 
 
 def view_samples(
@@ -178,50 +261,54 @@ def view_samples(
 ) -> ViewSamples:
     """The (view, cell) samples of one view with its (fh, fw, d) feature map.
 
-    (The camera-to-world transform is written out per coordinate: only the height is needed
-    before the band filter, and (N, 3) @ (3, 3) is slow in numpy.)
-
     Every valid depth pixel (every ``stride``-th) is back-projected, kept if its world
     height lies in ``[z_min, z_max]``, and assigned to its cell and feature patch. A pixel
     weighs ``exp(-depth^2 / (2 sigma_z^2))`` (``sigma_z=None``: 1). With ``text`` (n, d), the
-    samples' dot products with the vocabulary come along (``ViewSamples.dots``).
+    samples' dot products with the vocabulary come along (``ViewSamples.dots``). The top of
+    a cell is its highest pixel, the first in row-major order among equals.
+
+    Neighbouring pixels of a row mostly share their cell and patch, so after the geometry
+    the work is on runs of equal (cell, patch), several times fewer than pixels.
     """
     fh, fw, dim = feature_map.shape
-    points, pixels = backproject(frame.depth_m, frame.K, stride)
-    R, t = frame.cam_to_world[:3, :3], frame.cam_to_world[:3, 3]
-    x, y, depth = points[:, 0], points[:, 1], points[:, 2]
-    height = R[2, 0] * x + R[2, 1] * y + R[2, 2] * depth + t[2]
-    keep = (height >= z_min) & (height <= z_max)
-    if not keep.any():
+    idx, z, height, ix, iy = _world_cells(frame, stride, cell_size, z_min, z_max)
+    if idx.size == 0:
         return _empty(dim, None if text is None else len(text))
-    x, y, depth, height, pixels = x[keep], y[keep], depth[keep], height[keep], pixels[keep]
-    ix = np.floor((R[0, 0] * x + R[0, 1] * y + R[0, 2] * depth + t[0]) / cell_size).astype(np.int64)
-    iy = np.floor((R[1, 0] * x + R[1, 1] * y + R[1, 2] * depth + t[1]) / cell_size).astype(np.int64)
     lo_x, lo_y = ix.min(), iy.min()
-    ny = int(iy.max() - lo_y) + 1
-    local, cell_of, num_pixels = _compact(
-        (ix - lo_x) * ny + (iy - lo_y), (int(ix.max() - lo_x) + 1) * ny
-    )
+    nx, ny = int(ix.max() - lo_x) + 1, int(iy.max() - lo_y) + 1
+    num_patches = fh * fw
+    key = ix  # (local cell) * patches + patch, built in place
+    key -= lo_x
+    key *= ny
+    iy -= lo_y
+    key += iy
+    key *= num_patches
+    key += _patch_of_pixel(frame.height, frame.width, fh, fw, stride)[idx]
+    starts, lengths = _runs(key)
+    run_local, run_patch = np.divmod(key[starts], num_patches)
+    local, run_cell = _compact(run_local, nx * ny)
+    k = local.size
     keys = pack_cells(lo_x + local // ny, lo_y + local % ny)  # sorted: local order is (ix, iy)
-    u, v = pixels[:, 0], pixels[:, 1]
-    patch = (v * fh // frame.height) * fw + u * fw // frame.width
-    feature, dots = _mean_features(cell_of, patch, keys.size, feature_map, text)
-    w = np.ones_like(depth) if sigma_z is None else np.exp(-(depth**2) / (2.0 * sigma_z**2))
-    weight = np.bincount(cell_of, weights=w, minlength=keys.size).astype(np.float32)
-    # highest pixel per cell: a scatter-max, then any pixel reaching it
-    top_z = torch.full((keys.size,), -torch.inf, dtype=torch.float64)
-    top_z = top_z.scatter_reduce_(
-        0, torch.from_numpy(cell_of), torch.from_numpy(height), "amax"
-    ).numpy()
-    at_top = np.flatnonzero(height == top_z[cell_of])
-    top = np.empty(keys.size, np.int64)
-    top[cell_of[at_top]] = at_top
+    num_pixels = np.bincount(run_cell, weights=lengths, minlength=k).astype(np.int64)
+    if sigma_z is None:
+        weight = num_pixels.astype(np.float32)
+    else:
+        zf = z.astype(np.float32)
+        w = np.exp(np.square(zf, out=zf) * np.float32(-0.5 / sigma_z**2))
+        run_w = np.add.reduceat(w, starts, dtype=np.float64)
+        weight = np.bincount(run_cell, weights=run_w, minlength=k).astype(np.float32)
+    top_z, top = _first_highest(height, starts, lengths, run_cell, k)
+    pairs, pair_of_run = _compact(run_cell * num_patches + run_patch, k * num_patches)
+    count = np.bincount(pair_of_run, weights=lengths, minlength=pairs.size)
+    pair_cell, pair_patch = np.divmod(pairs, num_patches)
+    feature, dots = _mean_features(pair_cell, pair_patch, count, k, feature_map, text)
+    rgb = frame.rgb[::stride, ::stride].reshape(-1, 3)
     return ViewSamples(
         keys=keys,
         weight=weight,
         feature=feature,
         num_pixels=num_pixels,
         top_z=top_z.astype(np.float32),
-        top_rgb=frame.rgb[v[top], u[top]],
+        top_rgb=rgb[idx[top]],
         dots=dots,
     )

@@ -202,8 +202,8 @@ def _is_current(store: Store, config: GridConfig, vocabulary: tuple[str, ...]) -
 def _fuse_views(
     store: Store, config: GridConfig, sums: CandidateSums, views_path: Path
 ) -> tuple[CellIndex, _CellLayers]:
-    text = sums.text.numpy()
     """The streaming pass: every view's samples into ``sums`` and ``views_path``."""
+    text = sums.text
     index, layers = CellIndex(), _CellLayers()
     sigma = config.sigma_z if config.distance_weighting else None
     pending: list[pa.Table] = []

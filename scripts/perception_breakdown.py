@@ -70,7 +70,9 @@ def main() -> None:
     wrong = top1 != true_cls
     print(f"{args.recording.name}, perception {args.perception!r}, {len(inst)} instances:")
     print(f"  fused top-1 class right: {int((~wrong).sum())}")
-    print(f"  wrong, persistent bias:  {int((wrong & biased).sum())} (of {int(biased.sum())} biased)")
+    print(
+        f"  wrong, persistent bias:  {int((wrong & biased).sum())} (of {int(biased.sum())} biased)"
+    )
     print(f"  wrong, view noise:       {int((wrong & ~biased).sum())}")
 
     causes: Counter[str] = Counter()

@@ -257,7 +257,9 @@ def test_unreachable_ray_cluster_is_one_clear_error(dataset, tmp_path) -> None:
         [*run, "--ray-address", "127.0.0.1:1"], capture_output=True, text=True, timeout=60
     )
     assert bad.returncode == 1
-    assert bad.stderr.strip().splitlines()[-1].startswith(
-        "error: cannot reach a Ray cluster at 127.0.0.1:1"
+    assert (
+        bad.stderr.strip()
+        .splitlines()[-1]
+        .startswith("error: cannot reach a Ray cluster at 127.0.0.1:1")
     )
     assert not (tmp_path / "results.md").exists()

@@ -45,7 +45,9 @@ def _write_store(
         masks = [np.arange(i, i + 1 + i % 3, dtype=np.int32) for i in range(n_cand)]
         table = table.append_column("point_indices", pa.array(masks, pa.list_(pa.int32())))
         name = "instances"
-    write_table_atomic(table, tmp_path / f"{name}.parquet", candidate_metadata(VOCAB, scale, "test"))
+    write_table_atomic(
+        table, tmp_path / f"{name}.parquet", candidate_metadata(VOCAB, scale, "test")
+    )
     # the store's text table lists the classes in another order: the loader must follow names
     order = np.array([3, 0, 5, 1, 2, 4])
     text_table = pa.table(
