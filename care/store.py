@@ -46,6 +46,7 @@ __all__ = [
     "StoreWriter",
     "decode_png",
     "encode_png",
+    "parquet_options",
     "read_table",
     "write_table_atomic",
 ]
@@ -160,6 +161,24 @@ def _check_version(schema: pa.Schema, path: Path) -> None:
         raise StoreError(msg)
 
 
+def parquet_options(schema: pa.Schema) -> dict[str, Any]:
+    """Writer options of every table here: zstd, dictionary encoding for id-like columns only.
+
+    Parquet tries a dictionary for every column by default and gives up only after filling
+    it; on float features and PNG bytes that attempt took more than half of each write (the
+    sample's grid tables: 1.1 s -> 0.4 s, and a little smaller).
+    """
+
+    def leaf(ty: pa.DataType) -> pa.DataType:
+        while pa.types.is_list(ty) or pa.types.is_large_list(ty) or pa.types.is_fixed_size_list(ty):
+            ty = ty.value_type
+        return ty
+
+    repetitive = (pa.types.is_integer, pa.types.is_boolean, pa.types.is_string)
+    names = [f.name for f in schema if any(test(leaf(f.type)) for test in repetitive)]
+    return {"compression": "zstd", "use_dictionary": names}
+
+
 def write_table_atomic(
     table: pa.Table, path: Path, metadata: dict[bytes, bytes] | None = None
 ) -> None:
@@ -174,7 +193,7 @@ def write_table_atomic(
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     try:
-        pq.write_table(table, tmp, compression="zstd")
+        pq.write_table(table, tmp, **parquet_options(table.schema))
         tmp.replace(path)
     finally:
         tmp.unlink(missing_ok=True)
@@ -220,10 +239,14 @@ class StoreWriter:
         if self.tmp.exists():
             shutil.rmtree(self.tmp)
         self.tmp.mkdir(parents=True)
-        self._views_writer = pq.ParquetWriter(self.tmp / "views.parquet", VIEWS_SCHEMA)
+        self._views_writer = pq.ParquetWriter(
+            self.tmp / "views.parquet", VIEWS_SCHEMA, **parquet_options(VIEWS_SCHEMA)
+        )
         if self.encoder is not None:
             schema = FEATURES_SCHEMA.with_metadata(self.encoder.metadata())
-            self._features_writer = pq.ParquetWriter(self.tmp / "features.parquet", schema)
+            self._features_writer = pq.ParquetWriter(
+                self.tmp / "features.parquet", schema, **parquet_options(schema)
+            )
         return self
 
     def add(self, frame: Frame, features: np.ndarray | None = None) -> int:

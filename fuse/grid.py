@@ -38,7 +38,7 @@ from PIL import Image
 from tqdm import tqdm
 
 from care.errors import FuseError
-from care.store import SCHEMA_VERSION, Store, read_table, write_table_atomic
+from care.store import SCHEMA_VERSION, Store, parquet_options, read_table, write_table_atomic
 from fuse.accumulate import CandidateSums
 from fuse.cells import CellIndex, ViewSamples, unpack_cells, view_samples
 from fuse.measures import DEFAULT_LOGIT_SCALE, candidate_metadata, list_column, to_float16
@@ -208,7 +208,8 @@ def _fuse_views(
     sigma = config.sigma_z if config.distance_weighting else None
     pending: list[pa.Table] = []
     pairs = zip(store.iter_frames(extras=False), store.iter_features(), strict=False)
-    with pq.ParquetWriter(views_path, CELL_VIEWS_SCHEMA, compression="zstd") as writer:
+    options = parquet_options(CELL_VIEWS_SCHEMA)
+    with pq.ParquetWriter(views_path, CELL_VIEWS_SCHEMA, **options) as writer:
         for (view_id, frame), (feature_id, feature_map) in tqdm(
             pairs, total=store.num_views, desc="fuse grid", unit="view", leave=False
         ):
