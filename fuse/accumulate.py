@@ -4,9 +4,9 @@ Both maps fuse the same way: each view contributes weighted samples ``(candidate
 and each candidate keeps ``W1, W2, sum w f, sum w f^2``, its view count and the pwKL sums
 ``S, Q, A`` of the per-view class distributions. That is O(d + n) memory per candidate, one
 pass over the views, and no per-view state kept in memory (the per-view tables on disk keep
-the samples for recomputation). All sums of a candidate are one row of a single float64
-table, so a view's samples are written into one reused row buffer and added with one
-``torch.index_add_``; capacity grows by doubling as new candidates appear.
+the samples for recomputation). A view's samples are added to three float64 tables (the
+two feature sums and the scalar/pwKL sums) with one ``torch.index_add_`` each, from
+reused contiguous buffers; capacity grows by doubling as new candidates appear.
 """
 
 from __future__ import annotations
@@ -42,21 +42,19 @@ class CandidateSums:
         self.scale = float(scale)
         self.size = 0
         d, n = self.dim, self.text.shape[0]
-        # one row per candidate: W1, W2, views, sum w f (d), sum w f^2 (d), S (n), Q (n), A (n)
-        self._wf = slice(3, 3 + d)
-        self._wf2 = slice(3 + d, 3 + 2 * d)
-        self._S = slice(3 + 2 * d, 3 + 2 * d + n)
-        self._Q = slice(3 + 2 * d + n, 3 + 2 * d + 2 * n)
-        self._A = slice(3 + 2 * d + 2 * n, 3 + 2 * d + 3 * n)
-        width = 3 + 2 * d + 3 * n
-        self._sums = np.zeros((max(int(capacity), 1), width))
-        self._rows = np.empty((0, width))  # reused: a fresh buffer per view costs page faults
+        cap = max(int(capacity), 1)
+        # per candidate: sum w f, sum w f^2, and [W1, W2, views, S (n), Q (n), A (n)]
+        self._tables = (np.zeros((cap, d)), np.zeros((cap, d)), np.zeros((cap, 3 + 3 * n)))
+        self._S, self._Q, self._A = (slice(3 + i * n, 3 + (i + 1) * n) for i in range(3))
+        # per-view scratch, reused: fresh buffers every view cost page faults
+        self._scratch = (np.empty((0, d)), np.empty((0, d)), np.empty((0, 3 + 3 * n)))
 
     def ensure(self, size: int) -> None:
         """Make room for candidates 0..size-1 (new ones start at zero)."""
-        cap = self._sums.shape[0]
+        cap = self._tables[0].shape[0]
         if size > cap:  # in place: realloc moves large blocks without copying; new rows are 0
-            self._sums.resize((max(size, 2 * cap), self._sums.shape[1]), refcheck=False)
+            for table in self._tables:
+                table.resize((max(size, 2 * cap), table.shape[1]), refcheck=False)
         self.size = max(self.size, int(size))
 
     def add(
@@ -77,16 +75,21 @@ class CandidateSums:
         if k == 0:
             return
         self.ensure(int(ids.max()) + 1)
-        if self._rows.shape[0] < k:
-            self._rows = np.empty((max(k, 2 * self._rows.shape[0]), self._sums.shape[1]))
-        rows = self._rows[:k]
+        if self._scratch[0].shape[0] < k:
+            grown = max(k, 2 * self._scratch[0].shape[0])
+            self._scratch = tuple(np.empty((grown, b.shape[1])) for b in self._scratch)
+        f, wf, rows = (b[:k] for b in self._scratch)
         w = np.asarray(weights, dtype=np.float64)
-        f = np.asarray(features, dtype=np.float64)
+        np.copyto(f, features)
+        # contiguous operands: numpy's fast loops skip strided row slices
+        index = torch.from_numpy(ids)
+        np.multiply(f, w[:, None], out=wf)
+        torch.from_numpy(self._tables[0]).index_add_(0, index, torch.from_numpy(wf))
+        np.multiply(wf, f, out=wf)
+        torch.from_numpy(self._tables[1]).index_add_(0, index, torch.from_numpy(wf))
         rows[:, 0] = w
         np.multiply(w, w, out=rows[:, 1])
         rows[:, 2] = 1.0
-        np.multiply(w[:, None], f, out=rows[:, self._wf])
-        np.multiply(rows[:, self._wf], f, out=rows[:, self._wf2])
         # the view's class distribution P and a = log max(P, floor) by a stable softmax, in
         # the precision of the dot products (the grid passes float32 ones)
         logits = f @ self.text.T if dots is None else np.array(dots)
@@ -100,15 +103,16 @@ class CandidateSums:
         rows[:, self._Q] = P
         rows[:, self._A] = a
         np.multiply(rows[:, self._Q], rows[:, self._A], out=rows[:, self._S])
-        torch.from_numpy(self._sums).index_add_(0, torch.from_numpy(ids), torch.from_numpy(rows))
+        torch.from_numpy(self._tables[2]).index_add_(0, index, torch.from_numpy(rows))
 
     @property
     def nbytes(self) -> int:
         """Bytes held by the accumulators: O(capacity x (d + n)), independent of the views."""
-        return self._sums.nbytes + self._rows.nbytes
+        return sum(b.nbytes for b in (*self._tables, *self._scratch))
 
     def _column(self, columns: int | slice) -> np.ndarray:
-        return self._sums[: self.size, columns]
+        """W1 (0), W2 (1), views (2) or a slice of S, Q, A, for candidates 0..size-1."""
+        return self._tables[2][: self.size, columns]
 
     @property
     def num_views(self) -> np.ndarray:
@@ -122,14 +126,14 @@ class CandidateSums:
     def fused(self) -> np.ndarray:
         """(N, d) weighted mean per-view feature (not yet re-normalised)."""
         W1 = np.maximum(self._column(0), np.finfo(np.float64).tiny)
-        return self._column(self._wf) / W1[:, None]
+        return self._tables[0][: self.size] / W1[:, None]
 
     def stderr(self) -> np.ndarray:
         return weighted_stderr(
             self._column(0),
             self._column(1),
-            self._column(self._wf),
-            self._column(self._wf2),
+            self._tables[0][: self.size],
+            self._tables[1][: self.size],
             self.num_views,
         )
 
