@@ -6,7 +6,7 @@ and each candidate keeps ``W1, W2, sum w f, sum w f^2``, its view count and the 
 pass over the views, and no per-view state kept in memory (the per-view tables on disk keep
 the samples for recomputation). A view's samples are added to three float64 tables (the
 two feature sums and the scalar/pwKL sums) with one ``torch.index_add_`` each, from
-reused contiguous buffers; capacity grows by doubling as new candidates appear.
+reused contiguous buffers; capacity grows by a quarter as new candidates appear.
 """
 
 from __future__ import annotations
@@ -52,9 +52,12 @@ class CandidateSums:
     def ensure(self, size: int) -> None:
         """Make room for candidates 0..size-1 (new ones start at zero)."""
         cap = self._tables[0].shape[0]
-        if size > cap:  # in place: realloc moves large blocks without copying; new rows are 0
+        if size > cap:
+            # in place: realloc moves large blocks without copying, so growing often is cheap
+            # and a small step leaves little capacity zeroed (touched) but never used
+            grown = max(size, cap + cap // 4)
             for table in self._tables:
-                table.resize((max(size, 2 * cap), table.shape[1]), refcheck=False)
+                table.resize((grown, table.shape[1]), refcheck=False)
         self.size = max(self.size, int(size))
 
     def add(
