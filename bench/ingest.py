@@ -25,6 +25,8 @@ _CHILD = r"""
 import json, resource, sys, time
 from pathlib import Path
 case = json.loads(sys.argv[1])
+from care.malloc import keep_freed_memory
+keep_freed_memory()  # as the care program does
 import numpy as np
 from ingest.pipeline import IngestConfig, run_ingest
 from ingest.readers import open_reader
