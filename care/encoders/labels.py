@@ -251,38 +251,47 @@ class LabelsEncoder(Encoder):
                 "class names on /care/class_names"
             )
             raise EncoderError(msg)
-        depth = np.stack([f.depth_m for f in frames]).astype(np.float64)
-        depth = np.where(np.isfinite(depth), depth, 0.0)
         stamps = np.array([int(f.stamp_ns) for f in frames], np.uint64)
 
         # Segments: an instance (id > 0) or a structure class (instance 0) of one view,
         # found by counting keys (O(pixels), no sort); numbered contiguously per view.
         n_cls = len(self.label_names)
         span = _INSTANCE_SPAN + n_cls
-        seg_key = np.where(inst > 0, inst, _INSTANCE_SPAN + cls)
-        key = (np.arange(B, dtype=np.int64)[:, None, None] * span + seg_key).ravel()
+        key = np.where(inst > 0, inst, _INSTANCE_SPAN + cls)
+        del inst  # per-pixel arrays of the whole batch: each one held costs 8 bytes a pixel
+        key += np.arange(B, dtype=np.int64)[:, None, None] * span
+        key = key.ravel()
         present = np.flatnonzero(np.bincount(key, minlength=B * span))
         lut = np.zeros(B * span, np.int64)
         lut[present] = np.arange(len(present))
         inv = lut[key]
+        del key
         S = len(present)
         seg_view = present // span
         seg_inst = np.where(present % span < _INSTANCE_SPAN, present % span, 0)
         seg_cls = np.zeros(S, np.int64)
         seg_cls[inv] = cls.ravel()
+        del cls
         first = np.searchsorted(seg_view, np.arange(B))
         local = inv - first[seg_view[inv]]
         s_max = int(np.bincount(seg_view, minlength=B).max())
 
+        depth = np.stack([f.depth_m for f in frames]).astype(np.float64)
+        depth[~np.isfinite(depth)] = 0.0
         level = self._noise_level(frames, inv, S, depth, H, W)
+        del depth
         vectors = self._segment_vectors(seg_view, seg_inst, seg_cls, stamps, level)
 
         # Cell mixtures: pixel counts per (view, cell, local segment), area-normalised.
         rows = (np.arange(H) * fh) // H
         cols = (np.arange(W) * fw) // W
         cell = (rows[:, None] * fw + cols[None, :]).ravel()
-        flat_cell = (np.repeat(np.arange(B), H * W) * n_cell + np.tile(cell, B)) * s_max + local
+        flat_cell = (np.arange(B)[:, None] * n_cell + cell[None, :]).ravel()
+        flat_cell *= s_max
+        flat_cell += local
+        del local
         counts = np.bincount(flat_cell, minlength=B * n_cell * s_max).reshape(B, n_cell, s_max)
+        del flat_cell
         area = np.bincount(inv, minlength=S).astype(np.float64)
         seg_area = np.zeros((B, s_max))
         seg_area[seg_view, np.arange(S) - first[seg_view]] = area
@@ -297,17 +306,18 @@ class LabelsEncoder(Encoder):
         seg_vec = np.zeros((B, s_max, DIM))
         seg_vec[seg_view, np.arange(S) - first[seg_view]] = vectors
         feats = np.matmul(weight.astype(np.float32), seg_vec.astype(np.float32))
+        # noise and normalisation in place: the (B, cells, d) maps are the largest arrays of
+        # the batch, and a copy per step tripled its peak memory (one generator per view
+        # stamp keeps the noise of a view the same in any batch)
         if m.cell_noise > 0:
-            noise = np.stack(
-                [
-                    np.random.default_rng([self.seed, int(s), 3]).standard_normal(
-                        (n_cell, DIM), dtype=np.float32
-                    )
-                    for s in stamps
-                ]
-            )
-            feats += m.cell_noise * noise / np.sqrt(DIM)
-        return l2_normalise(feats).reshape(B, fh, fw, DIM).astype(np.float32)
+            for view, stamp in zip(feats, stamps, strict=True):
+                noise = np.random.default_rng([self.seed, int(stamp), 3]).standard_normal(
+                    (n_cell, DIM), dtype=np.float32
+                )
+                view += m.cell_noise * noise / np.sqrt(DIM)
+        norm = np.linalg.norm(feats, axis=-1, keepdims=True)
+        feats /= np.where(norm > 0, norm, 1.0)
+        return feats.reshape(B, fh, fw, DIM)
 
     def _noise_level(
         self, frames: Sequence[Frame], inv: np.ndarray, S: int, depth: np.ndarray, H: int, W: int
@@ -381,19 +391,27 @@ class LabelsEncoder(Encoder):
 
 def _view_cosines(frames: Sequence[Frame], depth: np.ndarray, step: int = 1) -> np.ndarray:
     """(B, h, w) |cos| between view rays and surface normals from a depth image sampled
-    every ``step`` pixels."""
+    every ``step`` pixels.
+
+    Coordinates one at a time (not an (B, h, w, 3) stack): the same arithmetic with a third
+    of the temporaries at any moment.
+    """
     _B, h, w = depth.shape
     K = np.stack([np.asarray(f.K, np.float64) for f in frames])
     u = (np.arange(w) * step)[None, None, :]
     v = (np.arange(h) * step)[None, :, None]
-    x = (u - K[:, 0, 2, None, None]) / K[:, 0, 0, None, None] * depth
-    y = (v - K[:, 1, 2, None, None]) / K[:, 1, 1, None, None] * depth
-    P = np.stack([x, y, depth], axis=-1)
-    du = np.gradient(P, axis=2)
-    dv = np.gradient(P, axis=1)
-    n = np.cross(du, dv)
-    num = np.abs((n * P).sum(-1))
-    den = np.linalg.norm(n, axis=-1) * np.linalg.norm(P, axis=-1)
+    P = (
+        (u - K[:, 0, 2, None, None]) / K[:, 0, 0, None, None] * depth,
+        (v - K[:, 1, 2, None, None]) / K[:, 1, 1, None, None] * depth,
+        depth,
+    )
+    du = [np.gradient(c, axis=2) for c in P]
+    dv = [np.gradient(c, axis=1) for c in P]
+    n = [du[(i + 1) % 3] * dv[(i + 2) % 3] - du[(i + 2) % 3] * dv[(i + 1) % 3] for i in range(3)]
+    del du, dv
+    num = np.abs(n[0] * P[0] + n[1] * P[1] + n[2] * P[2])
+    den = np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+    den *= np.sqrt(P[0] * P[0] + P[1] * P[1] + P[2] * P[2])
     return np.where(den > 0, num / np.maximum(den, 1e-12), 1.0)
 
 
