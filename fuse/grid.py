@@ -38,7 +38,14 @@ from PIL import Image
 from tqdm import tqdm
 
 from care.errors import FuseError
-from care.store import SCHEMA_VERSION, Store, parquet_options, read_table, write_table_atomic
+from care.store import (
+    SCHEMA_VERSION,
+    Store,
+    group_rows,
+    parquet_options,
+    read_table,
+    write_table_atomic,
+)
 from fuse.accumulate import CandidateSums
 from fuse.cells import CellIndex, ViewSamples, unpack_cells, view_samples
 from fuse.measures import DEFAULT_LOGIT_SCALE, candidate_metadata, list_column, to_float16
@@ -231,10 +238,12 @@ def _fuse_views(
             layers.add(ids, samples)
             pending.append(_view_rows(view_id, ids, samples))
             if len(pending) >= 16:
-                writer.write_table(pa.concat_tables(pending))
+                rows = pa.concat_tables(pending)
+                writer.write_table(rows, row_group_size=group_rows(rows))
                 pending.clear()
         if pending:
-            writer.write_table(pa.concat_tables(pending))
+            rows = pa.concat_tables(pending)
+            writer.write_table(rows, row_group_size=group_rows(rows))
     return index, layers
 
 

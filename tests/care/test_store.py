@@ -8,11 +8,20 @@ from pathlib import Path
 import duckdb
 import numpy as np
 import polars as pl
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 
 from care.errors import StoreError
 from care.frames import Frame
-from care.store import EncoderInfo, Store, StoreWriter
+from care.store import (
+    EncoderInfo,
+    Store,
+    StoreWriter,
+    group_rows,
+    read_table,
+    write_table_atomic,
+)
 
 
 def _smooth_rgb(i: int) -> np.ndarray:
@@ -111,3 +120,23 @@ def test_other_schema_version_is_refused(tmp_path: Path) -> None:
     (tmp_path / "s" / "meta.json").write_text(json.dumps(meta))
     with pytest.raises(StoreError, match="schema version 99"):
         Store(tmp_path / "s")
+
+
+def test_row_groups_are_cut_by_list_values(tmp_path: Path) -> None:
+    """A feature-like list column of 1,000,000 values a row: 4 rows a group (2^22 / 1e6)."""
+    values = np.zeros((10, 1_000_000), np.float16)
+    offsets = pa.array(np.arange(11, dtype=np.int32) * 1_000_000)
+    table = pa.table(
+        {
+            "id": pa.array(np.arange(10, dtype=np.int32)),
+            "feature": pa.ListArray.from_arrays(offsets, pa.array(values.ravel(), pa.float16())),
+        }
+    )
+    assert group_rows(table) == 4
+    assert group_rows(table.drop_columns(["feature"])) == 1 << 22
+    write_table_atomic(table, tmp_path / "t.parquet")
+    meta = pq.ParquetFile(tmp_path / "t.parquet").metadata
+    assert [meta.row_group(i).num_rows for i in range(meta.num_row_groups)] == [4, 4, 2]
+    assert read_table(tmp_path / "t.parquet").equals(
+        table.replace_schema_metadata(read_table(tmp_path / "t.parquet").schema.metadata)
+    )
