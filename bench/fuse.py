@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import math
 import multiprocessing as mp
-import resource
 import sys
 import time
 import tracemalloc
@@ -27,6 +26,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench.rss import peak_rss_mb
 from care.frames import Frame
 from care.malloc import keep_freed_memory
 from fuse.accumulate import CandidateSums
@@ -274,7 +274,7 @@ def _peak_child(num_frames: int, d: int, stride: int, queue) -> None:
             text=text,
         )
         sums.add(index.lookup(s.keys), s.weight, s.feature, s.dots)
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    peak = peak_rss_mb()
     queue.put((index.size, sums.nbytes / 2**20, peak))
 
 

@@ -1,6 +1,6 @@
 """Ingest throughput and peak memory on the 211-frame living-room recording.
 
-Each case runs in its own subprocess so ``ru_maxrss`` (peak resident memory) is its own.
+Each case runs in its own subprocess so its peak resident memory (``bench.rss``) is its own.
 Cases: streamed ingest without encoder and with the ``labels`` encoder; the same
 recording repeated 5 times (peak memory must not grow with length); and the naive way
 (every message of the bag read into memory first) for the ratio.
@@ -22,15 +22,16 @@ ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data" / "rgbd" / "livingroom1_clean_micro"
 
 _CHILD = r"""
-import json, resource, sys, time
+import json, sys, time
 from pathlib import Path
+from bench.rss import current_rss_mb, peak_rss_mb
 case = json.loads(sys.argv[1])
 from care.malloc import keep_freed_memory
 keep_freed_memory()  # as the care program does
 import numpy as np
 from ingest.pipeline import IngestConfig, run_ingest
 from ingest.readers import open_reader
-base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+base = current_rss_mb()
 t0 = time.perf_counter()
 if case["naive"]:
     with open_reader(Path(case["rec"])) as r:
@@ -41,8 +42,7 @@ else:
     store = run_ingest(cfg)
     frames = json.loads((store / "meta.json").read_text())["num_views"]
 dt = time.perf_counter() - t0
-peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-print(json.dumps({"frames": frames, "seconds": dt, "base_mb": base / 1024, "peak_mb": peak / 1024}))
+print(json.dumps({"frames": frames, "seconds": dt, "base_mb": base, "peak_mb": peak_rss_mb()}))
 """
 
 
