@@ -79,7 +79,7 @@ class CandidateSums:
             return
         self.ensure(int(ids.max()) + 1)
         if self._scratch[0].shape[0] < k:
-            grown = max(k, 2 * self._scratch[0].shape[0])
+            grown = max(k, self._scratch[0].shape[0] * 5 // 4)
             self._scratch = tuple(np.empty((grown, b.shape[1])) for b in self._scratch)
         f, wf, rows = (b[:k] for b in self._scratch)
         w = np.asarray(weights, dtype=np.float64)

@@ -33,5 +33,5 @@ def _faults(mode: str) -> int:
 def test_freed_pages_are_reused() -> None:
     pages = 4 * (8 << 20) // 4096
     default, kept = _faults("default"), _faults("keep")
-    assert default >= 2 * pages  # freed blocks went back to the kernel and fault in again
     assert kept <= pages  # the first round's pages serve every later round
+    assert default > 4 * kept  # glibc's default hands them back, and they fault in again
