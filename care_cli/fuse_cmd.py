@@ -26,6 +26,19 @@ VocabOpt = Annotated[
     ),
 ]
 
+LogitScaleOpt = Annotated[float, typer.Option(help="Scale s of softmax(s * f . t).")]
+OverwriteOpt = Annotated[bool, typer.Option(help="Rebuild even if an up-to-date map exists.")]
+
+
+def _recompute_opt(views_table: str) -> Any:
+    return Annotated[
+        bool,
+        typer.Option(
+            help=f"Only recompute the columns for --vocabulary / --logit-scale from {views_table}."
+        ),
+    ]
+
+
 fuse_app = typer.Typer(
     help="Build maps (grid, instances) from a feature store.", no_args_is_help=True
 )
@@ -52,20 +65,13 @@ def grid(
     distance_weighting: Annotated[
         bool, typer.Option(help="Weight pixels by exp(-z^2 / (2 sigma_z^2)) (VLMaps).")
     ] = True,
-    logit_scale: Annotated[float, typer.Option(help="Scale s of softmax(s * f . t).")] = 100.0,
+    logit_scale: LogitScaleOpt = 100.0,
     vocabulary: VocabOpt = None,
     obstacle_height: Annotated[
         float, typer.Option(help="Height (m) above which a cell is an obstacle.")
     ] = 0.1,
-    overwrite: Annotated[
-        bool, typer.Option(help="Rebuild even if an up-to-date grid exists.")
-    ] = False,
-    recompute: Annotated[
-        bool,
-        typer.Option(
-            help="Only recompute the columns for --vocabulary / --logit-scale from cell_views.parquet."
-        ),
-    ] = False,
+    overwrite: OverwriteOpt = False,
+    recompute: _recompute_opt("cell_views.parquet") = False,
     rrd: RrdOpt = None,
 ) -> None:
     """Fuse every view's dense features into occupied top-down cells (cells.parquet)."""
@@ -123,17 +129,10 @@ def instances(
     voxel_size: Annotated[float, typer.Option(help="Voxel edge (m) of the scene cloud.")] = 0.03,
     stride: Annotated[int, typer.Option(help="Back-project every stride-th depth pixel.")] = 2,
     top_k: Annotated[int, typer.Option(help="Views kept per instance (OpenMask3D: 5).")] = 5,
-    logit_scale: Annotated[float, typer.Option(help="Scale s of softmax(s * f . t).")] = 100.0,
+    logit_scale: LogitScaleOpt = 100.0,
     vocabulary: VocabOpt = None,
-    overwrite: Annotated[
-        bool, typer.Option(help="Rebuild even if an up-to-date map exists.")
-    ] = False,
-    recompute: Annotated[
-        bool,
-        typer.Option(
-            help="Only recompute the columns for --vocabulary / --logit-scale from instance_views.parquet."
-        ),
-    ] = False,
+    overwrite: OverwriteOpt = False,
+    recompute: _recompute_opt("instance_views.parquet") = False,
     set_: Annotated[
         list[str] | None,
         typer.Option(
