@@ -34,21 +34,24 @@ def _looking_down() -> np.ndarray:
     return pose
 
 
-def _frame(rng: np.random.Generator, pose: np.ndarray, levels: bool) -> Frame:
+def _frame(
+    rng: np.random.Generator, pose: np.ndarray, levels: bool, size: tuple[int, int] = (H, W)
+) -> Frame:
     if levels:  # a few depth levels: whole patches of tied heights
-        depth = rng.choice([0.9, 1.2, 1.45], (H, W)).astype(np.float32)
+        depth = rng.choice([0.9, 1.2, 1.45], size).astype(np.float32)
     else:
-        depth = rng.uniform(0.5, 4.0, (H, W)).astype(np.float32)
+        depth = rng.uniform(0.5, 4.0, size).astype(np.float32)
     depth[0, :5] = 0.0
     depth[1, 3] = np.nan
     depth[2, 7] = np.inf
-    rgb = rng.integers(0, 255, (H, W, 3), dtype=np.uint8)
+    rgb = rng.integers(0, 255, (*size, 3), dtype=np.uint8)
     return Frame(0, rgb, depth, K, pose)
 
 
 def _plain(frame: Frame, feats: np.ndarray, cell: float, stride: int, z_band, sigma: float):
     """Per cell: pixel count, weight, patch counts, first highest pixel's height and colour."""
     fh, fw = feats.shape[:2]
+    H, W = frame.height, frame.width
     cells: dict = defaultdict(lambda: {"n": 0, "w": 0.0, "patches": defaultdict(int), "top": None})
     for v in range(0, H, stride):
         for u in range(0, W, stride):
@@ -70,17 +73,20 @@ def _plain(frame: Frame, feats: np.ndarray, cell: float, stride: int, z_band, si
 
 
 @pytest.mark.parametrize(
-    ("pose", "levels", "stride", "fmap"),
+    ("pose", "levels", "stride", "fmap", "size"),
     [
-        ("tilted", False, 1, (3, 4)),  # more cells than patches: logits from patch dots
-        ("tilted", False, 3, (6, 8)),
-        ("down", True, 1, (12, 16)),  # fewer cells than patches; tied heights
-        ("down", True, 2, (2, 2)),
+        ("tilted", False, 1, (3, 4), (H, W)),  # more cells than patches: patch dots
+        ("tilted", False, 3, (6, 8), (H, W)),
+        ("down", True, 1, (12, 16), (H, W)),  # fewer cells than patches; tied heights
+        ("down", True, 2, (2, 2), (H, W)),
+        ("tilted", False, 3, (5, 7), (25, 31)),  # nothing divides anything
+        ("down", True, 4, (4, 3), (23, 29)),
     ],
 )
-def test_view_samples_equal_a_plain_pixel_loop(pose, levels, stride, fmap) -> None:
+def test_view_samples_equal_a_plain_pixel_loop(pose, levels, stride, fmap, size) -> None:
     rng = np.random.default_rng(stride + fmap[0])
-    frame = _frame(rng, _tilted_pose(rng) if pose == "tilted" else _looking_down(), levels)
+    pose = _tilted_pose(rng) if pose == "tilted" else _looking_down()
+    frame = _frame(rng, pose, levels, size)
     feats = rng.normal(size=(*fmap, 6)).astype(np.float32)
     text = rng.normal(size=(5, 6)).astype(np.float32)
     band = (-0.1, 0.9)
