@@ -45,10 +45,11 @@ __all__ = [
     "EncoderInfo",
     "Store",
     "StoreWriter",
+    "append_rows",
     "decode_png",
     "encode_png",
     "group_rows",
-    "parquet_options",
+    "open_writer",
     "read_table",
     "write_table_atomic",
 ]
@@ -201,6 +202,16 @@ def group_rows(table: pa.Table) -> int:
     return max(1, _GROUP_LIST_VALUES // per_row)
 
 
+def open_writer(path: Path, schema: pa.Schema) -> pq.ParquetWriter:
+    """A streaming Parquet writer with this project's options (:func:`parquet_options`)."""
+    return pq.ParquetWriter(path, schema, **parquet_options(schema))
+
+
+def append_rows(writer: pq.ParquetWriter, table: pa.Table) -> None:
+    """Write ``table`` through ``writer`` in row groups bounded by :func:`group_rows`."""
+    writer.write_table(table, row_group_size=group_rows(table))
+
+
 def write_table_atomic(
     table: pa.Table, path: Path, metadata: dict[bytes, bytes] | None = None
 ) -> None:
@@ -263,14 +274,10 @@ class StoreWriter:
         if self.tmp.exists():
             shutil.rmtree(self.tmp)
         self.tmp.mkdir(parents=True)
-        self._views_writer = pq.ParquetWriter(
-            self.tmp / "views.parquet", VIEWS_SCHEMA, **parquet_options(VIEWS_SCHEMA)
-        )
+        self._views_writer = open_writer(self.tmp / "views.parquet", VIEWS_SCHEMA)
         if self.encoder is not None:
             schema = FEATURES_SCHEMA.with_metadata(self.encoder.metadata())
-            self._features_writer = pq.ParquetWriter(
-                self.tmp / "features.parquet", schema, **parquet_options(schema)
-            )
+            self._features_writer = open_writer(self.tmp / "features.parquet", schema)
         return self
 
     def add(self, frame: Frame, features: np.ndarray | None = None) -> int:
@@ -329,7 +336,7 @@ class StoreWriter:
 
     def _flush(self) -> None:
         if self._views and self._views_writer is not None:
-            self._views_writer.write_table(pa.Table.from_pylist(self._views, schema=VIEWS_SCHEMA))
+            append_rows(self._views_writer, pa.Table.from_pylist(self._views, schema=VIEWS_SCHEMA))
             self._views.clear()
         if self._features and self._features_writer is not None:
             rows = self._features
@@ -347,7 +354,7 @@ class StoreWriter:
                 },
                 schema=self._features_writer.schema,
             )
-            self._features_writer.write_table(table, row_group_size=group_rows(table))
+            append_rows(self._features_writer, table)
             self._features.clear()
 
     def commit(self, meta: dict[str, Any]) -> None:

@@ -41,8 +41,8 @@ from care.errors import FuseError
 from care.store import (
     SCHEMA_VERSION,
     Store,
-    group_rows,
-    parquet_options,
+    append_rows,
+    open_writer,
     read_table,
     write_table_atomic,
 )
@@ -215,8 +215,7 @@ def _fuse_views(
     sigma = config.sigma_z if config.distance_weighting else None
     pending: list[pa.Table] = []
     pairs = zip(store.iter_frames(extras=False), store.iter_features(), strict=False)
-    options = parquet_options(CELL_VIEWS_SCHEMA)
-    with pq.ParquetWriter(views_path, CELL_VIEWS_SCHEMA, **options) as writer:
+    with open_writer(views_path, CELL_VIEWS_SCHEMA) as writer:
         for (view_id, frame), (feature_id, feature_map) in tqdm(
             pairs, total=store.num_views, desc="fuse grid", unit="view", leave=False
         ):
@@ -238,12 +237,10 @@ def _fuse_views(
             layers.add(ids, samples)
             pending.append(_view_rows(view_id, ids, samples))
             if len(pending) >= 16:
-                rows = pa.concat_tables(pending)
-                writer.write_table(rows, row_group_size=group_rows(rows))
+                append_rows(writer, pa.concat_tables(pending))
                 pending.clear()
         if pending:
-            rows = pa.concat_tables(pending)
-            writer.write_table(rows, row_group_size=group_rows(rows))
+            append_rows(writer, pa.concat_tables(pending))
     return index, layers
 
 

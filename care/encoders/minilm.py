@@ -46,7 +46,7 @@ class MiniLM:
         self.eps = float(config["layer_norm_eps"])
         self.weights = load_file(str(model_dir / "model.safetensors"))
         self.tokenizer = Tokenizer.from_file(str(model_dir / "tokenizer.json"))
-        self.tokenizer.no_padding()  # padded here, to the longest text of each call
+        self.tokenizer.enable_padding(pad_id=0)  # to the longest text of each call
         self.tokenizer.enable_truncation(int(st_config["max_seq_length"]))
         self._torch = torch
 
@@ -55,11 +55,8 @@ class MiniLM:
         torch = self._torch
         F = torch.nn.functional
         encodings = self.tokenizer.encode_batch([str(t) for t in texts])
-        lengths = torch.tensor([len(e.ids) for e in encodings])
-        ids = torch.zeros(len(encodings), int(lengths.max()), dtype=torch.long)
-        for row, e in enumerate(encodings):  # a few dozen class names, not pixels
-            ids[row, : len(e.ids)] = torch.tensor(e.ids)
-        mask = (torch.arange(ids.shape[1])[None, :] < lengths[:, None]).float()
+        ids = torch.tensor([e.ids for e in encodings], dtype=torch.long)
+        mask = torch.tensor([e.attention_mask for e in encodings], dtype=torch.float32)
         w = self.weights
         with torch.inference_mode():
             h = (
