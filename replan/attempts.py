@@ -200,7 +200,7 @@ def next_goal(
     for v in visited_ids:
         available = available_after(available, np.array([v]), positions, radius)
     chosen = get_strategy(strategy)
-    first = visited_ids.size == 0 or chosen.rule is None
+    first = visited_ids.size == 0  # no_replan after a visit: _step says it makes no attempt
     if first:
         cand, found = best_of(conf, available, conf, maximise=True)
         pick = Pick(np.where(found, cand, -1), conf[0, cand].astype(np.float64), np.zeros(1, bool))

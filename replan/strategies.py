@@ -82,7 +82,7 @@ def best_of(
             return confidence.argmax(axis=1), np.full(len(mask), mask.shape[1] > 0)
         return np.where(mask, confidence, -np.inf).argmax(axis=1), mask.any(axis=1)
     values = np.asarray(values)
-    if values.ndim == 1 and np.isnan(values).any():
+    if np.isnan(values).any():
         values = np.where(np.isnan(values), -np.inf if maximise else np.inf, values)
     if np.count_nonzero(mask) * 8 < mask.size:
         return _best_of_sparse(values, mask, confidence, maximise=maximise)

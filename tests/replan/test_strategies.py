@@ -215,6 +215,8 @@ def test_next_goal_live_api() -> None:
     assert fell.fell_back
     assert fell.strategy == "max_confidence"
     assert next_goal(cmap, 0, [0, 2, 3]).candidate == -1
+    with pytest.raises(ReplanError, match="no further attempt"):
+        next_goal(cmap, "chair", [0], strategy="no_replan")  # its one attempt was made
     with pytest.raises(QueryError, match="not a class"):
         next_goal(cmap, "couch", [])
     with pytest.raises(ReplanError, match="unknown replan strategy"):
@@ -240,14 +242,16 @@ def _best_reference(values, mask, conf, maximise):
 
 @pytest.mark.parametrize("density", [0.02, 0.5])
 @pytest.mark.parametrize("maximise", [True, False])
-def test_best_of_sparse_and_dense_paths_match_a_loop(density, maximise) -> None:
+@pytest.mark.parametrize("per_query", [False, True])  # a measure column, or (Q, N) values
+def test_best_of_sparse_and_dense_paths_match_a_loop(density, maximise, per_query) -> None:
     from replan.strategies import best_of
 
     rng = np.random.default_rng(3)
     n_q, n_c = 40, 300
-    values = rng.integers(0, 4, n_c).astype(float)
-    values[rng.random(n_c) < 0.1] = np.inf
-    values[rng.random(n_c) < 0.05] = np.nan
+    shape = (n_q, n_c) if per_query else n_c
+    values = rng.integers(0, 4, shape).astype(float)
+    values[rng.random(shape) < 0.1] = np.inf
+    values[rng.random(shape) < 0.05] = np.nan
     conf = rng.integers(0, 3, (n_q, n_c)) / 3.0
     mask = rng.random((n_q, n_c)) < density
     mask[0] = False
