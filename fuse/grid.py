@@ -29,6 +29,7 @@ import dataclasses
 import json
 import os
 from dataclasses import dataclass
+from itertools import zip_longest
 from pathlib import Path
 
 import numpy as np
@@ -214,7 +215,10 @@ def _fuse_views(
     index, layers = CellIndex(), _CellLayers()
     sigma = config.sigma_z if config.distance_weighting else None
     pending: list[pa.Table] = []
-    pairs = zip(store.iter_frames(extras=False), store.iter_features(), strict=False)
+    # a store with fewer feature rows than views (or more) is out of step, not a smaller map
+    pairs = zip_longest(
+        store.iter_frames(extras=False), store.iter_features(), fillvalue=(None, None)
+    )
     with open_writer(views_path, CELL_VIEWS_SCHEMA) as writer:
         for (view_id, frame), (feature_id, feature_map) in tqdm(
             pairs, total=store.num_views, desc="fuse grid", unit="view", leave=False

@@ -42,7 +42,7 @@ from fuse.pointcloud import (
 )
 from fuse.proposals import PROPOSERS, Proposals
 from fuse.recompute import recompute_candidates, sums_from_views
-from fuse.views import ViewSelection, crop_features, select_views
+from fuse.views import ViewSelection, crop_features, require_crops, select_views
 from fuse.vocabulary import vocabulary_text
 
 __all__ = [
@@ -171,23 +171,23 @@ def _store_stamp(store: Store) -> bytes:
     return str(store.meta.get("created_unix")).encode()
 
 
-def _scene_cloud(store: Store, config: InstanceConfig) -> SceneCloud:
-    """The scene cloud, reused from ``scene_points.parquet`` when it is current."""
+def _scene_cloud(store: Store, config: InstanceConfig) -> tuple[SceneCloud, dict | None]:
+    """The scene cloud, reused from ``scene_points.parquet`` when it is current.
+
+    A new cloud comes with the metadata to write it under; the build writes it together
+    with the tables that index into it, so a failed build never leaves them apart.
+    """
     path = store.table_path(SCENE_POINTS_TABLE)
     key = config.fingerprint(_CLOUD_FIELDS).encode()
+    meta = {b"care.cloud.config": key, b"care.store.created": _store_stamp(store)}
     if path.is_file() and not config.overwrite:
         md = pq.read_schema(path).metadata or {}
-        if md.get(b"care.cloud.config") == key and md.get(b"care.store.created") == _store_stamp(
-            store
-        ):
-            return read_scene_points(path)
+        if all(md.get(k) == v for k, v in meta.items()):
+            return read_scene_points(path), None
     cloud = fuse_scene_points(
         store, voxel_size=config.voxel_size, stride=config.stride, max_depth=config.max_depth
     )
-    write_scene_points(
-        cloud, path, {b"care.cloud.config": key, b"care.store.created": _store_stamp(store)}
-    )
-    return cloud
+    return cloud, meta
 
 
 def _is_current(store: Store, config: InstanceConfig, vocabulary: tuple[str, ...]) -> bool:
@@ -204,14 +204,17 @@ def _is_current(store: Store, config: InstanceConfig, vocabulary: tuple[str, ...
     )
 
 
+def _store_encoder(store: Store, config: InstanceConfig) -> Encoder:
+    return make_encoder(store.encoder.name, EncoderOptions(batch_size=config.batch_size))
+
+
 def _per_view_features(
     store: Store, config: InstanceConfig, selection: ViewSelection, encoder: Encoder | None
 ) -> np.ndarray:
     if config.features == "masked":
         assert selection.features is not None  # select_views pooled them
         return selection.features
-    if encoder is None:
-        encoder = make_encoder(store.encoder.name, EncoderOptions(batch_size=config.batch_size))
+    assert encoder is not None  # build_instances made and checked it
     return crop_features(
         store, selection, encoder, padding=config.crop_padding, batch_size=config.batch_size
     )
@@ -283,8 +286,18 @@ def build_instances(
     vocabulary, text = vocabulary_text(store, config.vocabulary)
     out = store.table_path(INSTANCES_TABLE)
     if not _is_current(store, config, vocabulary):
-        cloud = _scene_cloud(store, config)
+        if config.features == "crops":  # before any work, not after the views are chosen
+            encoder = encoder or _store_encoder(store, config)
+            require_crops(encoder)
+        cloud, cloud_meta = _scene_cloud(store, config)
         proposals = PROPOSERS[config.proposals](cloud, store, config)
+        if len(proposals) == 0:
+            msg = (
+                f"{store.path}: the {config.proposals} proposals found no instance in "
+                f"{len(cloud.points)} scene points; check the recording or the proposal "
+                "settings (--set)"
+            )
+            raise FuseError(msg)
         selection = select_views(
             store,
             cloud.points,
@@ -295,21 +308,38 @@ def build_instances(
             pool_features=config.features == "masked",
             batch_size=config.batch_size,
         )
+        if not (selection.view_ids >= 0).any():
+            msg = (
+                f"{store.path}: no view sees any of the {len(proposals)} proposals with "
+                f"{config.min_visible_points}+ visible points; lower it with "
+                "--set min_visible_points=N"
+            )
+            raise FuseError(msg)
         views = _views_table(selection, _per_view_features(store, config, selection, encoder))
         meta = {
             **candidate_metadata(vocabulary, config.logit_scale, store.encoder.name),
             b"care.instances.config": config.fingerprint().encode(),
             b"care.store.created": _store_stamp(store),
         }
+        # Every table is staged and renamed into place at the end, the instances last: a
+        # failed build leaves the previous map whole (the cloud, the per-view rows and the
+        # masks that index into them belong together).
         views_path = store.table_path(INSTANCE_VIEWS_TABLE)
-        write_table_atomic(views, views_path, meta)
-        sums = sums_from_views(
-            views_path, "instance_id", text, config.logit_scale, num_candidates=len(proposals)
-        )
-        table = sums.columns()
-        for name, col in _geometry_columns(cloud.points, proposals).items():
-            table = table.append_column(name, col)
-        write_table_atomic(table, out, meta)
+        staged_views = views_path.with_name(f".{views_path.name}.building")
+        try:
+            write_table_atomic(views, staged_views, meta)
+            sums = sums_from_views(
+                staged_views, "instance_id", text, config.logit_scale, num_candidates=len(proposals)
+            )
+            table = sums.columns()
+            for name, col in _geometry_columns(cloud.points, proposals).items():
+                table = table.append_column(name, col)
+            if cloud_meta is not None:
+                write_scene_points(cloud, store.table_path(SCENE_POINTS_TABLE), cloud_meta)
+            staged_views.replace(views_path)
+            write_table_atomic(table, out, meta)
+        finally:
+            staged_views.unlink(missing_ok=True)
     if rrd is not None:
         from fuse.viz_instances import log_instances
 

@@ -341,6 +341,13 @@ def select_views(
     )
 
 
+def require_crops(encoder: Encoder) -> None:
+    """One clear error for an encoder that cannot re-encode crops (checked before any work)."""
+    if not encoder.supports_crops:
+        msg = f"encoder {encoder.name!r} cannot encode crops; use features='masked'"
+        raise FuseError(msg)
+
+
 def crop_features(
     store: Store,
     selection: ViewSelection,
@@ -357,9 +364,7 @@ def crop_features(
     least ``min_size`` pixels wide), clipped to the image, cut from the view's RGB and
     encoded with ``encoder.encode_crops``; unselected slots stay zero.
     """
-    if not encoder.supports_crops:
-        msg = f"encoder {encoder.name!r} cannot encode crops; use features='masked'"
-        raise FuseError(msg)
+    require_crops(encoder)
     M, k = selection.view_ids.shape
     out = np.zeros((M, k, encoder.dim), np.float32)
     sel_m, sel_r = np.nonzero(selection.view_ids >= 0)

@@ -255,6 +255,19 @@ def test_recompute_equals_fresh_build(tmp_path: Path) -> None:
     assert float(md[b"care.logit_scale"]) == 30.0
 
 
+def test_views_without_feature_rows_are_one_clear_error(tmp_path: Path) -> None:
+    """Four views but two feature maps: out of step, not a two-view map."""
+    path = tmp_path / "s"
+    with StoreWriter(path, EncoderInfo("test", "1", D, NAMES)) as writer:
+        for i, (frame, feats) in enumerate(_frames(4)):
+            writer.add(frame, feats if i < 2 else None)
+        writer.set_text(NAMES, _text())
+        writer.commit({"source": "synthetic"})
+    with pytest.raises(FuseError, match="out of step"):
+        build_grid(path, GridConfig())
+    assert not (path / "cells.parquet").exists()
+
+
 def test_bad_inputs_raise_one_clear_error(tmp_path: Path) -> None:
     store = _store(tmp_path / "s")
     with pytest.raises(FuseError, match="no depth pixel"):

@@ -340,6 +340,39 @@ def test_build_instances_crops(room: Path) -> None:
         )
 
 
+class _FailingCrops(ColourCropEncoder):
+    def encode_crops(self, crops: Sequence[np.ndarray]) -> np.ndarray:
+        raise FuseError("the crop model failed")
+
+
+def test_failed_build_leaves_the_previous_map_whole(room: Path) -> None:
+    """A build that fails after a new scene cloud was made (another voxel size) must not
+    leave that cloud next to the old masks that index the old one, nor half the tables."""
+    names = ("instances.parquet", "instance_views.parquet", "scene_points.parquet")
+    build_instances(room, InstanceConfig(**{**CONFIG.__dict__, "proposals": "labels"}))
+    before = {n: (room / n).read_bytes() for n in names}
+    config = InstanceConfig(
+        **{**CONFIG.__dict__, "proposals": "labels", "features": "crops", "voxel_size": 0.05}
+    )
+    with pytest.raises(FuseError, match="crop model failed"):
+        build_instances(room, config, encoder=_FailingCrops())
+    assert {n: (room / n).read_bytes() for n in names} == before
+    assert not list(room.glob(".*building*"))
+
+
+@pytest.mark.parametrize(
+    ("setting", "message"),
+    [
+        ({"min_instance_points": 10**9}, "found no instance"),
+        ({"min_visible_points": 10**9}, "no view sees"),
+    ],
+)
+def test_empty_map_is_one_clear_error(room: Path, setting: dict, message: str) -> None:
+    config = InstanceConfig(**{**CONFIG.__dict__, "overwrite": True, **setting})
+    with pytest.raises(FuseError, match=message):
+        build_instances(room, config)
+
+
 def test_bad_config_is_one_clear_error() -> None:
     with pytest.raises(FuseError, match="unknown proposals"):
         InstanceConfig(proposals="magic")
