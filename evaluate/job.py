@@ -33,6 +33,7 @@ from query.map import MAP_TABLES, MEASURES, load_map
 from replan.attempts import Attempts, run_attempts
 from replan.expected import expected_random_success
 from replan.strategies import STRATEGIES, get_strategy
+from world.dataset_index import INDEX_NAME, read_index
 from world.groundtruth import GroundTruth, gt_paths
 
 __all__ = [
@@ -183,33 +184,21 @@ def scenes_of(dataset: Path | Sequence[Path]) -> list[Scene]:
     dataset = Path(dataset)
     if (dataset / "meta.json").is_file():
         return [Scene(dataset.name, dataset, _store_recording(dataset))]
-    index = dataset / "index.json"
-    if not index.is_file():
-        msg = f"{dataset}: neither a store (meta.json) nor a dataset (index.json)"
+    if not (dataset / INDEX_NAME).is_file():
+        msg = f"{dataset}: neither a store (meta.json) nor a dataset ({INDEX_NAME})"
         raise EvalError(msg)
-    doc = json.loads(index.read_text())
-    entries = doc if isinstance(doc, list) else doc.get("recordings") or doc.get("scenes") or []
     stores = _find_stores(dataset)
     scenes = []
-    for entry in entries:
-        item = {"recording": entry} if isinstance(entry, str) else dict(entry)
-        rel = item.get("recording") or item.get("path")
-        if rel is None:
-            msg = f"{index}: entry {entry!r} names no recording ('recording' or 'path')"
-            raise EvalError(msg)
-        recording = (dataset / rel).resolve()
-        store = Path(dataset / item["store"]) if item.get("store") else stores.get(recording)
+    for entry in read_index(dataset):
+        store = entry.store or stores.get(entry.recording.resolve())
         if store is None or not (store / "meta.json").is_file():
+            rel = entry.recording.relative_to(dataset)
             msg = (
-                f"{index}: no fused store for {rel}; run `care ingest {rel}` and `care fuse` "
-                "(or `care run`) first"
+                f"{dataset / INDEX_NAME}: no fused store for {rel}; run `care ingest {rel}` and "
+                "`care fuse` (or `care run`) first"
             )
             raise EvalError(msg)
-        name = str(item.get("name") or Path(rel).stem)
-        scenes.append(Scene(name, store, recording))
-    if not scenes:
-        msg = f"{index}: lists no recordings"
-        raise EvalError(msg)
+        scenes.append(Scene(entry.name, store, entry.recording.resolve()))
     return scenes
 
 

@@ -8,7 +8,6 @@ runs on the bundled sample (``data/sample``).
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -22,6 +21,7 @@ from fuse.grid import GridConfig, build_grid
 from fuse.instances import InstanceConfig, build_instances
 from ingest.pipeline import IngestConfig, run_ingest
 from query.map import load_map
+from world.dataset_index import INDEX_NAME, read_index
 from world.groundtruth import gt_paths
 
 __all__ = ["SAMPLE", "RunConfig", "RunResult", "recordings_of", "run_all"]
@@ -65,18 +65,8 @@ class RunResult:
 def recordings_of(source: Path) -> list[tuple[str, Path]]:
     """``(name, recording)`` pairs of a dataset directory (``index.json``) or one recording."""
     source = Path(source)
-    index = source / "index.json"
-    if source.is_dir() and index.is_file():
-        doc = json.loads(index.read_text())
-        entries = doc if isinstance(doc, list) else doc.get("recordings", [])
-        out = []
-        for entry in entries:
-            item = {"recording": entry} if isinstance(entry, str) else entry
-            if item.get("skipped"):
-                continue
-            path = source / item["recording"]
-            out.append((str(item.get("name") or path.stem), path))
-        return out
+    if source.is_dir() and (source / INDEX_NAME).is_file():
+        return [(entry.name, entry.recording) for entry in read_index(source)]
     if not source.exists():
         msg = f"{source}: no such recording or dataset directory"
         raise EvalError(msg)

@@ -22,6 +22,7 @@ from tqdm import tqdm
 
 from care.errors import WorldError
 from care.frames import Frame
+from world.dataset_index import INDEX_NAME
 from world.groundtruth import GroundTruth, gt_paths
 from world.render import RenderConfig, Renderer
 from world.scene import Scene, SceneConfig, generate_scene
@@ -292,7 +293,7 @@ def make_dataset(config: DatasetConfig) -> Path:
         },
         "recordings": [asdict(summaries[i]) for i in range(config.scenes)],
     }
-    index_path = out / "index.json"
+    index_path = out / INDEX_NAME
     tmp = index_path.with_name(f".index.json.tmp-{os.getpid()}")
     try:
         tmp.write_text(json.dumps(index, indent=1))

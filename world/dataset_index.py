@@ -1,0 +1,55 @@
+"""Reading a dataset's ``index.json``: the one reader for every stage that walks a dataset.
+
+``care sample make`` writes it (:func:`world.record.make_dataset`): ``{"recordings": [...]}``
+with one entry per scene, each naming its ``recording`` relative to the dataset directory.
+Hand-written indexes may also be a bare list of entries or of paths, use ``scenes`` for
+``recordings`` or ``path`` for ``recording``, and name a ``store`` directory. An entry's
+``skipped`` flag only says that ``care sample make`` found the recording up to date: it is a
+recording like any other.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+from care.errors import WorldError
+
+__all__ = ["INDEX_NAME", "IndexEntry", "read_index"]
+
+INDEX_NAME = "index.json"
+
+
+@dataclass(frozen=True)
+class IndexEntry:
+    """One recording of a dataset: its name, path, and the store the index names (if any)."""
+
+    name: str
+    recording: Path
+    store: Path | None = None
+
+
+def read_index(dataset: Path) -> list[IndexEntry]:
+    """The entries of ``dataset/index.json``; a bad or empty index is one clear error."""
+    index = Path(dataset) / INDEX_NAME
+    try:
+        doc = json.loads(index.read_text())
+    except (OSError, json.JSONDecodeError) as err:
+        msg = f"{index}: not a readable dataset index ({err}); re-run `care sample make`"
+        raise WorldError(msg) from err
+    entries = doc if isinstance(doc, list) else doc.get("recordings") or doc.get("scenes") or []
+    out = []
+    for entry in entries:
+        item = {"recording": entry} if isinstance(entry, str) else dict(entry)
+        rel = item.get("recording") or item.get("path")
+        if rel is None:
+            msg = f"{index}: entry {entry!r} names no recording ('recording' or 'path')"
+            raise WorldError(msg)
+        recording = Path(dataset) / rel
+        store = Path(dataset) / item["store"] if item.get("store") else None
+        out.append(IndexEntry(str(item.get("name") or Path(rel).stem), recording, store))
+    if not out:
+        msg = f"{index}: lists no recordings"
+        raise WorldError(msg)
+    return out
