@@ -122,11 +122,18 @@ class EvalConfig:
         bad = [m for m in self.maps if m not in MAP_TABLES]
         bad += [p for p in self.protocols if p not in PROTOCOLS]
         bad += [c for c in self.criteria if c not in ("confidence", "category")]
+        bad += [f"k={k}" for k in (*self.k_grid, *self.k_instances) if not 1 <= k <= 32767]
+        bad += [
+            name
+            for name in ("strategies", "maps", "protocols", "criteria")
+            if not getattr(self, name)
+        ]
         if bad or self.attempts < 1 or self.seeds < 1:
             msg = (
-                f"invalid evaluation config: unknown {bad}, attempts={self.attempts}, "
-                f"seeds={self.seeds}; maps: {list(MAP_TABLES)}, protocols: {list(PROTOCOLS)}, "
-                "criteria: confidence, category; attempts and seeds >= 1"
+                f"invalid evaluation config: {bad} (unknown, out of range or empty), "
+                f"attempts={self.attempts}, seeds={self.seeds}; maps: {list(MAP_TABLES)}, "
+                f"protocols: {list(PROTOCOLS)}, criteria: confidence, category; k 1..32767; "
+                "attempts and seeds >= 1"
             )
             raise EvalError(msg)
 
@@ -435,7 +442,13 @@ def _run_ray(
     pending = list(refs)
     while pending:
         done, pending = ray.wait(pending, num_returns=1)
-        yield refs[done[0]], ray.get(done[0])
+        try:
+            result = ray.get(done[0])
+        except ray.exceptions.RayTaskError as err:  # the task's own one-line error, not Ray's
+            if isinstance(err.cause, CareError):
+                raise err.cause from None
+            raise
+        yield refs[done[0]], result
 
 
 def _check_reachable(address: str) -> None:

@@ -13,7 +13,7 @@ import pytest
 from scipy.special import softmax
 from sklearn.metrics import roc_auc_score
 
-from care.errors import EvalError
+from care.errors import CareError, EvalError
 from evaluate.job import EvalConfig, evaluate_scene, run_eval, run_scenes, scenes_of
 from evaluate.report import auroc, per_query
 from query import load_map
@@ -80,9 +80,18 @@ def test_oracle_bounds_and_random_seeds_against_closed_form(dataset) -> None:
     assert set(rand.column("seed").to_pylist()) == {0, 1, 2}
     exp = rand.column("expected").to_numpy()
     assert np.all((exp >= 0) & (exp <= 1))
+    # where the closed form is certain (0 or 1), every seed must agree with it
+    for r in _rows(q, strategy="random").to_pylist():
+        if r["expected"] in (0.0, 1.0):
+            assert r["solved"] == r["expected"], r
     # attempts never repeat a candidate within an episode
-    two = _rows(table, strategy="min_stderr", attempt=2)
-    assert two.num_rows > 0
+    episode = ["map", "protocol", "unit", "query", "strategy", "criterion", "k", "seed"]
+    first = {
+        tuple(r[k] for k in episode): r["candidate"] for r in _rows(table, attempt=1).to_pylist()
+    }
+    second = _rows(table, attempt=2).to_pylist()
+    assert second
+    assert all(r["candidate"] != first[tuple(r[k] for k in episode)] for r in second)
     assert set(table.column("attempt").to_pylist()) <= {1, 2}
 
 
@@ -163,8 +172,19 @@ def test_bad_inputs_are_one_line_errors(dataset, tmp_path) -> None:
     (tmp_path / "index.json").write_text('{"recordings": ["nothing.mcap"]}')
     with pytest.raises(EvalError, match=r"no fused store for nothing\.mcap"):
         scenes_of(tmp_path)
-    with pytest.raises(EvalError, match="invalid evaluation config"):
-        EvalConfig(maps=("voxels",))
+    for bad in ({"maps": ("voxels",)}, {"k_instances": (0, 2)}, {"maps": ()}):
+        with pytest.raises(EvalError, match="invalid evaluation config"):
+            EvalConfig(**bad)
+
+
+def test_a_failing_ray_task_is_its_own_one_line_error(dataset, tmp_path, ray_session) -> None:
+    scenes = scenes_of(dataset)
+    (scenes[1].store / "cells.parquet").unlink()
+    with pytest.raises(CareError) as err:
+        run_scenes(scenes, SMALL, tmp_path / "r", ray_address=True, progress=False)
+    assert "cells.parquet" in str(err.value)
+    assert "\n" not in str(err.value)
+    assert type(err.value).__module__ == "care.errors"  # not Ray's wrapper
 
 
 def test_cli_eval_query_replan(dataset, tmp_path) -> None:
