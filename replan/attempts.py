@@ -118,6 +118,17 @@ def run_attempts(
         msg = f"attempts must be at least 1, got {attempts}"
         raise ReplanError(msg)
     n_q, n_c = conf.shape
+    shapes = {"success": success, "rank": rank}
+    bad = [
+        f"{n} {np.shape(a)}"
+        for n, a in shapes.items()
+        if a is not None and np.shape(a) != conf.shape
+    ]
+    if strategy.measure in MEASURES and strategy.measure not in columns:
+        bad.append(f"no {strategy.measure!r} column")
+    if bad:
+        msg = f"episodes of {conf.shape} confidences got {', '.join(bad)}"
+        raise ReplanError(msg)
     n_a = 1 if strategy.rule is None else attempts
     cand = np.full((n_q, attempts), -1, np.int64)
     ok = np.zeros((n_q, attempts), bool)

@@ -290,3 +290,13 @@ def test_expected_random_success_is_the_hypergeometric_tail(attempts: int) -> No
     rest = success.sum(axis=1) - first_ok
     miss = hypergeom(11, rest, attempts - 1).pmf(0)
     np.testing.assert_allclose(got, np.where(first_ok, 1.0, 1.0 - miss), rtol=1e-12)
+
+
+def test_mismatched_episode_inputs_are_one_clear_error() -> None:
+    from replan.attempts import run_attempts
+
+    conf = np.array([[0.5, 0.3, 0.2]])
+    with pytest.raises(ReplanError, match=r"success \(1, 2\)"):
+        run_attempts("random", conf, np.zeros((1, 2), bool), {})
+    with pytest.raises(ReplanError, match="no 'stderr' column"):
+        run_attempts("min_stderr", conf, np.zeros((1, 3), bool), {})
