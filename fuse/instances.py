@@ -159,9 +159,11 @@ class InstanceConfig:
             raise FuseError(msg)
 
     def fingerprint(self, names: Sequence[str] | None = None) -> str:
-        """JSON of the settings ``names`` (default: all that shape the map, not ``overwrite``)."""
+        """JSON of the settings ``names`` (default: all that shape the map; ``overwrite`` and
+        ``batch_size`` only change how it is built)."""
         fields = dataclasses.asdict(self)
         fields.pop("overwrite")
+        fields.pop("batch_size")
         if names is not None:
             fields = {k: fields[k] for k in names}
         return json.dumps(fields, sort_keys=True)

@@ -282,6 +282,8 @@ def test_build_is_skipped_when_current_and_recompute_changes_columns(room: Path)
     path = build_instances(room, config)
     stamp = path.stat().st_mtime_ns
     assert build_instances(room, config).stat().st_mtime_ns == stamp
+    faster = InstanceConfig(**{**config.__dict__, "batch_size": 3})  # how, not what
+    assert build_instances(room, faster).stat().st_mtime_ns == stamp
     before = read_table(path)
     recompute_instances(room, ["bed", "chair", "table"], logit_scale=10.0)
     after = read_table(path)
@@ -289,6 +291,13 @@ def test_build_is_skipped_when_current_and_recompute_changes_columns(room: Path)
     assert [t[0] for t in after.column("top_classes").to_pylist()] == [1, 2, 0]
     assert after.column("point_indices").equals(before.column("point_indices"))
     assert after.column("entropy").to_pylist() != before.column("entropy").to_pylist()
+    # the recompute equals a fresh build for that vocabulary and scale
+    fresh_config = {"vocabulary": ("bed", "chair", "table"), "logit_scale": 10.0, "overwrite": True}
+    fresh = read_table(build_instances(room, InstanceConfig(**{**config.__dict__, **fresh_config})))
+    for name in ("entropy", "stderr", "pwkl", "log_norm", "num_views"):
+        np.testing.assert_allclose(
+            after.column(name).to_numpy(), fresh.column(name).to_numpy(), rtol=1e-6, err_msg=name
+        )
 
 
 def test_build_instances_geometric(room: Path) -> None:
