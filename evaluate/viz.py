@@ -47,7 +47,11 @@ def _choice_label(r: dict) -> str:
 
 
 def _log_query(rec: rr.RecordingStream, cmap: CandidateMap, rows: list[dict], top: int) -> str:
-    """Log one query's ranking and decisions; returns its one-line description."""
+    """Log one query's ranking and decisions; returns its one-line description.
+
+    The ranked points are the scene's best by confidence (labelled ``scene #r``); the
+    evaluation ranks within each room, so a room's first attempt need not be scene #1.
+    """
     kind, target = rows[0]["map"], rows[0]["target"]
     base = f"{EVAL_ENTITY}/{kind}"
     y = cmap.class_id(target)
@@ -57,10 +61,10 @@ def _log_query(rec: rr.RecordingStream, cmap: CandidateMap, rows: list[dict], to
         f"{base}/ranked",
         rr.Points3D(
             cmap.positions[ranked], colors=_viridis(conf[ranked]), radii=0.06,
-            labels=[f"#{r + 1} {conf[c]:.2f}" for r, c in enumerate(ranked)],
+            labels=[f"scene #{r + 1} {conf[c]:.2f}" for r, c in enumerate(ranked)],
         ),
     )  # fmt: skip
-    first = next(r for r in rows if r["strategy"] == "no_replan")
+    first = next(r for r in rows if r["attempt"] == 1)  # the same for every strategy
     words = [f"{rows[0]['query']} ({rows[0]['unit']}): first #{first['candidate']} "]
     words.append("succeeded" if first["success"] else "failed")
     if first["candidate"] >= 0:
@@ -122,14 +126,12 @@ def log_evaluation(
         rec.set_time(QUERY_TIMELINE, sequence=step)
         text = _log_query(rec, maps[key[0]], rows, top)
         rec.log("eval/log", rr.TextLog(f"[{key[0]}/{key[1]}] {text}"))
-    for r in summary.to_pylist():
+    rates = summary.to_pylist()
+    ks_of = {m: sorted({x["k"] for x in rates if x["map"] == m and x["k"]}) for m in maps}
+    for r in rates:
         name = r["strategy"].replace(" (expected)", "_expected")
         path = f"{SCALAR_ENTITY}/{r['map']}/{r['protocol']}/{name}/{r['criterion'].replace('-', 'none')}"
-        for k in (
-            [r["k"]]
-            if r["k"]
-            else sorted({x["k"] for x in summary.to_pylist() if x["map"] == r["map"] and x["k"]})
-        ):
+        for k in [r["k"]] if r["k"] else ks_of.get(r["map"], []):
             rec.set_time(K_TIMELINE, sequence=int(k))
             rec.log(path, rr.Scalars([r["rate"]]))
     rec.reset_time()
