@@ -12,6 +12,7 @@ __all__ = [
     "EncoderError",
     "EvalError",
     "FuseError",
+    "GroundTruthError",
     "IngestError",
     "QueryError",
     "ReplanError",
@@ -54,3 +55,9 @@ class WorldError(CareError):
 
 class EvalError(CareError):
     """A dataset evaluation cannot be run."""
+
+
+class GroundTruthError(WorldError):
+    """Ground truth cannot be read, is malformed, or does not match the map it should label.
+
+    A :class:`WorldError` because the sample world's ground truth is one of its formats."""

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-ORDER = ["care", "ingest", "world", "fuse", "query", "replan", "evaluate", "care_cli"]
+ORDER = ["care", "ingest", "truth", "world", "fuse", "query", "replan", "evaluate", "care_cli"]
 """Upstream first: a package may import only itself and packages before it."""
 
 
