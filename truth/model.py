@@ -295,6 +295,19 @@ class GroundTruth:
             frame=frame,
         )  # fmt: skip
 
+    def without_instances(self, ids: list[int] | np.ndarray) -> GroundTruth:
+        """The same ground truth less some instances (their points become structure)."""
+        ids = np.asarray(list(ids), np.int64)
+        if not len(ids):
+            return self
+        keep = ~np.isin(self.instance_ids, ids)
+        point_instance = np.where(np.isin(self.point_instance, ids), 0, self.point_instance)
+        return replace(
+            self,
+            instances=self.instances.filter(keep),
+            point_instance=point_instance.astype(np.int32),
+        )
+
     def renamed(self, mapping: dict[str, str]) -> GroundTruth:
         """Classes renamed by ``mapping`` (a name mapped to ``""`` drops its instances: their
         points become structure). Names the mapping lacks are kept."""
