@@ -28,6 +28,52 @@ RayAddressOpt = Annotated[
 ]
 
 
+GT_FORMATS_HELP = (
+    "Ground truth formats (see the README): native (<rec>.gt.json + .gt.parquet), annotations "
+    "(JSON/YAML/CSV boxes: class, cx, cy, cz, sx, sy, sz[, yaw][, room]), ply (labelled PLY: "
+    "vertex instance + label, <name>.classes.json beside), scannet (<scene>_vh_clean_2.ply, "
+    ".aggregation.json, _vh_clean_2.0.010000.segs.json), matterport (house folder: "
+    "region_segmentations/ + house_segmentations/*.house), replica (mesh_semantic.ply + "
+    "info_semantic.json)."
+)
+GtOpt = Annotated[
+    list[Path] | None,
+    typer.Option(
+        "--gt",
+        help="Ground truth file or folder of each recording/store, in order (repeat the option); "
+        "default: named in index.json ('gt') or found beside the recording by name.",
+    ),
+]
+GtFormatOpt = Annotated[
+    str | None,
+    typer.Option(help="Format of the ground truth (default: detected): native, annotations, ply, scannet, matterport, replica."),
+]
+GtTransformOpt = Annotated[
+    str | None,
+    typer.Option(
+        help="4x4 taking the ground truth's frame to the map frame: 16 numbers (row-major, "
+        "comma-separated) or a file (.npy, .json, text, ScanNet's axisAlignment)."
+    ),
+]
+GtClassMapOpt = Annotated[
+    str | None,
+    typer.Option(
+        help="Rename ground-truth classes: a two-column file (from, to; empty 'to' drops) or "
+        "TSV:FROM:TO, e.g. scannetv2-labels.combined.tsv:raw_category:nyu40class."
+    ),
+]
+GtUnknownOpt = Annotated[
+    str,
+    typer.Option(help="Ground-truth classes the vocabulary lacks: refuse (one-line error) or ignore."),
+]
+
+
+def _gt_defaults(fmt: str | None, transform: str | None, class_map: str | None):
+    from evaluate.groundtruth import GtSource
+
+    return GtSource.of(None, fmt, transform, class_map)
+
+
 def _csv(value: str) -> tuple[str, ...]:
     return tuple(v.strip() for v in value.split(",") if v.strip())
 
@@ -139,7 +185,8 @@ def eval_(
     dataset: Annotated[
         list[Path],
         typer.Argument(
-            help="Dataset directory (index.json of recordings with fused stores) or stores."
+            help="Dataset directory (index.json of recordings with fused stores) or stores. "
+            + GT_FORMATS_HELP
         ),
     ],
     out: Annotated[
@@ -165,8 +212,17 @@ def eval_(
     workers: Annotated[int, typer.Option(help="Local processes (0: one per CPU).")] = 0,
     ray: RayOpt = False,
     ray_address: RayAddressOpt = None,
+    gt: GtOpt = None,
+    gt_format: GtFormatOpt = None,
+    gt_transform: GtTransformOpt = None,
+    gt_class_map: GtClassMapOpt = None,
+    gt_unknown_classes: GtUnknownOpt = "refuse",
 ) -> None:
-    """Success of every strategy on every (scene, class) query; writes the paper's tables."""
+    """Success of every strategy on every (scene, class) query; writes the paper's tables
+    and the paired comparisons.
+
+    Ground truth formats: native, annotations (JSON/YAML/CSV boxes), ply (labelled PLY),
+    scannet, matterport, replica; see --gt and the README."""
     from evaluate.job import EvalConfig, run_eval
     from replan import STRATEGIES
 
@@ -182,10 +238,12 @@ def eval_(
         seeds=seeds,
         exclude_radius=exclude_radius,
         bootstrap=bootstrap,
+        unknown_classes=gt_unknown_classes,  # type: ignore[arg-type]
     )
     report = run_eval(
-        dataset, config, out, workers=workers or None, ray_address=_ray_target(ray, ray_address)
-    )
+        dataset, config, out, workers=workers or None, ray_address=_ray_target(ray, ray_address),
+        gt=tuple(gt or ()), gt_defaults=_gt_defaults(gt_format, gt_transform, gt_class_map),
+    )  # fmt: skip
     typer.echo(report.markdown)
     typer.echo(f"wrote {out}/results.md, attempts.parquet, summary.parquet and plots/")
 
@@ -215,15 +273,25 @@ def run(
     ] = 0,
     ray: RayOpt = False,
     ray_address: RayAddressOpt = None,
+    gt: GtOpt = None,
+    gt_format: GtFormatOpt = None,
+    gt_transform: GtTransformOpt = None,
+    gt_class_map: GtClassMapOpt = None,
+    gt_unknown_classes: GtUnknownOpt = "refuse",
 ) -> None:
-    """The main job: ingest, fuse both maps, evaluate every strategy; print the table."""
+    """The main job: ingest, fuse both maps, evaluate every strategy; print the table.
+
+    Ground truth: beside each recording by name, named in index.json, or --gt (formats:
+    native, annotations, ply, scannet, matterport, replica; see `care eval --help`)."""
     from evaluate.job import EvalConfig
     from evaluate.pipeline import RunConfig, run_all
 
     config = RunConfig(
-        evaluation=EvalConfig(attempts=attempts, seeds=seeds),
+        evaluation=EvalConfig(attempts=attempts, seeds=seeds, unknown_classes=gt_unknown_classes),  # type: ignore[arg-type]
         workers=workers or None,
         ray_address=_ray_target(ray, ray_address),
+        gt=tuple(gt or ()),
+        gt_defaults=_gt_defaults(gt_format, gt_transform, gt_class_map),
     )
     result = run_all(recording, out, config)
     md = result.report.markdown

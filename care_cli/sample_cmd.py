@@ -40,6 +40,14 @@ def make(
         Path | None,
         typer.Option("--rrd", help="Also write a Rerun recording of the scenes (meshes, boxes)."),
     ] = None,
+    gt_formats: Annotated[
+        str,
+        typer.Option(
+            "--gt-formats",
+            help="Ground truth formats to write beside each recording (comma-separated): native, "
+            "json, yaml, csv, ply, scannet, matterport, replica, or all.",
+        ),
+    ] = "native",
 ) -> None:
     """Generate scenes, render an exploration of each, write recordings + ground truth + index.json."""
     from care.errors import WorldError
@@ -63,6 +71,14 @@ def make(
             rrd=rrd,
         )
     )
+    formats = tuple(f.strip() for f in gt_formats.split(",") if f.strip())
+    if set(formats) - {"native"}:
+        from truth.load import export_ground_truth
+        from world.dataset_index import read_index
+        from world.groundtruth import GroundTruth
+
+        for entry in read_index(index.parent):
+            export_ground_truth(GroundTruth.load(entry.recording), entry.recording, formats)
     typer.echo(f"wrote {index}")
 
 

@@ -26,6 +26,7 @@ from tqdm import tqdm
 
 from care.errors import CareError, EvalError
 from care.store import read_table, write_table_atomic
+from evaluate.groundtruth import GtSource, UnknownClasses, check_ground_truth, gt_files
 from evaluate.report import Report, write_report
 from evaluate.success import PROTOCOLS, QuerySet, grid_queries, instance_queries, scene_point_labels
 from query.confidence import confidence
@@ -34,7 +35,6 @@ from replan.attempts import Attempts, run_attempts
 from replan.expected import expected_random_success
 from replan.strategies import STRATEGIES, get_strategy
 from world.dataset_index import INDEX_NAME, read_index
-from world.groundtruth import GroundTruth, gt_paths
 
 __all__ = [
     "ATTEMPT_SCHEMA",
@@ -115,8 +115,15 @@ class EvalConfig:
     """Scene points farther than this (m) from every GT point get no GT label."""
     bootstrap: int = 1000
     """Bootstrap resamples of the queries for the 95% confidence intervals."""
+    unknown_classes: UnknownClasses = UnknownClasses.REFUSE
+    """Ground-truth classes the map's vocabulary lacks: refuse the scene, or ignore them."""
 
     def __post_init__(self) -> None:
+        try:
+            object.__setattr__(self, "unknown_classes", UnknownClasses(self.unknown_classes))
+        except ValueError as err:
+            msg = f"--gt-unknown-classes {self.unknown_classes!r}: choose refuse or ignore"
+            raise EvalError(msg) from err
         for name in self.strategies:
             get_strategy(name)
         bad = [m for m in self.maps if m not in MAP_TABLES]
@@ -149,13 +156,15 @@ class EvalConfig:
 
 @dataclass(frozen=True)
 class Scene:
-    """One recording's fused store and the ground truth beside the recording."""
+    """One recording's fused store and where its ground truth is."""
 
     name: str
     store: Path
     recording: Path
-    """Recording path; its ``<stem>.gt.json`` / ``.gt.parquet`` hold the ground truth."""
+    """Recording path; ground truth beside it (by name) is found unless ``gt`` names one."""
     extra: dict[str, str] = field(default_factory=dict, compare=False)
+    gt: GtSource = field(default_factory=GtSource)
+    """Where the ground truth is and how to read it (:class:`evaluate.groundtruth.GtSource`)."""
 
 
 def _store_recording(store: Path) -> Path:
@@ -182,12 +191,17 @@ def _find_stores(root: Path) -> dict[Path, Path]:
     return out
 
 
-def scenes_of(dataset: Path | Sequence[Path]) -> list[Scene]:
+def scenes_of(dataset: Path | Sequence[Path | Scene]) -> list[Scene]:
     """The scenes of a dataset directory (``index.json`` of recordings, their stores found
-    below the directory or named by an entry's ``store``), a single store, or a list of
-    stores (each knowing its recording from ``meta.json``)."""
+    below the directory or named by an entry's ``store``, their ground truth by its ``gt``),
+    a single store, or a list of stores (each knowing its recording from ``meta.json``) or
+    of :class:`Scene`."""
     if not isinstance(dataset, Path | str):
-        return [s for path in dataset for s in scenes_of(Path(path))]
+        return [
+            s
+            for item in dataset
+            for s in ([item] if isinstance(item, Scene) else scenes_of(Path(item)))
+        ]
     dataset = Path(dataset)
     if (dataset / "meta.json").is_file():
         return [Scene(dataset.name, dataset, _store_recording(dataset))]
@@ -205,7 +219,8 @@ def scenes_of(dataset: Path | Sequence[Path]) -> list[Scene]:
                 "`care fuse` (or `care run`) first"
             )
             raise EvalError(msg)
-        scenes.append(Scene(entry.name, store, entry.recording.resolve()))
+        source = GtSource.of(entry.gt, entry.gt_format, entry.gt_transform, entry.gt_class_map)
+        scenes.append(Scene(entry.name, store, entry.recording.resolve(), gt=source))
     return scenes
 
 
@@ -352,7 +367,7 @@ def evaluate_scene(scene: Scene, config: EvalConfig) -> pa.Table:
 
 
 def _evaluate_scene(scene: Scene, config: EvalConfig) -> pa.Table:
-    gt = GroundTruth.load(scene.recording)
+    gt = scene.gt.load(scene.recording)
     tables = []
     for kind in config.maps:
         if not (scene.store / f"{MAP_TABLES[kind]}.parquet").is_file():
@@ -379,10 +394,10 @@ def _cache_path(out: Path, scene: Scene) -> Path:
     return out / "scenes" / f"{scene.name}.parquet"
 
 
-EVAL_VERSION = 3
+EVAL_VERSION = 4
 """Bumped whenever the attempts of an unchanged scene and config would change (2: rooms that
-share a type are separate units; 3: single-threaded BLAS), so caches written by older code are
-recomputed."""
+share a type are separate units; 3: single-threaded BLAS; 4: ground truth of any format, rooms
+with height bands), so caches written by older code are recomputed."""
 
 
 def _scene_key(scene: Scene, config: EvalConfig) -> bytes:
@@ -391,9 +406,9 @@ def _scene_key(scene: Scene, config: EvalConfig) -> bytes:
     or a regenerated scene must not be served from the cache)."""
 
     files = [scene.store / f"{MAP_TABLES[kind]}.parquet" for kind in config.maps]
-    files += [scene.store / "scene_points.parquet", *gt_paths(scene.recording)]
-    stats = [(p.name, p.stat().st_size, p.stat().st_mtime_ns) for p in files if p.is_file()]
-    doc = json.dumps([config.fingerprint(), EVAL_VERSION, stats], sort_keys=True)
+    files += [scene.store / "scene_points.parquet", *gt_files(scene.gt, scene.recording)]
+    stats = [(str(p), p.stat().st_size, p.stat().st_mtime_ns) for p in files if p.is_file()]
+    doc = json.dumps([config.fingerprint(), EVAL_VERSION, stats, repr(scene.gt)], sort_keys=True)
     return hashlib.sha256(doc.encode()).hexdigest()[:16].encode()
 
 
@@ -525,25 +540,96 @@ def describe(config: EvalConfig, scenes: Sequence[Scene], attempts: pa.Table) ->
             f"{config.iou_threshold}; grid success: floor distance <= {config.success_radius} m; "
             f"after a failed grid attempt cells within {config.exclude_radius} m are skipped",
             f"- random strategies: mean over {config.seeds} seeds, and the closed form S/U",
+            f"- ground truth: {_gt_summary(scenes)}",
             f"- config fingerprint `{config.fingerprint()}`\n",
         ]
     )
 
 
+def with_ground_truth(
+    scenes: Sequence[Scene], gt: Sequence[Path] = (), defaults: GtSource | None = None
+) -> list[Scene]:
+    """Scenes with the ground truth the user named: ``gt`` (one file per scene, in order)
+    and ``defaults`` (format, transform, class map) for scenes whose index named none."""
+    scenes = list(scenes)
+    if gt and len(gt) != len(scenes):
+        msg = (
+            f"--gt given {len(gt)} time(s) for {len(scenes)} scene(s); give one per scene, in "
+            "order, or name each scene's ground truth in index.json ('gt')"
+        )
+        raise EvalError(msg)
+    defaults = defaults or GtSource()
+    out = []
+    for i, scene in enumerate(scenes):
+        own = scene.gt
+        source = GtSource(
+            Path(gt[i]) if gt else own.path,
+            own.fmt or defaults.fmt,
+            own.transform or defaults.transform,
+            own.class_map or defaults.class_map,
+        )
+        out.append(Scene(scene.name, scene.store, scene.recording, scene.extra, source))
+    return out
+
+
+def check_scenes(scenes: Sequence[Scene], config: EvalConfig) -> dict[str, list[str]]:
+    """Read and check every scene's ground truth before anything is evaluated (one bad scene
+    stops the run before any output is written); returns the classes left out per scene."""
+    left_out = {}
+    for scene in scenes:
+        gt = scene.gt.load(scene.recording)
+        where = f"{scene.gt.resolve(scene.recording)[0]} (ground truth of {scene.name})"
+        left_out[scene.name] = check_ground_truth(
+            gt, where=where, store=scene.store, maps=config.maps,
+            label_distance=config.label_distance, unknown=config.unknown_classes,
+        )  # fmt: skip
+    return left_out
+
+
+def _gt_summary(scenes: Sequence[Scene]) -> str:
+    """How the scenes' ground truth was found (formats, transforms), for the report header."""
+    kinds = set()
+    for scene in scenes:
+        try:
+            path, fmt = scene.gt.resolve(scene.recording)
+        except CareError:
+            continue
+        from truth.load import detect_format
+
+        kind = (fmt or detect_format(path)).value
+        kinds.add(kind + (" + --gt-transform" if scene.gt.transform else ""))
+    return (
+        ", ".join(sorted(kinds))
+        + "; instances with points are judged by point IoU, box-only instances by the IoU with "
+        "the map points inside their box"
+    )
+
+
 def run_eval(
-    dataset: Path | Sequence[Path],
+    dataset: Path | Sequence[Path | Scene],
     config: EvalConfig,
     out: Path,
     *,
     workers: int | None = None,
     ray_address: str | bool | None = None,
     progress: bool = True,
+    gt: Sequence[Path] = (),
+    gt_defaults: GtSource | None = None,
 ) -> Report:
-    """Evaluate a dataset (see :func:`scenes_of`) and write every output under ``out``."""
-    scenes = scenes_of(dataset)
+    """Evaluate a dataset (see :func:`scenes_of`) and write every output under ``out``.
+
+    ``gt``: one ground-truth file per scene (else each scene's own, see :class:`Scene`);
+    ``gt_defaults``: format, transform and class map for scenes that name none."""
+    scenes = with_ground_truth(scenes_of(dataset), gt, gt_defaults)
+    left_out = check_scenes(scenes, config)
     attempts = run_scenes(
         scenes, config, out, workers=workers, ray_address=ray_address, progress=progress
     )
     ks = {kind: config.ks(kind) for kind in MAP_TABLES}
     header = describe(config, scenes, attempts)
+    dropped = {name: classes for name, classes in left_out.items() if classes}
+    if dropped:
+        header += "- ground-truth classes not in the vocabulary, left out (--gt-unknown-classes ignore): " + "; ".join(
+            f"{name}: {', '.join(classes)}" for name, classes in dropped.items()
+        ) + "\n"
     return write_report(attempts, out, ks, bootstrap=config.bootstrap, header=header)

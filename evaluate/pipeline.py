@@ -8,13 +8,15 @@ runs on the bundled sample (``data/sample``).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import pyarrow.parquet as pq
 
 from care.errors import EvalError
-from evaluate.job import EvalConfig, Scene, run_eval
+from evaluate.groundtruth import GtSource
+from evaluate.job import EvalConfig, Scene, run_eval, with_ground_truth
 from evaluate.report import Report
 from evaluate.viz import write_evaluation_rrd
 from fuse.grid import GridConfig, build_grid
@@ -22,7 +24,6 @@ from fuse.instances import InstanceConfig, build_instances
 from ingest.pipeline import IngestConfig, run_ingest
 from query.map import load_map
 from world.dataset_index import INDEX_NAME, read_index
-from world.groundtruth import gt_paths
 
 __all__ = ["SAMPLE", "RunConfig", "RunResult", "recordings_of", "run_all"]
 
@@ -48,6 +49,10 @@ class RunConfig:
     """Evaluate scenes as Ray tasks: True for a local Ray, an address for a cluster."""
     progress: bool = True
     """Show progress bars."""
+    gt: tuple[Path, ...] = ()
+    """Ground truth of each recording, in order (default: its index entry's, or beside it)."""
+    gt_defaults: GtSource = field(default_factory=GtSource)
+    """Format, frame transform and class map of ground truth that names none."""
 
 
 @dataclass(frozen=True)
@@ -73,6 +78,32 @@ def recordings_of(source: Path) -> list[tuple[str, Path]]:
     return [(source.stem if source.suffix else source.name, source)]
 
 
+def gt_sources_of(source: Path) -> list[GtSource]:
+    """The ground truth each recording of ``source`` names in its index entry (if any)."""
+    source = Path(source)
+    if source.is_dir() and (source / INDEX_NAME).is_file():
+        return [
+            GtSource.of(e.gt, e.gt_format, e.gt_transform, e.gt_class_map)
+            for e in read_index(source)
+        ]
+    return [GtSource()]
+
+
+def _scenes_with_gt(
+    recordings: Sequence[tuple[str, Path]], sources: Sequence[GtSource], config: RunConfig, out: Path
+) -> list[Scene]:
+    """Each recording's scene with its ground truth resolved before any work is done: a
+    recording without ground truth stops the run at once."""
+    scenes = [
+        Scene(name, out / "stores" / name, Path(rec).resolve(), gt=src)
+        for (name, rec), src in zip(recordings, sources, strict=True)
+    ]
+    scenes = with_ground_truth(scenes, config.gt, config.gt_defaults)
+    for scene in scenes:
+        scene.gt.load(scene.recording)  # a corrupt file stops the run before the ingest
+    return scenes
+
+
 def run_all(source: Path | None, out: Path, config: RunConfig | None = None) -> RunResult:
     """Ingest, fuse and evaluate every recording of ``source`` (default the bundled sample)
     into ``out``: ``out/stores/<name>``, ``out/<name>.{grid,instances,eval}.rrd`` and the
@@ -80,16 +111,9 @@ def run_all(source: Path | None, out: Path, config: RunConfig | None = None) -> 
     config = config or RunConfig()
     out = Path(out)
     recordings = recordings_of(source or SAMPLE)
-    missing = [str(rec) for _, rec in recordings if not gt_paths(rec)[1].is_file()]
-    if missing:
-        msg = (
-            f"{missing[0]}: no ground truth beside it ({gt_paths(Path(missing[0]))[1].name}); "
-            "`care run` evaluates sample-world recordings; use `care ingest`, `care fuse` and "
-            "`care query` for others"
-        )
-        raise EvalError(msg)
+    planned = _scenes_with_gt(recordings, gt_sources_of(source or SAMPLE), config, out)
     scenes, rrds = [], []
-    for name, recording in recordings:
+    for (name, recording), plan in zip(recordings, planned, strict=True):
         store = out / "stores" / name
         run_ingest(
             IngestConfig(
@@ -101,11 +125,11 @@ def run_all(source: Path | None, out: Path, config: RunConfig | None = None) -> 
         build_grid(store, config.grid, rrd=grid_rrd if fresh else None)
         fresh = not (store / "instances.parquet").is_file() or not inst_rrd.is_file()
         build_instances(store, config.instances, rrd=inst_rrd if fresh else None)
-        scenes.append(Scene(name, store, Path(recording).resolve()))
+        scenes.append(plan)
         rrds += [p for p in (grid_rrd, inst_rrd) if p.is_file()]
     eval_dir = out / "eval"
     report = run_eval(
-        [s.store for s in scenes], config.evaluation, eval_dir,
+        scenes, config.evaluation, eval_dir,
         workers=config.workers, ray_address=config.ray_address, progress=config.progress,
     )  # fmt: skip
     attempts = pq.read_table(eval_dir / "attempts.parquet")

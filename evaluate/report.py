@@ -17,6 +17,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from care.store import write_table_atomic
+from evaluate.paired_report import paired_markdown, paired_table
 from replan.strategies import STRATEGIES
 
 __all__ = [
@@ -415,20 +416,22 @@ def write_report(
     header: str = "",
 ) -> Report:
     """Write ``attempts.parquet``, ``summary.parquet``, ``per_scene.parquet``,
-    ``auroc.parquet``, ``results.md`` and ``plots/*.png`` under ``out``."""
+    ``auroc.parquet``, ``paired.parquet``, ``results.md`` and ``plots/*.png`` under ``out``."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     queries = per_query(attempts)
     summary = summarise(queries, bootstrap=bootstrap)
     scenes = summarise(queries, by_scene=True)
     aucs = auroc_table(attempts)
+    paired = paired_table(attempts, bootstrap=bootstrap)
     paths = [
         out / "attempts.parquet",
         out / "summary.parquet",
         out / "per_scene.parquet",
         out / "auroc.parquet",
+        out / "paired.parquet",
     ]
-    for table, path in zip((attempts, summary, scenes, aucs), paths, strict=True):
+    for table, path in zip((attempts, summary, scenes, aucs, paired), paths, strict=True):
         write_table_atomic(table, path)
     plots = plot_success(summary, ks, out / "plots")
     md = "\n".join(
@@ -439,6 +442,7 @@ def write_report(
             markdown_tables(summary, ks),
             "## 95% bootstrap confidence intervals (queries resampled)\n",
             markdown_tables(summary, ks, ci=True),
+            paired_markdown(paired),
             _auroc_markdown(aucs),
             per_scene_markdown(summary, scenes),
             "Plots: " + ", ".join(f"`plots/{p.name}`" for p in plots) + "\n",

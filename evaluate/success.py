@@ -3,8 +3,11 @@
 - Instances: point IoU between the retrieved mask and a ground-truth mask, both over the map's
   scene points (ground-truth labels of scene points come from
   :meth:`world.groundtruth.GroundTruth.label_points`), success when IoU > 0.25.
+- Box-only ground truth (annotation files): the GT mask of an instance is the scene points
+  inside its box (:meth:`truth.model.GroundTruth.label_points`), so the same point IoU applies.
 - Grid: floor-plane distance from the chosen cell centre to the nearest ground-truth surface
-  point of an object of the target class, success when <= 1 m.
+  point (or box footprint, for box-only instances) of an object of the target class, success
+  when <= 1 m.
 
 Both produce a (Q, N) success matrix per map unit (a room, or the whole scene) for the
 queries of one protocol, so strategies can be scored as array operations.
@@ -112,7 +115,7 @@ def _units(
     """(name, room id or None, candidate mask) of each map unit."""
     if not rooms or not gt.rooms:
         return [("scene", None, np.ones(cmap.num_candidates, bool))]
-    room_of = gt.room_of(cmap.positions[:, :2]) if cmap.num_candidates else np.zeros(0, int)
+    room_of = gt.room_of(cmap.positions) if cmap.num_candidates else np.zeros(0, int)
     return [
         (name, r.room_id, room_of == r.room_id)
         for name, r in zip(_unit_names(gt), gt.rooms, strict=True)
@@ -204,8 +207,7 @@ def grid_queries(
         rows = []
         for y in class_ids:
             objects = ids[here & (vocab == y)]
-            xy = gt.points[np.isin(gt.point_instance, objects), :2]
-            rows.append(grid_success(sub.positions[:, :2], xy, radius))
+            rows.append(gt.floor_distance(sub.positions[:, :2], objects) <= radius)
         if len(class_ids):
             targets = tuple(cmap.vocabulary[y] for y in class_ids)
             out.append(QuerySet(unit, sub, cand_ids, targets, targets, class_ids, np.stack(rows)))

@@ -57,7 +57,10 @@ def beside_paths(recording: Path) -> list[tuple[Path, GtFormat]]:
     stem, folder = _stem(recording), recording.parent
     return [
         (folder / f"{stem}.gt.json", GtFormat.NATIVE),
-        *((folder / f"{stem}.annotations{ext}", GtFormat.ANNOTATIONS) for ext in (".json", ".yaml", ".yml", ".csv")),
+        *(
+            (folder / f"{stem}.annotations{ext}", GtFormat.ANNOTATIONS)
+            for ext in (".json", ".yaml", ".yml", ".csv")
+        ),
         (folder / f"{stem}.labels.ply", GtFormat.PLY),
         (folder / f"{stem}.scannet", GtFormat.SCANNET),
         (folder / f"{stem}.matterport", GtFormat.MATTERPORT),
@@ -80,7 +83,9 @@ def detect_format(path: Path) -> GtFormat:
     if path.is_dir():
         if (path / "region_segmentations").is_dir() or (path / "house_segmentations").is_dir():
             return GtFormat.MATTERPORT
-        if (path / "mesh_semantic.ply").is_file() or (path / "habitat" / "mesh_semantic.ply").is_file():
+        if (path / "mesh_semantic.ply").is_file() or (
+            path / "habitat" / "mesh_semantic.ply"
+        ).is_file():
             return GtFormat.REPLICA
         if any(path.glob("*_vh_clean_2.ply")):
             return GtFormat.SCANNET
@@ -191,7 +196,9 @@ def read_class_map(spec: str | Path) -> dict[str, str]:
     of a TSV/CSV with a header, e.g. ``scannetv2-labels.combined.tsv:raw_category:nyu40class``).
     A row mapping to an empty name drops that class."""
     parts = str(spec).split(":")
-    path, columns = (Path(":".join(parts[:-2])), parts[-2:]) if len(parts) >= 3 else (Path(str(spec)), None)
+    path, columns = (
+        (Path(":".join(parts[:-2])), parts[-2:]) if len(parts) >= 3 else (Path(str(spec)), None)
+    )
     try:
         text = path.read_text()
     except OSError as err:
@@ -201,7 +208,11 @@ def read_class_map(spec: str | Path) -> dict[str, str]:
     delimiter = "\t" if "\t" in first else ","
     rows = list(csv.reader(text.splitlines(), delimiter=delimiter))
     if columns is None:
-        return {r[0].strip(): (r[1].strip() if len(r) > 1 else "") for r in rows if r and not r[0].startswith("#")}
+        return {
+            r[0].strip(): (r[1].strip() if len(r) > 1 else "")
+            for r in rows
+            if r and not r[0].startswith("#")
+        }
     header = rows[0] if rows else []
     missing = [c for c in columns if c not in header]
     if missing:

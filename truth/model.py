@@ -77,9 +77,7 @@ def instances_table(rows: list[dict[str, Any]]) -> pa.Table:
                 rot = yaw_rotation(float(r.get("yaw") or 0.0))
             lo, hi = aabb_of_boxes(c[None], s[None], rot[None])
             lo, hi = (
-                (r["bbox_min"], r["bbox_max"])
-                if r.get("bbox_min") is not None
-                else (lo[0], hi[0])
+                (r["bbox_min"], r["bbox_max"]) if r.get("bbox_min") is not None else (lo[0], hi[0])
             )
         else:
             lo, hi = r["bbox_min"], r["bbox_max"]
@@ -286,8 +284,10 @@ class GroundTruth:
             else:
                 band = (-np.inf, np.inf)
             rooms.append(Room(room.room_id, room.name, moved, *band))
-        points = apply_transform(t, self.points).astype(np.float32) if len(self.points) else (
-            np.asarray(self.points, np.float32).reshape(-1, 3)
+        points = (
+            apply_transform(t, self.points).astype(np.float32)
+            if len(self.points)
+            else (np.asarray(self.points, np.float32).reshape(-1, 3))
         )
         info = {**self.info, "transform": t.tolist(), "source_frame": self.frame}
         return replace(

@@ -5,7 +5,9 @@ with one entry per scene, each naming its ``recording`` relative to the dataset 
 Hand-written indexes may also be a bare list of entries or of paths, use ``scenes`` for
 ``recordings`` or ``path`` for ``recording``, and name a ``store`` directory. An entry's
 ``skipped`` flag only says that ``care sample make`` found the recording up to date: it is a
-recording like any other.
+recording like any other. An entry may name its ground truth: ``gt`` (a file or folder,
+relative to the dataset directory, in any format ``care eval --help`` lists), ``gt_format``,
+``gt_transform`` (16 numbers, row-major, or a file of them) and ``gt_class_map``.
 """
 
 from __future__ import annotations
@@ -28,6 +30,11 @@ class IndexEntry:
     name: str
     recording: Path
     store: Path | None = None
+    gt: Path | None = None
+    """Ground truth named by the entry (else it is looked for beside the recording)."""
+    gt_format: str | None = None
+    gt_transform: str | list | None = None
+    gt_class_map: str | None = None
 
 
 def read_index(dataset: Path) -> list[IndexEntry]:
@@ -48,7 +55,19 @@ def read_index(dataset: Path) -> list[IndexEntry]:
             raise WorldError(msg)
         recording = Path(dataset) / rel
         store = Path(dataset) / item["store"] if item.get("store") else None
-        out.append(IndexEntry(str(item.get("name") or Path(rel).stem), recording, store))
+        transform = item.get("gt_transform")
+        if isinstance(transform, str) and (Path(dataset) / transform).is_file():
+            transform = str(Path(dataset) / transform)
+        class_map = item.get("gt_class_map")
+        if isinstance(class_map, str) and (Path(dataset) / class_map.split(":")[0]).is_file():
+            class_map = str(Path(dataset) / class_map)
+        out.append(
+            IndexEntry(
+                str(item.get("name") or Path(rel).stem), recording, store,
+                gt=Path(dataset) / item["gt"] if item.get("gt") else None,
+                gt_format=item.get("gt_format"), gt_transform=transform, gt_class_map=class_map,
+            )  # fmt: skip
+        )
     if not out:
         msg = f"{index}: lists no recordings"
         raise WorldError(msg)

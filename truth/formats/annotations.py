@@ -88,7 +88,9 @@ def _vector(obj: dict, key: str, flat: tuple[str, str, str], path: Path, where: 
 
 def _objects_from_csv(path: Path) -> list[dict[str, Any]]:
     try:
-        rows = [r for r in csv.reader(path.read_text().splitlines()) if r and not r[0].startswith("#")]
+        rows = [
+            r for r in csv.reader(path.read_text().splitlines()) if r and not r[0].startswith("#")
+        ]
     except (OSError, UnicodeDecodeError, csv.Error) as err:
         msg = f"{path}: not a readable CSV file ({err})"
         raise GroundTruthError(msg) from err
@@ -185,7 +187,9 @@ def read_annotations(path: Path) -> GroundTruth:
             raise GroundTruthError(msg)
         yaw = obj.get("yaw")
         yaw = 0.0 if yaw in (None, "") else _number(yaw, path, where, "yaw")
-        iid = int(_number(obj["id"], path, where, "id")) if obj.get("id") not in (None, "") else n + 1
+        iid = (
+            int(_number(obj["id"], path, where, "id")) if obj.get("id") not in (None, "") else n + 1
+        )
         if iid < 1 or iid in seen:
             msg = f"{path}: {where}: id {iid} is {'used twice' if iid in seen else '< 1'}"
             raise GroundTruthError(msg)
@@ -193,7 +197,9 @@ def read_annotations(path: Path) -> GroundTruth:
         room = obj.get("room")
         if room not in (None, "") and rooms:
             if str(room) not in by_name:
-                msg = f"{path}: {where}: room '{room}' is not one of the rooms ({', '.join(by_name)})"
+                msg = (
+                    f"{path}: {where}: room '{room}' is not one of the rooms ({', '.join(by_name)})"
+                )
                 raise GroundTruthError(msg)
             room_id = by_name[str(room)]
         else:
@@ -230,7 +236,12 @@ def write_annotations(gt: GroundTruth, path: Path) -> list[Path]:
         zip(gt.instance_ids.tolist(), gt.instances.column("class_name").to_pylist(),
             gt.instances.column("room_id").to_pylist(), strict=True)
     ):  # fmt: skip
-        obj: dict[str, Any] = {"id": int(iid), "class": name, "center": center[i].tolist(), "size": size[i].tolist()}
+        obj: dict[str, Any] = {
+            "id": int(iid),
+            "class": name,
+            "center": center[i].tolist(),
+            "size": size[i].tolist(),
+        }
         yaw = _yaw_of(rotation[i])
         if yaw:
             obj["yaw"] = yaw
@@ -242,7 +253,11 @@ def write_annotations(gt: GroundTruth, path: Path) -> list[Path]:
         lines = ["id,class,cx,cy,cz,sx,sy,sz,yaw,room"]
         for o in objects:
             nums = [*o["center"], *o["size"], o.get("yaw", 0.0)]
-            lines.append(",".join([str(o["id"]), o["class"], *(repr(float(v)) for v in nums), o.get("room", "")]))
+            lines.append(
+                ",".join(
+                    [str(o["id"]), o["class"], *(repr(float(v)) for v in nums), o.get("room", "")]
+                )
+            )
         write_text(path, "\n".join(lines) + "\n")
         if not rooms:
             return [path]

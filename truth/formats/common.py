@@ -189,7 +189,9 @@ def from_labelled_points(
         raise GroundTruthError(msg)
     names = sorted({class_of[i] for i in ids})
     class_names = ("void", *names)
-    probe = GroundTruth(class_names, instances_table([]), rooms or [], np.zeros((0, 3)), np.zeros(0))
+    probe = GroundTruth(
+        class_names, instances_table([]), rooms or [], np.zeros((0, 3)), np.zeros(0)
+    )
     rows = []
     for i, s, e in zip(ids, starts, ends, strict=True):
         pts = np.asarray(points, np.float64)[order[s:e]]

@@ -43,7 +43,9 @@ LABEL_NAMES = ("label", "class", "label_id", "semantic")
 
 def class_table_paths(ply_path: Path) -> list[Path]:
     stem = Path(ply_path).with_suffix("")
-    return [stem.with_name(f"{stem.name}.classes{ext}") for ext in (".json", ".tsv", ".csv", ".txt")]
+    return [
+        stem.with_name(f"{stem.name}.classes{ext}") for ext in (".json", ".tsv", ".csv", ".txt")
+    ]
 
 
 def _class_table(ply_path: Path) -> tuple[dict[int, str], dict[str, Any], Path]:
@@ -117,7 +119,9 @@ def write_labelled_ply(gt: GroundTruth, path: Path) -> list[Path]:
     pts = np.asarray(gt.points, np.float32).reshape(-1, 3)
     class_of = dict(zip(gt.instance_ids.tolist(), gt.instance_class_ids.tolist(), strict=True))
     label = np.array([class_of.get(int(i), 0) for i in gt.point_instance], np.int32)
-    vertex = np.zeros(len(pts), [("x", "f4"), ("y", "f4"), ("z", "f4"), ("instance", "i4"), ("label", "i4")])
+    vertex = np.zeros(
+        len(pts), [("x", "f4"), ("y", "f4"), ("z", "f4"), ("instance", "i4"), ("label", "i4")]
+    )
     vertex["x"], vertex["y"], vertex["z"] = pts.T
     vertex["instance"] = gt.point_instance
     vertex["label"] = label
@@ -128,7 +132,9 @@ def write_labelled_ply(gt: GroundTruth, path: Path) -> list[Path]:
         "rooms": [room_to_dict(r) for r in gt.rooms],
         "instance_rooms": {
             str(i): int(r)
-            for i, r in zip(gt.instance_ids.tolist(), gt.instances.column("room_id").to_pylist(), strict=True)
+            for i, r in zip(
+                gt.instance_ids.tolist(), gt.instances.column("room_id").to_pylist(), strict=True
+            )
         },
         "frame": gt.frame,
     }

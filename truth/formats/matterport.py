@@ -138,11 +138,20 @@ def read_matterport(path: Path) -> GroundTruth:
         ply = read_ply(mesh)
         xyz = vertices_xyz(ply, mesh)
         faces = face_array(ply, mesh)
-        seg_of_face = np.asarray(field(read_json(fsegs_path, "Matterport face segments"), "segIndices", fsegs_path, list), np.int64)
+        seg_of_face = np.asarray(
+            field(
+                read_json(fsegs_path, "Matterport face segments"), "segIndices", fsegs_path, list
+            ),
+            np.int64,
+        )
         if len(seg_of_face) != len(faces):
-            msg = f"{fsegs_path}: {len(seg_of_face)} segIndices for {len(faces)} faces of {mesh.name}"
+            msg = (
+                f"{fsegs_path}: {len(seg_of_face)} segIndices for {len(faces)} faces of {mesh.name}"
+            )
             raise GroundTruthError(msg)
-        groups = field(read_json(semseg_path, "Matterport object segmentation"), "segGroups", semseg_path, list)
+        groups = field(
+            read_json(semseg_path, "Matterport object segmentation"), "segGroups", semseg_path, list
+        )
         face_inst = np.zeros(len(faces), np.int64)
         category = None
         for n, group in enumerate(groups):
@@ -151,7 +160,9 @@ def read_matterport(path: Path) -> GroundTruth:
                 gid = max(used | set(class_of)) + 1
             used.add(gid)
             label = group.get("label")
-            members = np.isin(seg_of_face, np.asarray(field(group, "segments", semseg_path, list), np.int64))
+            members = np.isin(
+                seg_of_face, np.asarray(field(group, "segments", semseg_path, list), np.int64)
+            )
             if not label:
                 if category is None:
                     category = face_property(ply, mesh, "category_id").astype(np.int64)
@@ -170,8 +181,14 @@ def read_matterport(path: Path) -> GroundTruth:
         room = house_rooms.get(region)
         if room is None and len(xyz) >= 3:
             hull = _hull(xyz[:, :2].astype(np.float64))
-            room = Room(region, f"region{region}", hull, float(xyz[:, 2].min()), float(xyz[:, 2].max())) if len(hull) >= 3 else None
-        if room is not None and len(meshes) > 1 or (room is not None and house_rooms):
+            room = (
+                Room(
+                    region, f"region{region}", hull, float(xyz[:, 2].min()), float(xyz[:, 2].max())
+                )
+                if len(hull) >= 3
+                else None
+            )
+        if (room is not None and len(meshes) > 1) or (room is not None and house_rooms):
             rooms.append(room)
     if len(meshes) == 1 and not house_rooms:
         room_of_instance = {}
@@ -195,33 +212,72 @@ def write_matterport(gt: GroundTruth, house: Path, name: str) -> list[Path]:
     inst = np.asarray(gt.point_instance, np.int64)
     rooms = gt.rooms or []
     room_index = {r.room_id: n for n, r in enumerate(rooms)}
-    inst_room = dict(zip(gt.instance_ids.tolist(), gt.instances.column("room_id").to_pylist(), strict=True))
-    point_room = np.array([room_index.get(inst_room.get(int(i), -1), -1) for i in inst], np.int64) if len(inst) else np.zeros(0, np.int64)
+    inst_room = dict(
+        zip(gt.instance_ids.tolist(), gt.instances.column("room_id").to_pylist(), strict=True)
+    )
+    point_room = (
+        np.array([room_index.get(inst_room.get(int(i), -1), -1) for i in inst], np.int64)
+        if len(inst)
+        else np.zeros(0, np.int64)
+    )
     if rooms:
         struct = point_room < 0
         rid = gt.room_of(pts[struct, :2])
         point_room[struct] = [room_index.get(int(r), 0) for r in rid]
     point_room = np.maximum(point_room, 0)
-    names = dict(zip(gt.instance_ids.tolist(), gt.instances.column("class_name").to_pylist(), strict=True))
+    names = dict(
+        zip(gt.instance_ids.tolist(), gt.instances.column("class_name").to_pylist(), strict=True)
+    )
     cat_index = {n: i + 1 for i, n in enumerate(sorted(set(names.values())))}
     for region in range(max(len(rooms), 1)):
         sel = np.flatnonzero(point_room == region)
         stem = house / "region_segmentations" / f"region{region}"
-        vertex = np.zeros(len(sel), [("x", "f4"), ("y", "f4"), ("z", "f4"), ("nx", "f4"), ("ny", "f4"), ("nz", "f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")])
+        vertex = np.zeros(
+            len(sel),
+            [
+                ("x", "f4"),
+                ("y", "f4"),
+                ("z", "f4"),
+                ("nx", "f4"),
+                ("ny", "f4"),
+                ("nz", "f4"),
+                ("red", "u1"),
+                ("green", "u1"),
+                ("blue", "u1"),
+            ],
+        )
         vertex["x"], vertex["y"], vertex["z"] = pts[sel].T
         vertex["nz"] = 1.0
-        face = np.zeros(len(sel), [("vertex_indices", "i4", (3,)), ("material_id", "i4"), ("segment_id", "i4"), ("category_id", "i4")])
+        face = np.zeros(
+            len(sel),
+            [
+                ("vertex_indices", "i4", (3,)),
+                ("material_id", "i4"),
+                ("segment_id", "i4"),
+                ("category_id", "i4"),
+            ],
+        )
         face["vertex_indices"] = np.repeat(np.arange(len(sel))[:, None], 3, axis=1)
         face["segment_id"] = inst[sel]
         face["category_id"] = [cat_index.get(names.get(int(i), ""), 0) for i in inst[sel]]
-        write_ply(Path(f"{stem}.ply"), [PlyElement.describe(vertex, "vertex"), PlyElement.describe(face, "face", len_types={"vertex_indices": "u1"})])
+        write_ply(
+            Path(f"{stem}.ply"),
+            [
+                PlyElement.describe(vertex, "vertex"),
+                PlyElement.describe(face, "face", len_types={"vertex_indices": "u1"}),
+            ],
+        )
         write_text(Path(f"{stem}.fsegs.json"), json.dumps({"segIndices": inst[sel].tolist()}))
         here = sorted({int(i) for i in inst[sel] if i > 0 and int(i) in names})
-        groups = [{"id": i - 1, "objectId": i - 1, "label": names[i], "segments": [i]} for i in here]
+        groups = [
+            {"id": i - 1, "objectId": i - 1, "label": names[i], "segments": [i]} for i in here
+        ]
         write_text(Path(f"{stem}.semseg.json"), json.dumps({"segGroups": groups}, indent=1))
         written += [Path(f"{stem}.ply"), Path(f"{stem}.fsegs.json"), Path(f"{stem}.semseg.json")]
     letters = {v: k for k, v in ROOM_TYPES.items()}
-    lines = [f"ASCII 1.1\nH {name} - 0 0 0 0 0 0 0 {len(rooms)} 0 1  0 0 0 0 0  0 0 0 0 0 0  0 0 0 0 0"]
+    lines = [
+        f"ASCII 1.1\nH {name} - 0 0 0 0 0 0 0 {len(rooms)} 0 1  0 0 0 0 0  0 0 0 0 0 0  0 0 0 0 0"
+    ]
     vertex_lines, surfaces = [], []
     for n, r in enumerate(rooms):
         poly = np.asarray(r.floor_polygon)
@@ -229,12 +285,21 @@ def write_matterport(gt: GroundTruth, house: Path, name: str) -> list[Path]:
         zhi = r.z_max if np.isfinite(r.z_max) else 1e3
         lo, hi = poly.min(axis=0), poly.max(axis=0)
         label = letters.get(r.name, r.name.replace(" ", "_") or "-")
-        lines.append(f"R {n} 0 0 0 {label}  0 0 0  {lo[0]!r} {lo[1]!r} {zlo!r} {hi[0]!r} {hi[1]!r} {zhi!r}  0 0 0 0 0")
-        surfaces.append(f"S {n} {n} 0 floor 0 0 0  0 0 1  {lo[0]!r} {lo[1]!r} {zlo!r} {hi[0]!r} {hi[1]!r} {zlo!r}  0 0 0 0 0")
-        vertex_lines += [f"V {len(vertex_lines) + k} {n} floor  {x!r} {y!r} {zlo!r}  0 0 1  0 0 0" for k, (x, y) in enumerate(poly.tolist())]
+        lines.append(
+            f"R {n} 0 0 0 {label}  0 0 0  {lo[0]!r} {lo[1]!r} {zlo!r} {hi[0]!r} {hi[1]!r} {zhi!r}  0 0 0 0 0"
+        )
+        surfaces.append(
+            f"S {n} {n} 0 floor 0 0 0  0 0 1  {lo[0]!r} {lo[1]!r} {zlo!r} {hi[0]!r} {hi[1]!r} {zlo!r}  0 0 0 0 0"
+        )
+        vertex_lines += [
+            f"V {len(vertex_lines) + k} {n} floor  {x!r} {y!r} {zlo!r}  0 0 1  0 0 0"
+            for k, (x, y) in enumerate(poly.tolist())
+        ]
     house_file = house / "house_segmentations" / f"{name}.house"
     write_text(house_file, "\n".join([*lines, *surfaces, *vertex_lines]) + "\n")
     tsv = house / "category_mapping.tsv"
-    rows = ["index\traw_category\tcategory"] + [f"{i}\t{n}\t{n}" for n, i in sorted(cat_index.items(), key=lambda kv: kv[1])]
+    rows = ["index\traw_category\tcategory"] + [
+        f"{i}\t{n}\t{n}" for n, i in sorted(cat_index.items(), key=lambda kv: kv[1])
+    ]
     write_text(tsv, "\n".join(rows) + "\n")
     return [*written, house_file, tsv]

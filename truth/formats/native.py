@@ -129,7 +129,9 @@ def read_native(path: Path) -> GroundTruth:
         point_instance = table.column("instance_id").to_numpy().astype(np.int32)
         rooms = [
             Room(
-                r["room_id"], r["name"], np.asarray(r["floor_polygon"], np.float64),
+                r["room_id"],
+                r["name"],
+                np.asarray(r["floor_polygon"], np.float64),
                 -np.inf if r.get("z_min") is None else float(r["z_min"]),
                 np.inf if r.get("z_max") is None else float(r["z_max"]),
             )  # fmt: skip

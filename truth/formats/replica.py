@@ -55,7 +55,9 @@ def read_replica(path: Path) -> GroundTruth:
         oid = field(obj, "id", info_path, int)
         name = obj.get("class_name") or classes.get(obj.get("class_id"))
         if name is None:
-            msg = f"{info_path}: objects[{n}] (id {oid}) has neither class_name nor a known class_id"
+            msg = (
+                f"{info_path}: objects[{n}] (id {oid}) has neither class_name nor a known class_id"
+            )
             raise GroundTruthError(msg)
         if str(name) not in UNDEFINED and oid > 0:
             class_of[oid] = str(name)
@@ -78,17 +80,40 @@ def write_replica(gt: GroundTruth, folder: Path) -> list[Path]:
 
     mesh, info_path = Path(folder) / "mesh_semantic.ply", Path(folder) / "info_semantic.json"
     pts = np.asarray(gt.points, np.float32).reshape(-1, 3)
-    vertex = np.zeros(len(pts), [("x", "f4"), ("y", "f4"), ("z", "f4"), ("nx", "f4"), ("ny", "f4"), ("nz", "f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")])
+    vertex = np.zeros(
+        len(pts),
+        [
+            ("x", "f4"),
+            ("y", "f4"),
+            ("z", "f4"),
+            ("nx", "f4"),
+            ("ny", "f4"),
+            ("nz", "f4"),
+            ("red", "u1"),
+            ("green", "u1"),
+            ("blue", "u1"),
+        ],
+    )
     vertex["x"], vertex["y"], vertex["z"] = pts.T
     face = np.zeros(len(pts), [("vertex_indices", "i4", (4,)), ("object_id", "i4")])
     face["vertex_indices"] = np.repeat(np.arange(len(pts))[:, None], 4, axis=1)
     face["object_id"] = gt.point_instance
-    write_ply(mesh, [PlyElement.describe(vertex, "vertex"), PlyElement.describe(face, "face", len_types={"vertex_indices": "u1"})])
+    write_ply(
+        mesh,
+        [
+            PlyElement.describe(vertex, "vertex"),
+            PlyElement.describe(face, "face", len_types={"vertex_indices": "u1"}),
+        ],
+    )
     names = sorted(set(gt.instances.column("class_name").to_pylist()))
-    classes = [{"id": 0, "name": "undefined"}] + [{"id": i + 1, "name": n} for i, n in enumerate(names)]
+    classes = [{"id": 0, "name": "undefined"}] + [
+        {"id": i + 1, "name": n} for i, n in enumerate(names)
+    ]
     objects = [
         {"id": int(i), "class_id": names.index(n) + 1, "class_name": n}
-        for i, n in zip(gt.instance_ids.tolist(), gt.instances.column("class_name").to_pylist(), strict=True)
+        for i, n in zip(
+            gt.instance_ids.tolist(), gt.instances.column("class_name").to_pylist(), strict=True
+        )
     ]
     ids = np.zeros(int(max(gt.instance_ids.max(initial=0), 0)) + 1, np.int64)
     for o in objects:

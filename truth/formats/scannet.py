@@ -75,7 +75,11 @@ def read_scannet(path: Path) -> GroundTruth:
     inst = np.zeros(len(xyz), np.int64)
     class_of: dict[int, str] = {}
     for n, group in enumerate(groups):
-        object_id = field(group, "objectId", agg_path, int) if "objectId" in group else field(group, "id", agg_path, int)
+        object_id = (
+            field(group, "objectId", agg_path, int)
+            if "objectId" in group
+            else field(group, "id", agg_path, int)
+        )
         label = field(group, "label", agg_path, str)
         segments = np.asarray(field(group, "segments", agg_path, list), np.int64)
         if not label.strip():
@@ -100,19 +104,49 @@ def write_scannet(gt: GroundTruth, folder: Path, scene: str) -> list[Path]:
         folder / f"{scene}{MESH_SUFFIX}", folder / f"{scene}{SEGS_SUFFIX}", folder / f"{scene}.aggregation.json",
     )  # fmt: skip
     pts = np.asarray(gt.points, np.float32).reshape(-1, 3)
-    props = [("x", "f4"), ("y", "f4"), ("z", "f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"), ("alpha", "u1")]
+    props = [
+        ("x", "f4"),
+        ("y", "f4"),
+        ("z", "f4"),
+        ("red", "u1"),
+        ("green", "u1"),
+        ("blue", "u1"),
+        ("alpha", "u1"),
+    ]
     vertex = np.zeros(len(pts), props)
     vertex["x"], vertex["y"], vertex["z"] = pts.T
     vertex["red"] = vertex["green"] = vertex["blue"] = 128
     vertex["alpha"] = 255
     face = np.zeros(0, [("vertex_indices", "i4", (3,))])
-    write_ply(mesh, [PlyElement.describe(vertex, "vertex"), PlyElement.describe(face, "face", len_types={"vertex_indices": "u1"})])
+    write_ply(
+        mesh,
+        [
+            PlyElement.describe(vertex, "vertex"),
+            PlyElement.describe(face, "face", len_types={"vertex_indices": "u1"}),
+        ],
+    )
     seg = np.asarray(gt.point_instance, np.int64)
-    write_text(segs_path, json.dumps({"params": {"kThresh": "0.0001", "segMinVerts": "20"}, "sceneId": scene, "segIndices": seg.tolist()}))
+    write_text(
+        segs_path,
+        json.dumps(
+            {
+                "params": {"kThresh": "0.0001", "segMinVerts": "20"},
+                "sceneId": scene,
+                "segIndices": seg.tolist(),
+            }
+        ),
+    )
     groups = [
         {"id": int(i) - 1, "objectId": int(i) - 1, "segments": [int(i)], "label": name}
-        for i, name in zip(gt.instance_ids.tolist(), gt.instances.column("class_name").to_pylist(), strict=True)
+        for i, name in zip(
+            gt.instance_ids.tolist(), gt.instances.column("class_name").to_pylist(), strict=True
+        )
     ]
-    doc = {"sceneId": f"scannet.{scene}", "appId": "care.world", "segGroups": groups, "segmentsFile": f"scannet.{segs_path.name}"}
+    doc = {
+        "sceneId": f"scannet.{scene}",
+        "appId": "care.world",
+        "segGroups": groups,
+        "segmentsFile": f"scannet.{segs_path.name}",
+    }
     write_text(agg_path, json.dumps(doc, indent=1))
     return [mesh, segs_path, agg_path]

@@ -1,0 +1,178 @@
+"""Paired comparison of two strategies over the same queries: difference in success with a
+paired bootstrap interval, and the exact McNemar test. Pure functions of arrays, no I/O.
+
+"Does CARe beat max confidence" is a paired question: both answer the same queries, and
+most queries come out the same under both (in particular every query solved by the first
+attempt, which all strategies share). Two separate intervals cannot see that; the interval
+of the per-query difference can, and McNemar's test uses only the discordant queries.
+
+Design for reuse: every function takes the per-query outcomes ``a`` and ``b`` (aligned
+arrays, 1 = success; fractions where a random strategy is averaged over seeds) and an
+optional ``groups`` array (e.g. the scene of each query) so that a clustered bootstrap can
+resample whole groups; every random draw comes from the generator built by
+:func:`comparison_rng` from the base seed and the comparison's own name, so an interval does
+not depend on what else was compared or in what order. :func:`holm` adjusts a family of
+p-values.
+"""
+
+from __future__ import annotations
+
+import zlib
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = [
+    "PairedComparison",
+    "compare",
+    "comparison_rng",
+    "holm",
+    "mcnemar_exact",
+    "paired_bootstrap_ci",
+]
+
+
+def comparison_rng(seed: int, *name: object) -> np.random.Generator:
+    """The generator of one comparison: a function of the base seed and the comparison's
+    name alone (never shared between comparisons)."""
+    key = zlib.crc32("\x1f".join(map(str, name)).encode())
+    return np.random.default_rng(np.random.SeedSequence([int(seed), key]))
+
+
+def mcnemar_exact(b: int, c: int) -> float:
+    """Two-sided exact McNemar p-value from the discordant counts ``b`` (only the first
+    succeeded) and ``c`` (only the second): a binomial test of ``min(b, c)`` in ``b + c``
+    trials at 1/2, doubled and capped at 1 (1.0 when there is no discordant query)."""
+    from scipy.stats import binom
+
+    n = int(b) + int(c)
+    if n == 0:
+        return 1.0
+    return float(min(1.0, 2.0 * binom.cdf(min(int(b), int(c)), n, 0.5)))
+
+
+def paired_bootstrap_ci(
+    a: np.ndarray,
+    b: np.ndarray,
+    *,
+    rng: np.random.Generator,
+    n_resamples: int = 10_000,
+    confidence: float = 0.95,
+    groups: np.ndarray | None = None,
+) -> tuple[float, float]:
+    """Percentile bootstrap interval of ``mean(a - b)``, resampling queries as pairs.
+
+    Without ``groups`` this is ``scipy.stats.bootstrap`` with ``paired=True``; with
+    ``groups`` whole groups are resampled (a clustered bootstrap: queries of one scene are
+    not independent). The percentile method keeps a degenerate sample (every difference
+    the same, common when two strategies agree on every query) a point interval instead
+    of BCa's NaN. ``(nan, nan)`` for no queries or ``n_resamples <= 0``.
+    """
+    a = np.asarray(a, np.float64)
+    b = np.asarray(b, np.float64)
+    if len(a) == 0 or n_resamples <= 0:
+        return float("nan"), float("nan")
+    if groups is None:
+        from scipy.stats import bootstrap
+
+        res = bootstrap(
+            (a, b),
+            lambda x, y, axis: np.mean(x - y, axis=axis),
+            paired=True,
+            vectorized=True,
+            n_resamples=n_resamples,
+            confidence_level=confidence,
+            method="percentile",
+            random_state=rng,
+        )
+        return float(res.confidence_interval.low), float(res.confidence_interval.high)
+    _, group = np.unique(np.asarray(groups), return_inverse=True)
+    n_groups = int(group.max()) + 1
+    sums = np.bincount(group, weights=a - b, minlength=n_groups)
+    counts = np.bincount(group, minlength=n_groups).astype(np.float64)
+    draws = rng.integers(0, n_groups, (n_resamples, n_groups))
+    stats = sums[draws].sum(axis=1) / counts[draws].sum(axis=1)
+    alpha = (1 - confidence) / 2
+    lo, hi = np.percentile(stats, [100 * alpha, 100 * (1 - alpha)])
+    return float(lo), float(hi)
+
+
+@dataclass(frozen=True)
+class PairedComparison:
+    """Strategy ``a`` against ``b`` over the same ``n`` queries."""
+
+    n: int
+    rate_a: float
+    """Success of ``a`` (fraction of queries; seeds averaged for random strategies)."""
+    rate_b: float
+    diff: float
+    """``rate_a - rate_b``: the mean per-query difference."""
+    lo: float
+    hi: float
+    """Paired bootstrap interval of ``diff``."""
+    only_a: float
+    """Queries only ``a`` solved (McNemar's b; fractional when a side is seed-averaged)."""
+    only_b: float
+    both: float
+    neither: float
+    first_ties: int
+    """Queries both solved at the first attempt (they share it): ties by construction."""
+    p_value: float
+    """Exact McNemar p-value; NaN when a side is not 0/1 per query (seed-averaged)."""
+
+
+def compare(
+    a: np.ndarray,
+    b: np.ndarray,
+    *,
+    rng: np.random.Generator,
+    first_a: np.ndarray | None = None,
+    first_b: np.ndarray | None = None,
+    n_resamples: int = 10_000,
+    confidence: float = 0.95,
+    groups: np.ndarray | None = None,
+) -> PairedComparison:
+    """Everything the paired table reports for one comparison. ``first_a``/``first_b``:
+    per-query success of each side's first attempt (for the tie count)."""
+    a = np.asarray(a, np.float64)
+    b = np.asarray(b, np.float64)
+    if a.shape != b.shape:
+        msg = f"paired comparison needs aligned queries, got {a.shape} and {b.shape}"
+        raise ValueError(msg)
+    lo, hi = paired_bootstrap_ci(
+        a, b, rng=rng, n_resamples=n_resamples, confidence=confidence, groups=groups
+    )
+    binary = bool(np.isin(a, (0.0, 1.0)).all() and np.isin(b, (0.0, 1.0)).all())
+    only_a = float(np.sum(a * (1 - b)))
+    only_b = float(np.sum(b * (1 - a)))
+    ties = 0
+    if first_a is not None and first_b is not None:
+        ties = int(np.sum(np.asarray(first_a, bool) & np.asarray(first_b, bool)))
+    return PairedComparison(
+        n=len(a),
+        rate_a=float(a.mean()) if len(a) else float("nan"),
+        rate_b=float(b.mean()) if len(b) else float("nan"),
+        diff=float(np.mean(a - b)) if len(a) else float("nan"),
+        lo=lo,
+        hi=hi,
+        only_a=only_a,
+        only_b=only_b,
+        both=float(np.sum(a * b)),
+        neither=float(np.sum((1 - a) * (1 - b))),
+        first_ties=ties,
+        p_value=mcnemar_exact(round(only_a), round(only_b)) if binary else float("nan"),
+    )
+
+
+def holm(p_values: np.ndarray) -> np.ndarray:
+    """Holm-Bonferroni adjusted p-values of one family (NaN stays NaN and is not counted)."""
+    p = np.asarray(p_values, np.float64)
+    out = np.full(p.shape, np.nan)
+    ok = np.flatnonzero(~np.isnan(p))
+    order = ok[np.argsort(p[ok], kind="stable")]
+    m = len(order)
+    running = 0.0
+    for rank, i in enumerate(order):
+        running = max(running, min(1.0, (m - rank) * p[i]))
+        out[i] = running
+    return out
