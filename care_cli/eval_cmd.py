@@ -46,7 +46,9 @@ GtOpt = Annotated[
 ]
 GtFormatOpt = Annotated[
     str | None,
-    typer.Option(help="Format of the ground truth (default: detected): native, annotations, ply, scannet, matterport, replica."),
+    typer.Option(
+        help="Format of the ground truth (default: detected): native, annotations, ply, scannet, matterport, replica."
+    ),
 ]
 GtTransformOpt = Annotated[
     str | None,
@@ -64,7 +66,9 @@ GtClassMapOpt = Annotated[
 ]
 GtUnknownOpt = Annotated[
     str,
-    typer.Option(help="Ground-truth classes the vocabulary lacks: refuse (one-line error) or ignore."),
+    typer.Option(
+        help="Ground-truth classes the vocabulary lacks: refuse (one-line error) or ignore."
+    ),
 ]
 
 

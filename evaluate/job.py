@@ -629,7 +629,9 @@ def run_eval(
     header = describe(config, scenes, attempts)
     dropped = {name: classes for name, classes in left_out.items() if classes}
     if dropped:
-        header += "- ground-truth classes not in the vocabulary, left out (--gt-unknown-classes ignore): " + "; ".join(
-            f"{name}: {', '.join(classes)}" for name, classes in dropped.items()
-        ) + "\n"
+        header += (
+            "- ground-truth classes not in the vocabulary, left out (--gt-unknown-classes ignore): "
+            + "; ".join(f"{name}: {', '.join(classes)}" for name, classes in dropped.items())
+            + "\n"
+        )
     return write_report(attempts, out, ks, bootstrap=config.bootstrap, header=header)

@@ -90,7 +90,10 @@ def gt_sources_of(source: Path) -> list[GtSource]:
 
 
 def _scenes_with_gt(
-    recordings: Sequence[tuple[str, Path]], sources: Sequence[GtSource], config: RunConfig, out: Path
+    recordings: Sequence[tuple[str, Path]],
+    sources: Sequence[GtSource],
+    config: RunConfig,
+    out: Path,
 ) -> list[Scene]:
     """Each recording's scene with its ground truth resolved before any work is done: a
     recording without ground truth stops the run at once."""

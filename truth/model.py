@@ -279,10 +279,7 @@ class GroundTruth:
         for room in self.rooms:
             poly = np.c_[room.floor_polygon, np.zeros(len(room.floor_polygon))]
             moved = apply_transform(t, poly)[:, :2]
-            if upright:
-                band = (room.z_min + t[2, 3], room.z_max + t[2, 3])
-            else:
-                band = (-np.inf, np.inf)
+            band = (room.z_min + t[2, 3], room.z_max + t[2, 3]) if upright else (-np.inf, np.inf)
             rooms.append(Room(room.room_id, room.name, moved, *band))
         points = (
             apply_transform(t, self.points).astype(np.float32)

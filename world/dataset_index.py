@@ -63,10 +63,14 @@ def read_index(dataset: Path) -> list[IndexEntry]:
             class_map = str(Path(dataset) / class_map)
         out.append(
             IndexEntry(
-                str(item.get("name") or Path(rel).stem), recording, store,
+                str(item.get("name") or Path(rel).stem),
+                recording,
+                store,
                 gt=Path(dataset) / item["gt"] if item.get("gt") else None,
-                gt_format=item.get("gt_format"), gt_transform=transform, gt_class_map=class_map,
-            )  # fmt: skip
+                gt_format=item.get("gt_format"),
+                gt_transform=transform,
+                gt_class_map=class_map,
+            )
         )
     if not out:
         msg = f"{index}: lists no recordings"

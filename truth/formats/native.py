@@ -44,7 +44,7 @@ def gt_paths(recording_path: Path) -> tuple[Path, Path]:
 
 
 def _needs_boxes(gt: GroundTruth) -> bool:
-    center, size, rot = gt.boxes()
+    center, _size, rot = gt.boxes()
     if not len(center):
         return False
     return bool(gt.box_only.any() or not np.allclose(rot, np.eye(3)))
@@ -134,7 +134,7 @@ def read_native(path: Path) -> GroundTruth:
                 np.asarray(r["floor_polygon"], np.float64),
                 -np.inf if r.get("z_min") is None else float(r["z_min"]),
                 np.inf if r.get("z_max") is None else float(r["z_max"]),
-            )  # fmt: skip
+            )
             for r in doc["rooms"]
         ]
         instances = instances_table(doc["instances"])
