@@ -66,11 +66,13 @@ def paired_bootstrap_ci(
     ``groups`` whole groups are resampled (a clustered bootstrap: queries of one scene are
     not independent). The percentile method keeps a degenerate sample (every difference
     the same, common when two strategies agree on every query) a point interval instead
-    of BCa's NaN. ``(nan, nan)`` for no queries or ``n_resamples <= 0``.
+    of BCa's NaN. ``(nan, nan)`` for fewer than two queries (or groups) or
+    ``n_resamples <= 0``: one observation has no sampling distribution to estimate.
     """
     a = np.asarray(a, np.float64)
     b = np.asarray(b, np.float64)
-    if len(a) == 0 or n_resamples <= 0:
+    n_units = len(a) if groups is None else len(np.unique(np.asarray(groups)))
+    if n_units < 2 or n_resamples <= 0:
         return float("nan"), float("nan")
     if groups is None:
         from scipy.stats import bootstrap

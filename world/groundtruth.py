@@ -11,4 +11,11 @@ from __future__ import annotations
 from truth.formats.native import GT_SCHEMA_VERSION, gt_paths
 from truth.model import INSTANCE_COLUMNS, GroundTruth, Room, instances_table
 
-__all__ = ["GT_SCHEMA_VERSION", "INSTANCE_COLUMNS", "GroundTruth", "Room", "gt_paths", "instances_table"]
+__all__ = [
+    "GT_SCHEMA_VERSION",
+    "INSTANCE_COLUMNS",
+    "GroundTruth",
+    "Room",
+    "gt_paths",
+    "instances_table",
+]
