@@ -150,9 +150,11 @@ def test_bad_ground_truth_is_one_line_and_no_results(dataset: Path, tmp_path: Pa
         done = _cli(str(store), "--out", str(out), "--gt", str(path), "--seeds", "1")
         assert done.returncode == 1, (case, done.stderr)
         lines = done.stderr.strip().splitlines()
-        assert len(lines) == 1 and lines[0].startswith("error: "), (case, done.stderr)
+        assert len(lines) == 1, (case, done.stderr)
+        assert lines[0].startswith("error: "), (case, done.stderr)
         assert message in lines[0], (case, lines[0])
-        assert not (out / "results.md").exists() and not list(out.glob("scenes/*.parquet")), case
+        assert not (out / "results.md").exists(), case
+        assert not list(out.glob("scenes/*.parquet")), case
 
 
 def test_an_instance_without_points_is_refused(dataset: Path, tmp_path: Path) -> None:
