@@ -56,6 +56,13 @@ def make(
     if fmt not in ("mcap", "ros2", "ros1"):
         msg = f"--format {fmt!r}: choose mcap, ros2 or ros1"
         raise WorldError(msg)
+    from truth.load import EXPORT_FORMATS
+
+    formats = tuple(f.strip() for f in gt_formats.split(",") if f.strip())
+    unknown = sorted(set(formats) - {*EXPORT_FORMATS, "all"})
+    if unknown:
+        msg = f"--gt-formats {','.join(unknown)}: choose from {', '.join(EXPORT_FORMATS)} or all"
+        raise WorldError(msg)
     index = make_dataset(
         DatasetConfig(
             out=out,
@@ -71,7 +78,6 @@ def make(
             rrd=rrd,
         )
     )
-    formats = tuple(f.strip() for f in gt_formats.split(",") if f.strip())
     if set(formats) - {"native"}:
         from truth.load import export_ground_truth
         from world.dataset_index import read_index

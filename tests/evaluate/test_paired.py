@@ -23,8 +23,7 @@ def _loop_ci(a, b, rng, n, groups=None):
     stats = []
     if groups is None:
         draws = rng.integers(0, len(diff), (n, len(diff)))
-        for row in draws:
-            stats.append(diff[row].mean())
+        stats = [diff[row].mean() for row in draws]
     else:
         names = np.unique(groups)
         draws = rng.integers(0, len(names), (n, len(names)))

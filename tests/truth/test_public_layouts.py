@@ -284,7 +284,7 @@ def test_annotation_csv_without_header_yaml_with_rooms(tmp_path: Path) -> None:
     assert gt.instance_class_names() == {1: "chair", 2: "lamp"}
     assert gt.instances.column("room_id").to_pylist() == [0, -1]
     assert gt.box_only.all()
-    center, size, rotation = gt.boxes()
+    rotation = gt.boxes()[2]
     np.testing.assert_allclose(rotation[0], yaw_rotation(0.3))
     yaml_doc = (
         "frame: map\nrooms:\n  - {name: hall, polygon: [[0, 0], [4, 0], [4, 2], [0, 2]], z_min: 0, z_max: 2.5}\n"

@@ -73,3 +73,33 @@ def test_bad_options_are_one_line_errors(tmp_path: Path) -> None:
         assert proc.returncode == 1
         assert words in proc.stderr
         assert len(proc.stderr.strip().splitlines()) == 1
+
+
+def test_make_exports_the_ground_truth_in_every_format(tmp_path: Path) -> None:
+    """``--gt-formats all``: each format, read back, holds the native ground truth's instances,
+    classes and (where it keeps points) the very same labelled points."""
+    import numpy as np
+
+    from truth.load import read_ground_truth
+
+    out = tmp_path / "ds"
+    result = _make(out, "--gt-formats", "all")
+    assert result.exit_code == 0, result.output
+    native = GroundTruth.load(out / "scene_000.mcap")
+    unseen = set(native.info.get("unseen_instances") or [])
+    seen = {i: n for i, n in native.instance_class_names().items() if i not in unseen}
+    order = np.lexsort(native.points.T)
+    for name in ("annotations.json", "annotations.yaml", "annotations.csv", "labels.ply",
+                 "scannet", "matterport", "replica"):  # fmt: skip
+        gt = read_ground_truth(out / f"scene_000.{name}")
+        assert gt.instance_class_names() == seen, name
+        if len(gt.points):
+            back = np.lexsort(gt.points.T)
+            np.testing.assert_array_equal(gt.points[back], native.points[order])
+            expected = np.where(
+                np.isin(native.point_instance, list(unseen)), 0, native.point_instance
+            )
+            np.testing.assert_array_equal(gt.point_instance[back], expected[order])
+    bad = _make(tmp_path / "bad", "--gt-formats", "obj")
+    assert bad.exit_code != 0
+    assert not (tmp_path / "bad").exists()
