@@ -178,7 +178,8 @@ def parse_transform(text: str | Path) -> np.ndarray:
             if path.suffix == ".json":
                 values = np.asarray(json.loads(raw), np.float64).reshape(-1).tolist()
             else:
-                raw = raw.split("=", 1)[-1] if "axisAlignment" in raw else raw
+                lines = [ln for ln in raw.splitlines() if ln.strip().startswith("axisAlignment")]
+                raw = lines[0].split("=", 1)[1] if lines else raw
                 values = [float(v) for v in raw.replace(",", " ").split()]
         else:
             values = [float(v) for v in text.replace(",", " ").split()]

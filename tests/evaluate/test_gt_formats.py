@@ -227,3 +227,26 @@ def test_help_names_the_formats() -> None:
         "--gt-transform",
     ):
         assert name in text
+
+
+def test_care_run_refuses_bad_ground_truth_before_any_work(dataset: Path, tmp_path: Path) -> None:
+    """``care run --gt``: a corrupt file or a recording without ground truth stops the run
+    in one line before the (long) ingest, and nothing is written."""
+    recording = dataset / "scene_0.mcap"
+    bad = tmp_path / "boxes.yaml"
+    bad.write_text("objects: [{class: chair, center: [1, 1], size: [1, 1, 1]}]\n")
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "care_cli.main", "run", str(recording), "--out", str(out)]
+    done = subprocess.run([*cmd, "--gt", str(bad)], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 1
+    assert done.stderr.strip().splitlines() == [
+        f"error: {bad}: objects[0]: 'center' should be 3 numbers, got [1, 1]"
+    ]
+    lonely = tmp_path / "lonely.mcap"
+    lonely.write_bytes(b"")
+    done = subprocess.run(
+        [*cmd[:4], str(lonely), "--out", str(out)], capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode == 1
+    assert "no ground truth beside it" in done.stderr
+    assert not out.exists()

@@ -321,3 +321,21 @@ def test_box_membership_and_floor_distance_against_brute_force() -> None:
     ref = np.linalg.norm(xy[:, None] - foot[None], axis=2).min(axis=1)
     got = box_floor_distance(xy, center[None], size[None], rot[None])[:, 0]
     np.testing.assert_allclose(got, ref, atol=0.006)
+
+
+def test_transform_from_numbers_npy_and_scannet_axis_alignment(tmp_path: Path) -> None:
+    from truth.load import parse_transform
+
+    m = np.arange(16, dtype=float).reshape(4, 4)
+    np.testing.assert_array_equal(parse_transform(",".join(map(str, m.ravel()))), m)
+    np.save(tmp_path / "t.npy", m)
+    np.testing.assert_array_equal(parse_transform(tmp_path / "t.npy"), m)
+    # ScanNet's <scene>.txt meta file: one "axisAlignment = 16 numbers" line among others
+    (tmp_path / "scene0000_00.txt").write_text(
+        "colorHeight = 968\ncolorWidth = 1296\naxisAlignment = "
+        + " ".join(map(str, m.ravel()))
+        + "\nnumDepthFrames = 5578\n"
+    )
+    np.testing.assert_array_equal(parse_transform(tmp_path / "scene0000_00.txt"), m)
+    with pytest.raises(GroundTruthError, match="give a 4x4"):
+        parse_transform("1,2,3")
