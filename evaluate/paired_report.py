@@ -7,6 +7,7 @@ from collections import defaultdict
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 
 from evaluate.paired import compare, comparison_rng
 from replan.strategies import STRATEGIES
@@ -23,32 +24,28 @@ CARE_STRATEGIES = tuple(
 
 def _outcomes(attempts: pa.Table) -> tuple[dict, dict]:
     """``solved[(map, protocol)][(strategy, criterion, k)][query key]`` (mean over seeds of
-    "some attempt succeeded") and ``first[...]`` (the first attempt succeeded)."""
-    cols = {
-        c: attempts.column(c).to_numpy(zero_copy_only=False)
-        for c in (*QUERY_KEYS, "strategy", "criterion", "k", "seed", "attempt", "success")
+    "some attempt succeeded", as :func:`evaluate.report.per_query`) and ``first[...]`` (the
+    first attempt succeeded), grouped by Arrow rather than row by row."""
+    from evaluate.report import per_query
+
+    rule_keys = ["strategy", "criterion", "k"]
+    first_rows = (
+        attempts.filter(pc.equal(attempts.column("attempt"), 1))
+        .group_by([*QUERY_KEYS, *rule_keys], use_threads=False)
+        .aggregate([("success", "max")])
+        .to_pylist()
+    )
+    firsts = {
+        (tuple(r[c] for c in QUERY_KEYS), (r["strategy"], r["criterion"], r["k"])): r["success_max"]
+        for r in first_rows
     }
-    episodes: dict = defaultdict(bool)
-    firsts: dict = {}
-    for i in range(attempts.num_rows):
-        key = (
-            tuple(cols[c][i] for c in QUERY_KEYS),
-            (cols["strategy"][i], cols["criterion"][i], int(cols["k"][i])),
-            int(cols["seed"][i]),
-        )
-        episodes[key] |= bool(cols["success"][i])
-        if cols["attempt"][i] == 1:
-            firsts[key[:2]] = firsts.get(key[:2], False) | bool(cols["success"][i])
-    sums: dict = defaultdict(lambda: [0.0, 0])
-    for (query, rule, _seed), ok in episodes.items():
-        s = sums[query, rule]
-        s[0] += ok
-        s[1] += 1
     solved: dict = defaultdict(lambda: defaultdict(dict))
     first: dict = defaultdict(lambda: defaultdict(dict))
-    for (query, rule), (total, n) in sums.items():
-        solved[query[1], query[2]][rule][query] = total / n
-        first[query[1], query[2]][rule][query] = firsts.get((query, rule), False)
+    for r in per_query(attempts).to_pylist():
+        query = tuple(r[c] for c in QUERY_KEYS)
+        rule = (r["strategy"], r["criterion"], r["k"])
+        solved[r["map"], r["protocol"]][rule][query] = r["solved"]
+        first[r["map"], r["protocol"]][rule][query] = bool(firsts.get((query, rule), False))
     return solved, first
 
 
