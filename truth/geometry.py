@@ -80,9 +80,16 @@ def label_points_by_boxes(
     """
     points = np.asarray(points, np.float64).reshape(-1, 3)
     out = np.zeros(len(points), np.int32)
+    if len(points) == 0 or len(center) == 0:
+        return out
     volume = np.prod(np.asarray(size, np.float64), axis=1)
+    lo, hi = aabb_of_boxes(center, size, rotation)
+    order = np.argsort(points[:, 0], kind="stable")  # the x-slab of a box is one slice
+    xs = points[order, 0]
     for b in np.argsort(-volume, kind="stable"):  # largest first, smaller ones overwrite
-        out[points_in_box(points, center[b], size[b], rotation[b])] = ids[b]
+        near = order[np.searchsorted(xs, lo[b, 0], "left") : np.searchsorted(xs, hi[b, 0], "right")]
+        inside = points_in_box(points[near], center[b], size[b], rotation[b])
+        out[near[inside]] = ids[b]
     return out
 
 

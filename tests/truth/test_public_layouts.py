@@ -339,3 +339,17 @@ def test_transform_from_numbers_npy_and_scannet_axis_alignment(tmp_path: Path) -
     np.testing.assert_array_equal(parse_transform(tmp_path / "scene0000_00.txt"), m)
     with pytest.raises(GroundTruthError, match="give a 4x4"):
         parse_transform("1,2,3")
+
+
+def test_points_in_nested_boxes_go_to_the_smallest() -> None:
+    from truth.geometry import label_points_by_boxes
+
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(-1, 3, (5000, 3))
+    center = np.array([[1.0, 1.0, 1.0], [1.2, 1.1, 1.0], [2.5, 0.0, 0.5]])
+    size = np.array([[2.0, 2.0, 2.0], [0.5, 0.4, 0.3], [0.6, 0.6, 0.6]])
+    rot = yaw_rotation(np.array([0.0, 0.7, -0.4]))
+    got = label_points_by_boxes(pts, np.array([4, 5, 6]), center, size, rot)
+    inside = [points_in_box(pts, c, s, r) for c, s, r in zip(center, size, rot, strict=True)]
+    expected = np.where(inside[1], 5, np.where(inside[2], 6, np.where(inside[0], 4, 0)))
+    np.testing.assert_array_equal(got, expected)
