@@ -84,7 +84,8 @@ def make(
         from world.groundtruth import GroundTruth
 
         for entry in read_index(index.parent):
-            others = [f for f in formats if f != "native"]  # make_dataset wrote the native files
+            chosen = EXPORT_FORMATS if "all" in formats else formats
+            others = [f for f in chosen if f != "native"]  # make_dataset wrote the native files
             export_ground_truth(GroundTruth.load(entry.recording), entry.recording, others)
     typer.echo(f"wrote {index}")
 
