@@ -111,17 +111,23 @@ class GtSource:
 
 def gt_files(source: GtSource, recording: Path) -> list[Path]:
     """The files a scene's ground truth is read from (for the result cache's key): a folder's
-    files, the native pair, or every file beside a single file (its class table, rooms, and
-    a ScanNet scene's siblings)."""
+    files (a Matterport3D house for any of its files), the native pair, or the files beside a
+    single file that share its scene name (its class table, rooms, a ScanNet scene's
+    siblings)."""
     try:
         path, fmt = source.resolve(recording)
     except CareError:
         return []
+    if path.is_file() and path.parent.name in ("region_segmentations", "house_segmentations"):
+        path = path.parent.parent  # a Matterport3D file: the reader reads the whole house
+    if path.name in ("mesh_semantic.ply", "info_semantic.json"):
+        path = path.parent  # a Replica file: its habitat folder
     if path.is_dir():
         return sorted(p for p in path.rglob("*") if p.is_file())
     if fmt is GtFormat.NATIVE or path.name.endswith(".gt.json"):
         return list(gt_paths(path.with_name(path.name.removesuffix(".gt.json"))))
-    return sorted(p for p in path.parent.iterdir() if p.is_file())
+    scene = path.name.split(".")[0].removesuffix("_vh_clean_2").removesuffix("_vh_clean")
+    return sorted(p for p in path.parent.iterdir() if p.is_file() and p.name.startswith(scene))
 
 
 def _vocabulary(store: Path, kind: str) -> tuple[str, ...]:

@@ -250,3 +250,20 @@ def test_care_run_refuses_bad_ground_truth_before_any_work(dataset: Path, tmp_pa
     assert done.returncode == 1
     assert "no ground truth beside it" in done.stderr
     assert not out.exists()
+
+
+def test_a_changed_ground_truth_file_is_not_served_from_the_cache(
+    exported: Scene, tmp_path: Path
+) -> None:
+    """The cached scene results are keyed by the ground truth's files, so editing the
+    annotations (or its rooms file beside it) recomputes the scene."""
+    csv = exported.recording.with_name("scene_0.annotations.csv")
+    first, _ = _eval(exported, tmp_path / "out", gt=[csv])
+    lines = csv.read_text().splitlines()
+    csv.write_text("\n".join(lines[:-1]) + "\n")  # drop the last object
+    second, _ = _eval(exported, tmp_path / "out", gt=[csv])
+
+    def queries(table: pa.Table) -> int:
+        return max(r["n_queries"] for r in table.to_pylist() if r["protocol"] == "instance")
+
+    assert queries(second) == queries(first) - 1
