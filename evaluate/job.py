@@ -407,7 +407,7 @@ def _scene_key(scene: Scene, config: EvalConfig) -> bytes:
 
     files = [scene.store / f"{MAP_TABLES[kind]}.parquet" for kind in config.maps]
     files += [scene.store / "scene_points.parquet", *gt_files(scene.gt, scene.recording)]
-    stats = [(str(p), p.stat().st_size, p.stat().st_mtime_ns) for p in files if p.is_file()]
+    stats = [(p.name, p.stat().st_size, p.stat().st_mtime_ns) for p in files if p.is_file()]
     doc = json.dumps([config.fingerprint(), EVAL_VERSION, stats, repr(scene.gt)], sort_keys=True)
     return hashlib.sha256(doc.encode()).hexdigest()[:16].encode()
 
