@@ -8,10 +8,13 @@ options mirror :class:`evaluate.job.EvalConfig`.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, NoReturn
 
 import typer
+
+from query.goals import GoalConfig, GoalMaker
 
 __all__ = ["register"]
 
@@ -25,6 +28,14 @@ RayOpt = Annotated[
 RayAddressOpt = Annotated[
     str | None,
     typer.Option(help="Address of a running Ray cluster, e.g. ray://head:10001 (implies --ray)."),
+]
+
+ClearanceOpt = Annotated[
+    float,
+    typer.Option(
+        help="Metres a goal's approach point keeps from obstacles (the robot's radius); the "
+        "point is the nearest free grid cell within 1 m of the object."
+    ),
 ]
 
 
@@ -64,13 +75,18 @@ def query(
     kind: MapOpt = "instances",
     top: Annotated[int, typer.Option(help="How many candidates to list.")] = 10,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
+    clearance: ClearanceOpt = GoalConfig.clearance,
 ) -> None:
-    """Rank a map's candidates by confidence for TEXT, with their uncertainty measures."""
+    """Rank a map's candidates by confidence for TEXT, with their uncertainty measures and a
+    goal pose for each (``geometry_msgs/PoseStamped`` JSON with --json)."""
     import numpy as np
 
     from query import confidence, rank_by_confidence
 
+    if top < 1:
+        _fail(f"--top must be at least 1, got {top}")
     cmap, match = _resolve(store, kind, text)
+    goals = _goal_maker(store, clearance)
     conf = confidence(cmap, np.array([match.class_id]))[0]
     order = rank_by_confidence(conf[None])[0][:top]
     rows = [
@@ -83,6 +99,7 @@ def query(
             "pwkl": float(cmap.pwkl[c]),
             "num_views": int(cmap.num_views[c]),
             "position": [round(float(v), 3) for v in cmap.positions[c]],
+            "goal": goals.goal(cmap, int(c)).as_dict(),
         }
         for r, c in enumerate(order)
     ]
@@ -90,11 +107,16 @@ def query(
         typer.echo(json.dumps({"query": text, "class": match.names[0], "candidates": rows}))
         return
     typer.echo(f"{kind} map, class {match.names[0]!r}: {cmap.num_candidates} candidates")
-    typer.echo("rank  cand  confidence  entropy   stderr     pwkl  views  position")
+    typer.echo(
+        f"rank  cand  confidence  entropy   stderr     pwkl  views  position  "
+        f"goal in {goals.frame_id!r} (x, y, yaw deg)"
+    )
     for r in rows:
+        pose = r["goal"]["pose_stamped"]["pose"]["position"]
         typer.echo(
             f"{r['rank']:>4} {r['candidate']:>5} {r['confidence']:>11.4g} {r['entropy']:>8.3f} "
-            f"{r['stderr']:>8.4g} {r['pwkl']:>8.4g} {r['num_views']:>6}  {r['position']}"
+            f"{r['stderr']:>8.4g} {r['pwkl']:>8.4g} {r['num_views']:>6}  {r['position']}  "
+            f"({pose['x']:.2f}, {pose['y']:.2f}, {math.degrees(r['goal']['yaw']):.0f})"
         )
 
 
@@ -102,8 +124,13 @@ def replan(
     store: StoreArg,
     text: TextArg,
     visited: Annotated[
-        str, typer.Option(help="Comma-separated candidate ids already tried (failed).")
-    ] = "",
+        list[str] | None,
+        typer.Option(
+            help="Where the robot already looked without finding it (repeat the option): a "
+            "candidate id (12) or a map position x,y in metres (1.5,-2.0); the candidates within "
+            "--exclude-radius of a position count as visited."
+        ),
+    ] = None,
     strategy: Annotated[
         str, typer.Option(help="Replan strategy (see `care eval --help`).")
     ] = "min_stderr",
@@ -116,23 +143,56 @@ def replan(
         float, typer.Option(help="Grid: skip cells within this distance (m) of failed ones.")
     ] = 1.0,
     seed: Annotated[int, typer.Option(help="Seed of the random strategies.")] = 0,
+    clearance: ClearanceOpt = GoalConfig.clearance,
 ) -> None:
-    """The next candidate to try for TEXT after the --visited ones (JSON on stdout)."""
+    """The next candidate to try for TEXT after the --visited ones (JSON on stdout), with its
+    goal pose (``geometry_msgs/PoseStamped`` in the map frame, facing the object)."""
     import dataclasses
 
     from replan import next_goal
 
+    ids, places = _visited(visited or [])
     cmap, match = _resolve(store, kind, text)
+    goals = _goal_maker(store, clearance)
     choice = next_goal(
-        cmap, match.class_id, list(_ints(visited)), strategy=strategy, criterion=criterion,
-        k=k, exclude_radius=exclude_radius, seed=seed,
+        cmap, match.class_id, ids, strategy=strategy, criterion=criterion,
+        k=k, exclude_radius=exclude_radius, seed=seed, visited_at=places,
     )  # fmt: skip
     out = dataclasses.asdict(choice)
-    out["position"] = (
-        [float(v) for v in cmap.positions[choice.candidate]] if choice.candidate >= 0 else None
-    )
+    found = choice.candidate >= 0
+    out["position"] = [float(v) for v in cmap.positions[choice.candidate]] if found else None
+    out["goal"] = goals.goal(cmap, choice.candidate).as_dict() if found else None
     out["class"] = match.names[0]
     typer.echo(json.dumps(out))
+
+
+def _visited(values: list[str]) -> tuple[list[int], list[tuple[float, float]]]:
+    """``--visited`` values: candidate ids and map positions ``x,y``."""
+    ids: list[int] = []
+    places: list[tuple[float, float]] = []
+    for value in values:
+        parts = [p.strip() for p in value.split(",")]
+        try:
+            if len(parts) == 1:
+                ids.append(int(parts[0]))
+                continue
+            x, y = (float(p) for p in parts)
+        except ValueError:
+            _fail(f"--visited {value!r}: give a candidate id (12) or a map position x,y (1.5,-2.0)")
+        if not (math.isfinite(x) and math.isfinite(y)):
+            _fail(f"--visited {value!r}: a position must be finite x,y in metres")
+        places.append((x, y))
+    return ids, places
+
+
+def _goal_maker(store: Path, clearance: float) -> GoalMaker:
+    return GoalMaker.from_store(store, GoalConfig(clearance=clearance))
+
+
+def _fail(message: str) -> NoReturn:
+    from care.errors import QueryError
+
+    raise QueryError(message)
 
 
 def eval_(

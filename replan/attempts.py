@@ -25,6 +25,7 @@ __all__ = [
     "Attempts",
     "Choice",
     "available_after",
+    "candidates_near",
     "next_goal",
     "run_attempts",
 ]
@@ -52,6 +53,20 @@ class Attempts:
     def solved(self) -> np.ndarray:
         """(Q,) bool: some attempt succeeded."""
         return self.success.any(axis=1)
+
+
+def candidates_near(cmap: CandidateMap, xy: np.ndarray, radius: float) -> np.ndarray:
+    """Sorted ids of the candidates within ``radius`` m (floor plane) of any position in
+    ``xy`` (P, 2): the candidates a robot that went there has seen not to be the object."""
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    if not np.isfinite(xy).all():
+        msg = "visited positions must be finite x,y in metres"
+        raise ReplanError(msg)
+    pos = cmap.positions[:, :2].astype(np.float64)
+    near = np.zeros(cmap.num_candidates, bool)
+    for p in xy:
+        near |= ((pos - p) ** 2).sum(axis=1) <= radius**2
+    return np.flatnonzero(near)
 
 
 def available_after(
@@ -188,12 +203,15 @@ def next_goal(
     k: int = 4,
     exclude_radius: float | None = None,
     seed: int = 0,
+    visited_at: np.ndarray | list[tuple[float, float]] = (),  # type: ignore[assignment]
 ) -> Choice:
     """The next candidate to try for ``query`` after the ``visited`` (failed) ones.
 
     With nothing visited this is the first attempt (max confidence); afterwards ``strategy``
     over ``criterion``'s top-k set among unvisited candidates. ``exclude_radius`` (grid only,
-    default 1 m) also skips cells near failed ones.
+    default 1 m) also skips cells near failed ones. ``visited_at``: map positions (x, y) the
+    robot went to without finding the object; the candidates within the exclusion radius of
+    one (1 m by default, for instances too) count as visited.
     """
     y = cmap.class_id(query) if isinstance(query, str) else int(query)
     conf = class_confidence(cmap, np.array([y]))
@@ -201,17 +219,19 @@ def next_goal(
     if visited_ids.size and (visited_ids.min() < 0 or visited_ids.max() >= cmap.num_candidates):
         msg = f"visited candidate ids must lie in 0..{cmap.num_candidates - 1}"
         raise ReplanError(msg)
+    default_radius = DEFAULT_EXCLUDE_RADIUS if exclude_radius is None else exclude_radius
+    places = np.asarray(visited_at, dtype=np.float64).reshape(-1, 2)
+    if len(places):
+        near = candidates_near(cmap, places, default_radius)
+        visited_ids = np.unique(np.concatenate([visited_ids, near]))
     available = np.ones_like(conf, dtype=bool)
-    radius = (
-        (DEFAULT_EXCLUDE_RADIUS if exclude_radius is None else exclude_radius)
-        if cmap.kind == "grid"
-        else 0.0
-    )
+    radius = default_radius if cmap.kind == "grid" else 0.0
     positions = cmap.positions if cmap.kind == "grid" else None
     for v in visited_ids:
         available = available_after(available, np.array([v]), positions, radius)
     chosen = get_strategy(strategy)
-    first = visited_ids.size == 0  # no_replan after a visit: _step says it makes no attempt
+    # no_replan after a visit: _step says it makes no attempt
+    first = visited_ids.size == 0 and not len(places)
     if first:
         cand, found = best_of(conf, available, conf, maximise=True)
         pick = Pick(np.where(found, cand, -1), conf[0, cand].astype(np.float64), np.zeros(1, bool))

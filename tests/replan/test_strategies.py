@@ -300,3 +300,24 @@ def test_mismatched_episode_inputs_are_one_clear_error() -> None:
         run_attempts("random", conf, np.zeros((1, 2), bool), {})
     with pytest.raises(ReplanError, match="no 'stderr' column"):
         run_attempts("min_stderr", conf, np.zeros((1, 3), bool), {})
+
+
+@pytest.mark.parametrize("kind", ["grid", "instances"])
+def test_visited_positions_count_the_candidates_around_them(kind: str) -> None:
+    from scipy.spatial import cKDTree
+
+    from replan.attempts import candidates_near
+
+    cmap = _tiny_map(kind)
+    places = np.array([[0.3, 0.5], [8.5, 0.2]])
+    tree = cKDTree(cmap.positions[:, :2].astype(np.float64))
+    expected = sorted({i for hits in tree.query_ball_point(places, r=1.0) for i in hits})
+    np.testing.assert_array_equal(candidates_near(cmap, places, 1.0), expected)
+    by_place = next_goal(cmap, "chair", visited_at=places, strategy="min_stderr", k=2)
+    by_id = next_goal(cmap, "chair", expected, strategy="min_stderr", k=2)
+    assert by_place == by_id
+    assert by_place.strategy == "min_stderr"  # a replan, not a first attempt
+    nowhere = next_goal(cmap, "chair", visited_at=[(50.0, 50.0)], strategy="min_stderr", k=2)
+    assert nowhere.strategy == "min_stderr"  # the robot looked somewhere: not a first attempt
+    with pytest.raises(ReplanError, match="finite"):
+        next_goal(cmap, "chair", visited_at=[(np.nan, 0.0)])
