@@ -58,14 +58,24 @@ def _ray_target(ray: bool, address: str | None) -> str | bool | None:
     return address or (True if ray else None)
 
 
-def _resolve(store: Path, kind: str, text: str) -> tuple:
-    """The map and the class the text maps to (the mapping is printed unless exact)."""
-    from query import load_map, resolve_text
+WeightsOpt = Annotated[
+    Path | None,
+    typer.Option(
+        help="The store's CLIP weights directory, if it moved since ingest (free text is "
+        "embedded by the store's own model)."
+    ),
+]
 
-    cmap = load_map(store, kind)  # type: ignore[arg-type]
-    match = resolve_text(cmap, text)
+
+def _resolve(store: Path, kind: str, text: str, weights: Path | None = None) -> tuple:
+    """The map and the class the text names in it: a vocabulary class, or free text joining
+    the vocabulary through the store's own text encoder (the mapping is printed)."""
+    from query import load_map
+    from query.openvocab import open_query
+
+    cmap, match = open_query(load_map(store, kind, weights=weights), text)  # type: ignore[arg-type]
     if match.method != "vocabulary":
-        typer.echo(f"query {match.describe()}")
+        typer.echo(f"query {match.describe()}", err=True)
     return cmap, match
 
 
@@ -76,6 +86,7 @@ def query(
     top: Annotated[int, typer.Option(help="How many candidates to list.")] = 10,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
     clearance: ClearanceOpt = GoalConfig.clearance,
+    weights: WeightsOpt = None,
 ) -> None:
     """Rank a map's candidates by confidence for TEXT, with their uncertainty measures and a
     goal pose for each (``geometry_msgs/PoseStamped`` JSON with --json)."""
@@ -85,7 +96,7 @@ def query(
 
     if top < 1:
         _fail(f"--top must be at least 1, got {top}")
-    cmap, match = _resolve(store, kind, text)
+    cmap, match = _resolve(store, kind, text, weights)
     goals = _goal_maker(store, clearance)
     conf = confidence(cmap, np.array([match.class_id]))[0]
     order = rank_by_confidence(conf[None])[0][:top]
@@ -104,7 +115,11 @@ def query(
         for r, c in enumerate(order)
     ]
     if as_json:
-        typer.echo(json.dumps({"query": text, "class": match.names[0], "candidates": rows}))
+        typer.echo(
+            json.dumps(
+                {"query": text, "class": match.names[0], "method": match.method, "candidates": rows}
+            )
+        )
         return
     typer.echo(f"{kind} map, class {match.names[0]!r}: {cmap.num_candidates} candidates")
     typer.echo(
@@ -144,6 +159,7 @@ def replan(
     ] = 1.0,
     seed: Annotated[int, typer.Option(help="Seed of the random strategies.")] = 0,
     clearance: ClearanceOpt = GoalConfig.clearance,
+    weights: WeightsOpt = None,
 ) -> None:
     """The next candidate to try for TEXT after the --visited ones (JSON on stdout), with its
     goal pose (``geometry_msgs/PoseStamped`` in the map frame, facing the object)."""
@@ -152,7 +168,7 @@ def replan(
     from replan import next_goal
 
     ids, places = _visited(visited or [])
-    cmap, match = _resolve(store, kind, text)
+    cmap, match = _resolve(store, kind, text, weights)
     goals = _goal_maker(store, clearance)
     choice = next_goal(
         cmap, match.class_id, ids, strategy=strategy, criterion=criterion,
@@ -163,6 +179,7 @@ def replan(
     out["position"] = [float(v) for v in cmap.positions[choice.candidate]] if found else None
     out["goal"] = goals.goal(cmap, choice.candidate).as_dict() if found else None
     out["class"] = match.names[0]
+    out["method"] = match.method
     typer.echo(json.dumps(out))
 
 

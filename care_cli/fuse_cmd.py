@@ -22,7 +22,9 @@ RrdOpt = Annotated[
 VocabOpt = Annotated[
     str | None,
     typer.Option(
-        "--vocabulary", help="Comma-separated class names (default: the store's cached names)."
+        "--vocabulary",
+        help="A bundled vocabulary name, a file, or comma-separated class names (default: "
+        "the store's cached names).",
     ),
 ]
 
@@ -45,9 +47,9 @@ fuse_app = typer.Typer(
 
 
 def _vocabulary(value: str | None) -> tuple[str, ...] | None:
-    if value is None:
-        return None
-    return tuple(name.strip() for name in value.split(",") if name.strip())
+    from care.vocab import vocabulary_option
+
+    return None if value is None else vocabulary_option(value)
 
 
 @fuse_app.command("grid")

@@ -30,7 +30,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from care.encoders import Encoder, EncoderOptions, make_encoder
+from care.encoders import Encoder
 from care.errors import FuseError
 from care.store import Store, write_table_atomic
 from fuse.measures import DEFAULT_LOGIT_SCALE, candidate_metadata, list_column
@@ -207,7 +207,10 @@ def _is_current(store: Store, config: InstanceConfig, vocabulary: tuple[str, ...
 
 
 def _store_encoder(store: Store, config: InstanceConfig) -> Encoder:
-    return make_encoder(store.encoder.name, EncoderOptions(batch_size=config.batch_size))
+    """The model that made the store's features (its recorded weights and options)."""
+    from care.encoders.record import encoder_for_store
+
+    return encoder_for_store(store.path, batch_size=config.batch_size)
 
 
 def _per_view_features(
@@ -278,8 +281,8 @@ def build_instances(
         store_path: the feature store directory.
         config: the build settings (default :class:`InstanceConfig`).
         rrd: also log the map to this Rerun file (:mod:`fuse.viz_instances`).
-        encoder: the encoder for ``features="crops"``; default: the store's encoder by
-            name with default options.
+        encoder: the encoder for ``features="crops"``; default: the store's own model,
+            rebuilt from its record (:func:`care.encoders.record.encoder_for_store`).
 
     Returns the path of ``instances.parquet``.
     """

@@ -207,13 +207,23 @@ def next_goal(
 ) -> Choice:
     """The next candidate to try for ``query`` after the ``visited`` (failed) ones.
 
+    ``query`` is a class id, a class name or free text, resolved exactly as ``care query``
+    does (:func:`query.openvocab.open_query`: text the vocabulary lacks joins it through the
+    store's own text encoder).
+
     With nothing visited this is the first attempt (max confidence); afterwards ``strategy``
     over ``criterion``'s top-k set among unvisited candidates. ``exclude_radius`` (grid only,
     default 1 m) also skips cells near failed ones. ``visited_at``: map positions (x, y) the
     robot went to without finding the object; the candidates within the exclusion radius of
     one (1 m by default, for instances too) count as visited.
     """
-    y = cmap.class_id(query) if isinstance(query, str) else int(query)
+    if isinstance(query, str):
+        from query.openvocab import open_query
+
+        cmap, match = open_query(cmap, query)
+        y = match.class_id
+    else:
+        y = int(query)
     conf = class_confidence(cmap, np.array([y]))
     visited_ids = np.asarray(visited, dtype=np.int64).reshape(-1)
     if visited_ids.size and (visited_ids.min() < 0 or visited_ids.max() >= cmap.num_candidates):

@@ -217,8 +217,11 @@ def test_next_goal_live_api() -> None:
     assert next_goal(cmap, 0, [0, 2, 3]).candidate == -1
     with pytest.raises(ReplanError, match="no further attempt"):
         next_goal(cmap, "chair", [0], strategy="no_replan")  # its one attempt was made
-    with pytest.raises(QueryError, match="not a class"):
-        next_goal(cmap, "couch", [])
+    # free text resolves as in `care query`: an in-memory map has no store text side, so the
+    # sentence model maps it to the nearest class
+    assert next_goal(cmap, "couch", []) == next_goal(cmap, "sofa", [])
+    with pytest.raises(QueryError, match="empty"):
+        next_goal(cmap, "  ", [])
     with pytest.raises(ReplanError, match="unknown replan strategy"):
         next_goal(cmap, "chair", [0], strategy="best")
 
