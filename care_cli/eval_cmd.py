@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Annotated, NoReturn
+from typing import Annotated, Any, NoReturn
 
 import typer
 
@@ -67,38 +67,64 @@ WeightsOpt = Annotated[
 ]
 
 
-def _resolve(store: Path, kind: str, text: str, weights: Path | None = None) -> tuple:
-    """The map and the class the text names in it: a vocabulary class, or free text joining
-    the vocabulary through the store's own text encoder (the mapping is printed)."""
+def _resolve(store: Path, kind: str, text: str, weights: Path | None = None) -> Any:
+    """The map's :class:`query.openvocab.QueryTarget` for the text: a vocabulary class, or
+    free text joining the vocabulary through the store's own text encoder (printed)."""
     from query import load_map
     from query.openvocab import open_query
 
-    cmap, match = open_query(load_map(store, kind, weights=weights), text)  # type: ignore[arg-type]
-    if match.method != "vocabulary":
-        typer.echo(f"query {match.describe()}", err=True)
-    return cmap, match
+    target = open_query(load_map(store, kind, weights=weights), text)  # type: ignore[arg-type]
+    if target.match.method != "vocabulary":
+        typer.echo(f"query {target.match.describe()}", err=True)
+    return target
 
 
 def query(
     store: StoreArg,
-    text: TextArg,
+    text: Annotated[
+        str | None,
+        typer.Argument(help="What to look for: a class name or free text (not with --batch)."),
+    ] = None,
     kind: MapOpt = "instances",
     top: Annotated[int, typer.Option(help="How many candidates to list.")] = 10,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
     clearance: ClearanceOpt = GoalConfig.clearance,
     weights: WeightsOpt = None,
+    batch: Annotated[
+        Path | None,
+        typer.Option(
+            help="Answer many queries at once: a text file (one query a line) or a CSV with a "
+            "'query' column and optional 'visited' places 'x,y;x,y'. Writes --out."
+        ),
+    ] = None,
+    out: Annotated[
+        Path | None,
+        typer.Option(help="Parquet table of a --batch run (default: BATCH.answers.parquet)."),
+    ] = None,
+    k: Annotated[int, typer.Option("-k", help="--batch: size of the candidate sets.")] = 4,
+    attempts: Annotated[int, typer.Option(help="--batch: attempts per sequence.")] = 3,
+    exclude_radius: Annotated[
+        float, typer.Option(help="--batch: radius (m) skipped around a failure or a place.")
+    ] = 1.0,
+    seed: Annotated[int, typer.Option(help="--batch: seed of the random strategies.")] = 0,
 ) -> None:
     """Rank a map's candidates by confidence for TEXT, with their uncertainty measures and a
-    goal pose for each (``geometry_msgs/PoseStamped`` JSON with --json)."""
-    import numpy as np
+    goal pose for each (``geometry_msgs/PoseStamped`` JSON with --json); with --batch, every
+    query's ranking and each strategy's attempt sequence as a Parquet table."""
 
-    from query import confidence, rank_by_confidence
+    from query import rank_by_confidence
 
     if top < 1:
         _fail(f"--top must be at least 1, got {top}")
-    cmap, match = _resolve(store, kind, text, weights)
+    if (batch is None) == (text is None):
+        _fail("give either TEXT or --batch FILE")
+    if batch is not None:
+        _batch(store, kind, batch, out, weights, clearance, top, k, attempts, exclude_radius, seed)
+        return
+    target = _resolve(store, kind, text, weights)
+    cmap, match = target.cmap, target.match
     goals = _goal_maker(store, clearance)
-    conf = confidence(cmap, np.array([match.class_id]))[0]
+    conf = target.confidence()
     order = rank_by_confidence(conf[None])[0][:top]
     rows = [
         {
@@ -168,10 +194,11 @@ def replan(
     from replan import next_goal
 
     ids, places = _visited(visited or [])
-    cmap, match = _resolve(store, kind, text, weights)
+    target = _resolve(store, kind, text, weights)
+    cmap, match = target.cmap, target.match
     goals = _goal_maker(store, clearance)
     choice = next_goal(
-        cmap, match.class_id, ids, strategy=strategy, criterion=criterion,
+        cmap, target, ids, strategy=strategy, criterion=criterion,
         k=k, exclude_radius=exclude_radius, seed=seed, visited_at=places,
     )  # fmt: skip
     out = dataclasses.asdict(choice)
@@ -181,6 +208,42 @@ def replan(
     out["class"] = match.names[0]
     out["method"] = match.method
     typer.echo(json.dumps(out))
+
+
+def _batch(
+    store: Path,
+    kind: str,
+    batch: Path,
+    out: Path | None,
+    weights: Path | None,
+    clearance: float,
+    top: int,
+    k: int,
+    attempts: int,
+    exclude_radius: float,
+    seed: int,
+) -> None:
+    """``care query --batch``: read the queries, answer them all, write one table."""
+    import time
+
+    from care.store import write_table_atomic
+    from query import load_map
+    from replan.batch import BatchConfig, plan_batch, read_queries
+
+    config = BatchConfig(k=k, attempts=attempts, top=top, exclude_radius=exclude_radius, seed=seed)
+    queries = read_queries(batch)
+    if not queries:
+        _fail(f"{batch}: no queries in it")
+    out = out or batch.with_name(f"{batch.stem}.answers.parquet")
+    cmap = load_map(store, kind, weights=weights)  # type: ignore[arg-type]
+    start = time.perf_counter()
+    table = plan_batch(cmap, queries, config, goals=_goal_maker(store, clearance), progress=True)
+    elapsed = time.perf_counter() - start
+    write_table_atomic(table, out)
+    typer.echo(
+        f"{len(queries)} queries over {cmap.num_candidates} {kind} candidates in {elapsed:.2f} s "
+        f"({1000 * elapsed / len(queries):.2f} ms a query); wrote {table.num_rows} rows to {out}"
+    )
 
 
 def _visited(values: list[str]) -> tuple[list[int], list[tuple[float, float]]]:

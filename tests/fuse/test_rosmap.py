@@ -140,3 +140,26 @@ def test_cli_query_and_replan_return_goal_poses(tmp_path: Path) -> None:
     assert bad.returncode == 1
     assert bad.stderr.count("\n") == 1
     assert "--visited" in bad.stderr
+
+
+def test_cli_batch_writes_one_table(tmp_path: Path) -> None:
+    import polars as pl
+
+    store = _store(tmp_path / "s")
+    build_grid(store, GridConfig(cell_size=0.05))
+    queries = tmp_path / "q.csv"
+    queries.write_text('query,visited\nchair,\ntable,"0.3,-0.2"\nchair,\n')
+    run = [sys.executable, "-m", "care_cli.main", "query", str(store), "--map", "grid"]
+    done = subprocess.run(
+        [*run, "--batch", str(queries), "-k", "2"], capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "ms a query" in done.stdout
+    table = pl.read_parquet(tmp_path / "q.answers.parquet")
+    assert set(table["query_index"]) == {0, 1, 2}
+    assert {"ranking", "min_stderr", "max_confidence"} <= set(table["strategy"])
+    first = table.filter((pl.col("strategy") == "ranking") & (pl.col("attempt") == 1))
+    assert first["goal_approach"].to_list() == [True] * 3
+    neither = subprocess.run(run, capture_output=True, text=True)
+    assert neither.returncode == 1
+    assert "--batch" in neither.stderr
