@@ -50,6 +50,7 @@ from care.store import (
 )
 from fuse.accumulate import CandidateSums
 from fuse.cells import CellIndex, ViewSamples, unpack_cells, view_samples
+from fuse.frame import check_height_band, ensure_map_frame, store_stamp
 from fuse.layout import CELLS_TABLE, GridLayout
 from fuse.measures import DEFAULT_LOGIT_SCALE, candidate_metadata, list_column, to_float16
 from fuse.rosmap import occupancy_image, write_ros_map
@@ -173,7 +174,7 @@ def _is_current(store: Store, config: GridConfig, vocabulary: tuple[str, ...]) -
     md = pq.read_schema(cells).metadata or {}
     return (
         md.get(b"care.grid.config") == config.fingerprint().encode()
-        and md.get(b"care.store.created") == str(store.meta.get("created_unix")).encode()
+        and md.get(b"care.store.created") == store_stamp(store)
         and md.get(b"care.vocabulary") == json.dumps(list(vocabulary)).encode()
     )
 
@@ -286,10 +287,12 @@ def build_grid(store_path: Path, config: GridConfig | None = None, rrd: Path | N
     ``rrd``: also log the grid layers to this Rerun file (:mod:`fuse.viz_grid`).
     """
     config = config or GridConfig()
+    ensure_map_frame(store_path)  # the gravity-aligned frame every pose is read in
     store = Store(store_path)
     vocabulary, text = vocabulary_text(store, config.vocabulary)
     cells_path = store.table_path(CELLS_TABLE)
     if not _is_current(store, config, vocabulary):
+        check_height_band(store, config.z_min, config.z_max)  # before any work
         views_path = store.table_path(CELL_VIEWS_TABLE)
         tmp = views_path.with_name(f".{views_path.name}.tmp-{os.getpid()}")
         try:
@@ -306,7 +309,7 @@ def build_grid(store_path: Path, config: GridConfig | None = None, rrd: Path | N
                 **candidate_metadata(vocabulary, config.logit_scale, store.encoder.name),
                 **layout.metadata(),
                 b"care.grid.config": config.fingerprint().encode(),
-                b"care.store.created": str(store.meta.get("created_unix")).encode(),
+                b"care.store.created": store_stamp(store),
             }
             tmp.replace(views_path)  # per-view table first: a current cells.parquet implies it
             write_table_atomic(cells, cells_path, metadata)

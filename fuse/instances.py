@@ -33,6 +33,7 @@ import pyarrow.parquet as pq
 from care.encoders import Encoder
 from care.errors import FuseError
 from care.store import Store, write_table_atomic
+from fuse.frame import ensure_map_frame, store_stamp
 from fuse.measures import DEFAULT_LOGIT_SCALE, candidate_metadata, list_column
 from fuse.pointcloud import (
     SceneCloud,
@@ -169,10 +170,6 @@ class InstanceConfig:
         return json.dumps(fields, sort_keys=True)
 
 
-def _store_stamp(store: Store) -> bytes:
-    return str(store.meta.get("created_unix")).encode()
-
-
 def _scene_cloud(store: Store, config: InstanceConfig) -> tuple[SceneCloud, dict | None]:
     """The scene cloud, reused from ``scene_points.parquet`` when it is current.
 
@@ -181,7 +178,7 @@ def _scene_cloud(store: Store, config: InstanceConfig) -> tuple[SceneCloud, dict
     """
     path = store.table_path(SCENE_POINTS_TABLE)
     key = config.fingerprint(_CLOUD_FIELDS).encode()
-    meta = {b"care.cloud.config": key, b"care.store.created": _store_stamp(store)}
+    meta = {b"care.cloud.config": key, b"care.store.created": store_stamp(store)}
     if path.is_file() and not config.overwrite:
         md = pq.read_schema(path).metadata or {}
         if all(md.get(k) == v for k, v in meta.items()):
@@ -201,7 +198,7 @@ def _is_current(store: Store, config: InstanceConfig, vocabulary: tuple[str, ...
     md = pq.read_schema(paths[0]).metadata or {}
     return (
         md.get(b"care.instances.config") == config.fingerprint().encode()
-        and md.get(b"care.store.created") == _store_stamp(store)
+        and md.get(b"care.store.created") == store_stamp(store)
         and md.get(b"care.vocabulary") == json.dumps(list(vocabulary)).encode()
     )
 
@@ -287,6 +284,7 @@ def build_instances(
     Returns the path of ``instances.parquet``.
     """
     config = config or InstanceConfig()
+    ensure_map_frame(store_path)  # the gravity-aligned frame every pose is read in
     store = Store(store_path)
     vocabulary, text = vocabulary_text(store, config.vocabulary)
     out = store.table_path(INSTANCES_TABLE)
@@ -324,7 +322,7 @@ def build_instances(
         meta = {
             **candidate_metadata(vocabulary, config.logit_scale, store.encoder.name),
             b"care.instances.config": config.fingerprint().encode(),
-            b"care.store.created": _store_stamp(store),
+            b"care.store.created": store_stamp(store),
         }
         # Every table is staged and renamed into place at the end, the instances last: a
         # failed build leaves the previous map whole (the cloud, the per-view rows and the

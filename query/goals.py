@@ -4,7 +4,9 @@ A candidate is a place where the object may be (a cell centre, an instance centr
 cannot drive *into* it. :class:`GoalMaker` turns a candidate into a
 ``geometry_msgs/PoseStamped``-shaped goal:
 
-- ``header.frame_id``: the store's world frame (the frame the poses and maps are in);
+- ``header.frame_id``: the store's world frame, or ``care_map`` when the store's
+  gravity-aligned map frame differs from it (then the goal also comes in the world frame, with
+  ``map_from_world``);
 - ``header.stamp``: the stamp of the last view fused into the map (the map's time);
 - ``pose.position``: an *approach point* on the floor (z = 0): the free cell nearest to the
   object that keeps ``clearance`` metres from every obstacle, searched within ``reach`` of the
@@ -29,11 +31,25 @@ import numpy as np
 import pyarrow.parquet as pq
 
 from care.errors import QueryError
-from care.store import read_table
+from care.mapframe import MapFrame
+from care.store import MAP_FRAME_FILE, read_table
 from fuse.layout import CELLS_TABLE, GridLayout
 from query.map import CandidateMap
 
-__all__ = ["FreeSpace", "Goal", "GoalConfig", "GoalMaker"]
+__all__ = ["MAP_FRAME_ID", "FreeSpace", "Goal", "GoalConfig", "GoalMaker"]
+
+MAP_FRAME_ID = "care_map"
+"""``frame_id`` of goals when the store's gravity-aligned map frame is not its world frame
+(publish ``map_from_world`` as a static transform to use them, or take ``world_pose_stamped``)."""
+
+
+def _map_frame(store: Path) -> np.ndarray | None:
+    """The store's ``map_from_world``, None when the map frame is the world frame."""
+    path = store / MAP_FRAME_FILE
+    if not path.is_file():
+        return None
+    frame = MapFrame.from_json(json.loads(path.read_text())["frame"])
+    return None if frame.is_identity else frame.map_from_world
 
 
 @dataclass(frozen=True)
@@ -73,32 +89,53 @@ class Goal:
     clearance: float | None
     """Distance (m) from ``position`` to the nearest obstacle cell; None without a grid."""
 
-    def pose_stamped(self) -> dict:
-        """The goal as ``geometry_msgs/PoseStamped`` JSON (ROS 2 field names)."""
+    map_from_world: np.ndarray | None = None
+    """(4, 4) the store's map frame (None: the map frame is the recording's world frame)."""
+    world_frame: str = "map"
+    """The recording's world frame name."""
+
+    def pose_matrix(self) -> np.ndarray:
+        """(4, 4) the goal pose in the map frame: at ``position``, yawed by ``yaw`` about z."""
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        out = np.eye(4)
+        out[:2, :2] = [[c, -s], [s, c]]
+        out[:3, 3] = self.position
+        return out
+
+    def pose_stamped(self, *, in_world: bool = False) -> dict:
+        """The goal as ``geometry_msgs/PoseStamped`` JSON (ROS 2 field names), in the map
+        frame or (``in_world``) in the recording's world frame."""
+        pose, frame_id = self.pose_matrix(), self.frame_id
+        if in_world and self.map_from_world is not None:
+            pose, frame_id = np.linalg.solve(self.map_from_world, pose), self.world_frame
+        from scipy.spatial.transform import Rotation
+
+        qx, qy, qz, qw = Rotation.from_matrix(pose[:3, :3]).as_quat()
         sec, nanosec = divmod(int(self.stamp_ns), 1_000_000_000)
-        x, y, z = self.position
+        x, y, z = (float(v) for v in pose[:3, 3])
         return {
-            "header": {"frame_id": self.frame_id, "stamp": {"sec": sec, "nanosec": nanosec}},
+            "header": {"frame_id": frame_id, "stamp": {"sec": sec, "nanosec": nanosec}},
             "pose": {
                 "position": {"x": x, "y": y, "z": z},
-                "orientation": {
-                    "x": 0.0,
-                    "y": 0.0,
-                    "z": math.sin(self.yaw / 2),
-                    "w": math.cos(self.yaw / 2),
-                },
+                "orientation": {"x": float(qx), "y": float(qy), "z": float(qz), "w": float(qw)},
             },
         }
 
     def as_dict(self) -> dict:
-        """JSON of the goal: the PoseStamped plus the target and how the point was found."""
-        return {
+        """JSON of the goal: the PoseStamped (and, where the map frame is not the world frame,
+        the same goal in the world frame and the transform), the target and how the point was
+        found."""
+        out = {
             "pose_stamped": self.pose_stamped(),
             "target": list(self.target),
             "yaw": self.yaw,
             "approach": self.approach,
             "clearance": self.clearance,
         }
+        if self.map_from_world is not None:
+            out["world_pose_stamped"] = self.pose_stamped(in_world=True)
+            out["map_from_world"] = self.map_from_world.reshape(-1).tolist()
+        return out
 
 
 @dataclass(frozen=True)
@@ -187,6 +224,10 @@ class GoalMaker:
     stamp_ns: int
     free_space: FreeSpace | None
     config: GoalConfig = GoalConfig()
+    map_from_world: np.ndarray | None = None
+    """The store's map frame when it is not the world frame (goals then also come in the world
+    frame)."""
+    world_frame: str = "map"
 
     @classmethod
     def from_store(cls, store: Path, config: GoalConfig | None = None) -> GoalMaker:
@@ -199,11 +240,15 @@ class GoalMaker:
         stamps = (
             read_table(views, ["stamp_ns"]).column("stamp_ns").to_numpy() if views.is_file() else []
         )
+        world = str(meta.get("world_frame") or "map")
+        frame = _map_frame(store)
         return cls(
-            frame_id=str(meta.get("world_frame") or "map"),
+            frame_id=world if frame is None else MAP_FRAME_ID,
             stamp_ns=int(np.max(stamps)) if len(stamps) else 0,
             free_space=FreeSpace.from_store(store),
             config=config or GoalConfig(),
+            map_from_world=frame,
+            world_frame=world,
         )
 
     def goal(self, cmap: CandidateMap, candidate: int) -> Goal:
@@ -214,7 +259,13 @@ class GoalMaker:
         target = tuple(float(v) for v in cmap.positions[candidate])
         found = self.free_space.approach(target[:2], self.config) if self.free_space else None
         if found is None:
-            return Goal(candidate, self.frame_id, self.stamp_ns, target, target, 0.0, False, None)
+            return Goal(
+                candidate, self.frame_id, self.stamp_ns, target, target, 0.0, False, None,
+                self.map_from_world, self.world_frame,
+            )  # fmt: skip
         x, y, clear = found
         yaw = math.atan2(target[1] - y, target[0] - x)
-        return Goal(candidate, self.frame_id, self.stamp_ns, target, (x, y, 0.0), yaw, True, clear)
+        return Goal(
+            candidate, self.frame_id, self.stamp_ns, target, (x, y, 0.0), yaw, True, clear,
+            self.map_from_world, self.world_frame,
+        )  # fmt: skip
