@@ -35,10 +35,12 @@ from PIL import Image
 
 from care.errors import StoreError
 from care.frames import Frame
+from care.mapframe import MapFrame
 
 __all__ = [
     "EXTRA_IMAGES",
     "FEATURES_SCHEMA",
+    "MAP_FRAME_FILE",
     "SCHEMA_VERSION",
     "TEXT_SCHEMA",
     "VIEWS_SCHEMA",
@@ -400,6 +402,15 @@ class StoreWriter:
             shutil.rmtree(self.tmp)
 
 
+def _in_frame(to_map: np.ndarray | None, cam_to_world: list[float]) -> np.ndarray:
+    pose = np.asarray(cam_to_world, dtype=np.float64).reshape(4, 4)
+    return pose if to_map is None else to_map @ pose
+
+
+MAP_FRAME_FILE = "map_frame.json"
+"""The store's map frame (:class:`care.mapframe.MapFrame` and the options it was found with)."""
+
+
 class Store:
     """A complete store on disk; opening checks completeness and schema version."""
 
@@ -428,10 +439,26 @@ class Store:
         """The views table (pass ``columns`` to skip the image bytes)."""
         return read_table(self.table_path("views"), columns)
 
-    def poses(self) -> np.ndarray:
-        """(V, 4, 4) camera-to-world poses in view order."""
+    @property
+    def map_frame(self) -> MapFrame:
+        """The store's gravity-aligned map frame (``map_frame.json``, written by the first
+        fusion; the world frame itself until then)."""
+        path = self.path / MAP_FRAME_FILE
+        if not path.is_file():
+            return MapFrame.identity()
+        try:
+            return MapFrame.from_json(json.loads(path.read_text())["frame"])
+        except (OSError, ValueError, KeyError, TypeError) as err:
+            msg = f"{path}: unreadable map frame ({err}); delete it and re-run `care fuse`"
+            raise StoreError(msg) from err
+
+    def poses(self, *, in_map: bool = True) -> np.ndarray:
+        """(V, 4, 4) camera poses in view order: camera-to-map (``in_map``), or camera-to-world
+        as recorded."""
         col = self.views(["cam_to_world"]).column("cam_to_world").combine_chunks()
-        return col.values.to_numpy().reshape(-1, 4, 4)
+        poses = col.values.to_numpy().reshape(-1, 4, 4)
+        frame = self.map_frame if in_map else None
+        return poses if frame is None or frame.is_identity else frame.map_from_world @ poses
 
     def intrinsics(self) -> np.ndarray:
         """(V, 3, 3) intrinsics in view order."""
@@ -439,11 +466,14 @@ class Store:
         return col.values.to_numpy().reshape(-1, 3, 3)
 
     def iter_frames(
-        self, *, batch_size: int = 8, extras: bool = True
+        self, *, batch_size: int = 8, extras: bool = True, in_map: bool = True
     ) -> Iterator[tuple[int, Frame]]:
-        """Decoded ``(view_id, Frame)`` pairs, streamed a row group at a time."""
+        """Decoded ``(view_id, Frame)`` pairs, streamed a row group at a time; poses in the
+        map frame (``in_map``) or the recording's world frame."""
         path = self.table_path("views")
         _check_version(pq.read_schema(path), path)
+        frame = self.map_frame if in_map else MapFrame.identity()
+        to_map = None if frame.is_identity else frame.map_from_world
         pf = pq.ParquetFile(path)
         for batch in pf.iter_batches(batch_size=batch_size):
             for row in batch.to_pylist():
@@ -462,9 +492,7 @@ class Store:
                         rgb=_decode_jpeg(row["rgb_jpeg"]),
                         depth_m=depth,
                         K=np.asarray(row["K"], dtype=np.float64).reshape(3, 3),
-                        cam_to_world=np.asarray(row["cam_to_world"], dtype=np.float64).reshape(
-                            4, 4
-                        ),
+                        cam_to_world=_in_frame(to_map, row["cam_to_world"]),
                         extras=extra,
                     ),
                 )

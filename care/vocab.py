@@ -42,6 +42,7 @@ __all__ = [
     "bundled_vocabularies",
     "load_vocabulary",
     "mpcat40_of",
+    "vocabulary_option",
 ]
 
 BUNDLED_DIR = Path(__file__).resolve().parents[1] / "data" / "vocabularies"
@@ -138,6 +139,19 @@ def mpcat40_of(
         msg = f"{path}: no mpcat40 category for {shown}{more}; pass default='misc' to map them anyway."
         raise EncoderError(msg)
     return result
+
+
+def vocabulary_option(value: str) -> tuple[str, ...]:
+    """What ``--vocabulary`` means in every command: a bundled vocabulary name, a vocabulary
+    file, or comma-separated class names (``chair,sofa,lamp``; one bare name is one class)."""
+    text = value.strip()
+    if text in bundled_vocabularies() or ("," not in text and Path(text).is_file()):
+        return tuple(load_vocabulary(text))
+    names = tuple(dict.fromkeys(n.strip() for n in text.split(",") if n.strip()))
+    if not names:
+        msg = f"--vocabulary {value!r}: give a bundled name, a file, or comma-separated class names"
+        raise EncoderError(msg)
+    return names
 
 
 def _resolve(source: str | Path) -> Path:

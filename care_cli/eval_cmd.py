@@ -8,10 +8,13 @@ options mirror :class:`evaluate.job.EvalConfig`.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any, NoReturn
 
 import typer
+
+from query.goals import GoalConfig, GoalMaker
 
 __all__ = ["register"]
 
@@ -25,6 +28,14 @@ RayOpt = Annotated[
 RayAddressOpt = Annotated[
     str | None,
     typer.Option(help="Address of a running Ray cluster, e.g. ray://head:10001 (implies --ray)."),
+]
+
+ClearanceOpt = Annotated[
+    float,
+    typer.Option(
+        help="Metres a goal's approach point keeps from obstacles (the robot's radius); the "
+        "point is the nearest free grid cell within 1 m of the object."
+    ),
 ]
 
 
@@ -97,31 +108,73 @@ def _ray_target(ray: bool, address: str | None) -> str | bool | None:
     return address or (True if ray else None)
 
 
-def _resolve(store: Path, kind: str, text: str) -> tuple:
-    """The map and the class the text maps to (the mapping is printed unless exact)."""
-    from query import load_map, resolve_text
+WeightsOpt = Annotated[
+    Path | None,
+    typer.Option(
+        help="The store's CLIP weights directory, if it moved since ingest (free text is "
+        "embedded by the store's own model)."
+    ),
+]
 
-    cmap = load_map(store, kind)  # type: ignore[arg-type]
-    match = resolve_text(cmap, text)
-    if match.method != "vocabulary":
-        typer.echo(f"query {match.describe()}")
-    return cmap, match
+
+def _resolve(store: Path, kind: str, text: str, weights: Path | None = None) -> Any:
+    """The map's :class:`query.openvocab.QueryTarget` for the text: a vocabulary class, or
+    free text joining the vocabulary through the store's own text encoder (printed)."""
+    from query import load_map
+    from query.openvocab import open_query
+
+    target = open_query(load_map(store, kind, weights=weights), text)  # type: ignore[arg-type]
+    if target.match.method != "vocabulary":
+        typer.echo(f"query {target.match.describe()}", err=True)
+    return target
 
 
 def query(
     store: StoreArg,
-    text: TextArg,
+    text: Annotated[
+        str | None,
+        typer.Argument(help="What to look for: a class name or free text (not with --batch)."),
+    ] = None,
     kind: MapOpt = "instances",
     top: Annotated[int, typer.Option(help="How many candidates to list.")] = 10,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
+    clearance: ClearanceOpt = GoalConfig.clearance,
+    weights: WeightsOpt = None,
+    batch: Annotated[
+        Path | None,
+        typer.Option(
+            help="Answer many queries at once: a text file (one query a line) or a CSV with a "
+            "'query' column and optional 'visited' places 'x,y;x,y'. Writes --out."
+        ),
+    ] = None,
+    out: Annotated[
+        Path | None,
+        typer.Option(help="Parquet table of a --batch run (default: BATCH.answers.parquet)."),
+    ] = None,
+    k: Annotated[int, typer.Option("-k", help="--batch: size of the candidate sets.")] = 4,
+    attempts: Annotated[int, typer.Option(help="--batch: attempts per sequence.")] = 3,
+    exclude_radius: Annotated[
+        float, typer.Option(help="--batch: radius (m) skipped around a failure or a place.")
+    ] = 1.0,
+    seed: Annotated[int, typer.Option(help="--batch: seed of the random strategies.")] = 0,
 ) -> None:
-    """Rank a map's candidates by confidence for TEXT, with their uncertainty measures."""
-    import numpy as np
+    """Rank a map's candidates by confidence for TEXT, with their uncertainty measures and a
+    goal pose for each (``geometry_msgs/PoseStamped`` JSON with --json); with --batch, every
+    query's ranking and each strategy's attempt sequence as a Parquet table."""
 
-    from query import confidence, rank_by_confidence
+    from query import rank_by_confidence
 
-    cmap, match = _resolve(store, kind, text)
-    conf = confidence(cmap, np.array([match.class_id]))[0]
+    if top < 1:
+        _fail(f"--top must be at least 1, got {top}")
+    if (batch is None) == (text is None):
+        _fail("give either TEXT or --batch FILE")
+    if batch is not None:
+        _batch(store, kind, batch, out, weights, clearance, top, k, attempts, exclude_radius, seed)
+        return
+    target = _resolve(store, kind, text, weights)
+    cmap, match = target.cmap, target.match
+    goals = _goal_maker(store, clearance)
+    conf = target.confidence()
     order = rank_by_confidence(conf[None])[0][:top]
     rows = [
         {
@@ -133,18 +186,28 @@ def query(
             "pwkl": float(cmap.pwkl[c]),
             "num_views": int(cmap.num_views[c]),
             "position": [round(float(v), 3) for v in cmap.positions[c]],
+            "goal": goals.goal(cmap, int(c)).as_dict(),
         }
         for r, c in enumerate(order)
     ]
     if as_json:
-        typer.echo(json.dumps({"query": text, "class": match.names[0], "candidates": rows}))
+        typer.echo(
+            json.dumps(
+                {"query": text, "class": match.names[0], "method": match.method, "candidates": rows}
+            )
+        )
         return
     typer.echo(f"{kind} map, class {match.names[0]!r}: {cmap.num_candidates} candidates")
-    typer.echo("rank  cand  confidence  entropy   stderr     pwkl  views  position")
+    typer.echo(
+        f"rank  cand  confidence  entropy   stderr     pwkl  views  position  "
+        f"goal in {goals.frame_id!r} (x, y, yaw deg)"
+    )
     for r in rows:
+        pose = r["goal"]["pose_stamped"]["pose"]["position"]
         typer.echo(
             f"{r['rank']:>4} {r['candidate']:>5} {r['confidence']:>11.4g} {r['entropy']:>8.3f} "
-            f"{r['stderr']:>8.4g} {r['pwkl']:>8.4g} {r['num_views']:>6}  {r['position']}"
+            f"{r['stderr']:>8.4g} {r['pwkl']:>8.4g} {r['num_views']:>6}  {r['position']}  "
+            f"({pose['x']:.2f}, {pose['y']:.2f}, {math.degrees(r['goal']['yaw']):.0f})"
         )
 
 
@@ -152,8 +215,13 @@ def replan(
     store: StoreArg,
     text: TextArg,
     visited: Annotated[
-        str, typer.Option(help="Comma-separated candidate ids already tried (failed).")
-    ] = "",
+        list[str] | None,
+        typer.Option(
+            help="Where the robot already looked without finding it (repeat the option): a "
+            "candidate id (12) or a map position x,y in metres (1.5,-2.0); the candidates within "
+            "--exclude-radius of a position count as visited."
+        ),
+    ] = None,
     strategy: Annotated[
         str, typer.Option(help="Replan strategy (see `care eval --help`).")
     ] = "min_stderr",
@@ -166,23 +234,95 @@ def replan(
         float, typer.Option(help="Grid: skip cells within this distance (m) of failed ones.")
     ] = 1.0,
     seed: Annotated[int, typer.Option(help="Seed of the random strategies.")] = 0,
+    clearance: ClearanceOpt = GoalConfig.clearance,
+    weights: WeightsOpt = None,
 ) -> None:
-    """The next candidate to try for TEXT after the --visited ones (JSON on stdout)."""
+    """The next candidate to try for TEXT after the --visited ones (JSON on stdout), with its
+    goal pose (``geometry_msgs/PoseStamped`` in the map frame, facing the object)."""
     import dataclasses
 
     from replan import next_goal
 
-    cmap, match = _resolve(store, kind, text)
+    ids, places = _visited(visited or [])
+    target = _resolve(store, kind, text, weights)
+    cmap, match = target.cmap, target.match
+    goals = _goal_maker(store, clearance)
     choice = next_goal(
-        cmap, match.class_id, list(_ints(visited)), strategy=strategy, criterion=criterion,
-        k=k, exclude_radius=exclude_radius, seed=seed,
+        cmap, target, ids, strategy=strategy, criterion=criterion,
+        k=k, exclude_radius=exclude_radius, seed=seed, visited_at=places,
     )  # fmt: skip
     out = dataclasses.asdict(choice)
-    out["position"] = (
-        [float(v) for v in cmap.positions[choice.candidate]] if choice.candidate >= 0 else None
-    )
+    found = choice.candidate >= 0
+    out["position"] = [float(v) for v in cmap.positions[choice.candidate]] if found else None
+    out["goal"] = goals.goal(cmap, choice.candidate).as_dict() if found else None
     out["class"] = match.names[0]
+    out["method"] = match.method
     typer.echo(json.dumps(out))
+
+
+def _batch(
+    store: Path,
+    kind: str,
+    batch: Path,
+    out: Path | None,
+    weights: Path | None,
+    clearance: float,
+    top: int,
+    k: int,
+    attempts: int,
+    exclude_radius: float,
+    seed: int,
+) -> None:
+    """``care query --batch``: read the queries, answer them all, write one table."""
+    import time
+
+    from care.store import write_table_atomic
+    from query import load_map
+    from replan.batch import BatchConfig, plan_batch, read_queries
+
+    config = BatchConfig(k=k, attempts=attempts, top=top, exclude_radius=exclude_radius, seed=seed)
+    queries = read_queries(batch)
+    if not queries:
+        _fail(f"{batch}: no queries in it")
+    out = out or batch.with_name(f"{batch.stem}.answers.parquet")
+    cmap = load_map(store, kind, weights=weights)  # type: ignore[arg-type]
+    start = time.perf_counter()
+    table = plan_batch(cmap, queries, config, goals=_goal_maker(store, clearance), progress=True)
+    elapsed = time.perf_counter() - start
+    write_table_atomic(table, out)
+    typer.echo(
+        f"{len(queries)} queries over {cmap.num_candidates} {kind} candidates in {elapsed:.2f} s "
+        f"({1000 * elapsed / len(queries):.2f} ms a query); wrote {table.num_rows} rows to {out}"
+    )
+
+
+def _visited(values: list[str]) -> tuple[list[int], list[tuple[float, float]]]:
+    """``--visited`` values: candidate ids and map positions ``x,y``."""
+    ids: list[int] = []
+    places: list[tuple[float, float]] = []
+    for value in values:
+        parts = [p.strip() for p in value.split(",")]
+        try:
+            if len(parts) == 1:
+                ids.append(int(parts[0]))
+                continue
+            x, y = (float(p) for p in parts)
+        except ValueError:
+            _fail(f"--visited {value!r}: give a candidate id (12) or a map position x,y (1.5,-2.0)")
+        if not (math.isfinite(x) and math.isfinite(y)):
+            _fail(f"--visited {value!r}: a position must be finite x,y in metres")
+        places.append((x, y))
+    return ids, places
+
+
+def _goal_maker(store: Path, clearance: float) -> GoalMaker:
+    return GoalMaker.from_store(store, GoalConfig(clearance=clearance))
+
+
+def _fail(message: str) -> NoReturn:
+    from care.errors import QueryError
+
+    raise QueryError(message)
 
 
 def eval_(

@@ -12,6 +12,8 @@ from typing import Annotated, Any
 
 import typer
 
+from care.mapframe import UpAxis
+
 __all__ = ["register"]
 
 StoreArg = Annotated[Path, typer.Argument(help="Feature store directory written by `care ingest`.")]
@@ -22,7 +24,9 @@ RrdOpt = Annotated[
 VocabOpt = Annotated[
     str | None,
     typer.Option(
-        "--vocabulary", help="Comma-separated class names (default: the store's cached names)."
+        "--vocabulary",
+        help="A bundled vocabulary name, a file, or comma-separated class names (default: "
+        "the store's cached names).",
     ),
 ]
 
@@ -44,10 +48,33 @@ fuse_app = typer.Typer(
 )
 
 
+UpAxisOpt = Annotated[
+    UpAxis | None,
+    typer.Option(
+        help="Which world axis points up (auto: from the floor plane). Default: the frame the "
+        "store already has, found automatically at its first fusion.",
+        case_sensitive=False,
+    ),
+]
+FloorOpt = Annotated[
+    float | None,
+    typer.Option(help="Floor height (m) along the up axis; default: measured from the depth."),
+]
+
+
+def _map_frame(store: Path, up_axis: UpAxis | None, floor_z: float | None) -> None:
+    """Find the store's map frame anew when asked (a later build then uses it), and say it."""
+    from fuse.frame import ensure_map_frame
+
+    if up_axis is None and floor_z is not None:
+        up_axis = UpAxis.AUTO
+    typer.echo(ensure_map_frame(store, up_axis, floor_z).describe())
+
+
 def _vocabulary(value: str | None) -> tuple[str, ...] | None:
-    if value is None:
-        return None
-    return tuple(name.strip() for name in value.split(",") if name.strip())
+    from care.vocab import vocabulary_option
+
+    return None if value is None else vocabulary_option(value)
 
 
 @fuse_app.command("grid")
@@ -73,11 +100,15 @@ def grid(
     overwrite: OverwriteOpt = False,
     recompute: _recompute_opt("cell_views.parquet") = False,
     rrd: RrdOpt = None,
+    up_axis: UpAxisOpt = None,
+    floor_z: FloorOpt = None,
 ) -> None:
-    """Fuse every view's dense features into occupied top-down cells (cells.parquet)."""
+    """Fuse every view's dense features into occupied top-down cells (cells.parquet), in
+    the store's gravity-aligned map frame (z up, floor at 0), also written as map.pgm/.yaml."""
     from fuse.grid import GridConfig, build_grid
     from fuse.recompute import recompute_grid
 
+    _map_frame(store, up_axis, floor_z)
     if recompute:
         path = recompute_grid(store, _vocabulary(vocabulary), logit_scale)
         if rrd is not None:
@@ -141,10 +172,14 @@ def instances(
         ),
     ] = None,
     rrd: RrdOpt = None,
+    up_axis: UpAxisOpt = None,
+    floor_z: FloorOpt = None,
 ) -> None:
-    """Build the OpenMask3D-style instance map (instances.parquet)."""
+    """Build the OpenMask3D-style instance map (instances.parquet), in the store's
+    gravity-aligned map frame."""
     from fuse.instances import InstanceConfig, build_instances, recompute_instances
 
+    _map_frame(store, up_axis, floor_z)
     if recompute:
         path = recompute_instances(store, _vocabulary(vocabulary), logit_scale)
         if rrd is not None:

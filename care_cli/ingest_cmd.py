@@ -121,7 +121,9 @@ def ingest(
     vocabulary: Annotated[
         str | None,
         typer.Option(
-            "--vocabulary", help="Vocabulary name or file whose text embeddings to cache."
+            "--vocabulary",
+            help="Class names whose text embeddings to cache: a bundled vocabulary name, a "
+            "file, or comma-separated names.",
         ),
     ] = None,
     rrd: Annotated[

@@ -18,7 +18,8 @@ cells, never with the number of views. At the end the store gets:
   the streaming pass uses them at full precision, so a recompute matches a fresh build up
   to that rounding (about 1e-3 relative), not bit for bit.
 - ``grid_rgb.png`` and ``grid_obstacles.png``: the same two layers as images for people;
-  row 0 is the largest y (north up), column = ix.
+  row 0 is the largest y (north up), column = ix; and the obstacle layer as a ROS
+  ``map_server`` occupancy map, ``map.pgm`` + ``map.yaml`` (:mod:`fuse.rosmap`).
 
 A finished grid whose config and store match is not rebuilt (``overwrite`` forces it).
 """
@@ -49,7 +50,10 @@ from care.store import (
 )
 from fuse.accumulate import CandidateSums
 from fuse.cells import CellIndex, ViewSamples, unpack_cells, view_samples
+from fuse.frame import check_height_band, ensure_map_frame, store_stamp
+from fuse.layout import CELLS_TABLE, GridLayout
 from fuse.measures import DEFAULT_LOGIT_SCALE, candidate_metadata, list_column, to_float16
+from fuse.rosmap import occupancy_image, write_ros_map
 from fuse.vocabulary import vocabulary_text
 
 __all__ = [
@@ -63,7 +67,6 @@ __all__ = [
     "write_grid_images",
 ]
 
-CELLS_TABLE = "cells"
 CELL_VIEWS_TABLE = "cell_views"
 
 CELL_VIEWS_SCHEMA = pa.schema(
@@ -119,37 +122,6 @@ class GridConfig:
         return json.dumps(fields, sort_keys=True)
 
 
-@dataclass(frozen=True)
-class GridLayout:
-    """Where the occupied cells lie: the grid origin, cell size and the raster shape."""
-
-    cell_size: float
-    origin: tuple[float, float]
-    """World (x, y) of the lower corner of cell (ix, iy) = (0, 0)."""
-    shape: tuple[int, int]
-    """(nx, ny) cells spanned by the occupied cells."""
-
-    @classmethod
-    def from_table(cls, table: pa.Table) -> GridLayout:
-        md = table.schema.metadata or {}
-        try:
-            return cls(
-                float(md[b"care.grid.cell_size"]),
-                tuple(json.loads(md[b"care.grid.origin"])),
-                tuple(json.loads(md[b"care.grid.shape"])),
-            )
-        except KeyError as err:
-            msg = f"cells table lacks grid metadata {err}; rebuild it with `care fuse grid`"
-            raise FuseError(msg) from err
-
-    def metadata(self) -> dict[bytes, bytes]:
-        return {
-            b"care.grid.cell_size": repr(self.cell_size).encode(),
-            b"care.grid.origin": json.dumps(list(self.origin)).encode(),
-            b"care.grid.shape": json.dumps(list(self.shape)).encode(),
-        }
-
-
 def grid_image(
     ix: np.ndarray, iy: np.ndarray, values: np.ndarray, shape: tuple[int, int], fill: float = np.nan
 ) -> np.ndarray:
@@ -202,7 +174,7 @@ def _is_current(store: Store, config: GridConfig, vocabulary: tuple[str, ...]) -
     md = pq.read_schema(cells).metadata or {}
     return (
         md.get(b"care.grid.config") == config.fingerprint().encode()
-        and md.get(b"care.store.created") == str(store.meta.get("created_unix")).encode()
+        and md.get(b"care.store.created") == store_stamp(store)
         and md.get(b"care.vocabulary") == json.dumps(list(vocabulary)).encode()
     )
 
@@ -290,7 +262,8 @@ def _write_png(image: np.ndarray, path: Path) -> None:
 
 
 def write_grid_images(store: Store, cells: pa.Table) -> None:
-    """``grid_rgb.png`` (colour of the highest point; black = empty) and ``grid_obstacles.png``."""
+    """``grid_rgb.png`` (colour of the highest point; black = empty), ``grid_obstacles.png``
+    and the ROS occupancy map ``map.pgm`` + ``map.yaml`` (:mod:`fuse.rosmap`)."""
     layout = GridLayout.from_table(cells)
     ix, iy = cells.column("ix").to_numpy(), cells.column("iy").to_numpy()
     rgb = np.stack([cells.column(c).to_numpy() for c in "rgb"], axis=1)
@@ -302,6 +275,10 @@ def write_grid_images(store: Store, cells: pa.Table) -> None:
         grid_image(ix, iy, occ, layout.shape, fill=128).astype(np.uint8),
         store.path / "grid_obstacles.png",
     )
+    obstacle = cells.column("obstacle").to_numpy(zero_copy_only=False)
+    write_ros_map(
+        occupancy_image(ix, iy, obstacle, layout.shape), layout.cell_size, layout.origin, store.path
+    )
 
 
 def build_grid(store_path: Path, config: GridConfig | None = None, rrd: Path | None = None) -> Path:
@@ -310,10 +287,12 @@ def build_grid(store_path: Path, config: GridConfig | None = None, rrd: Path | N
     ``rrd``: also log the grid layers to this Rerun file (:mod:`fuse.viz_grid`).
     """
     config = config or GridConfig()
+    ensure_map_frame(store_path)  # the gravity-aligned frame every pose is read in
     store = Store(store_path)
     vocabulary, text = vocabulary_text(store, config.vocabulary)
     cells_path = store.table_path(CELLS_TABLE)
     if not _is_current(store, config, vocabulary):
+        check_height_band(store, config.z_min, config.z_max)  # before any work
         views_path = store.table_path(CELL_VIEWS_TABLE)
         tmp = views_path.with_name(f".{views_path.name}.tmp-{os.getpid()}")
         try:
@@ -330,7 +309,7 @@ def build_grid(store_path: Path, config: GridConfig | None = None, rrd: Path | N
                 **candidate_metadata(vocabulary, config.logit_scale, store.encoder.name),
                 **layout.metadata(),
                 b"care.grid.config": config.fingerprint().encode(),
-                b"care.store.created": str(store.meta.get("created_unix")).encode(),
+                b"care.store.created": store_stamp(store),
             }
             tmp.replace(views_path)  # per-view table first: a current cells.parquet implies it
             write_table_atomic(cells, cells_path, metadata)

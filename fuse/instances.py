@@ -30,9 +30,10 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from care.encoders import Encoder, EncoderOptions, make_encoder
+from care.encoders import Encoder
 from care.errors import FuseError
 from care.store import Store, write_table_atomic
+from fuse.frame import ensure_map_frame, store_stamp
 from fuse.measures import DEFAULT_LOGIT_SCALE, candidate_metadata, list_column
 from fuse.pointcloud import (
     SceneCloud,
@@ -169,10 +170,6 @@ class InstanceConfig:
         return json.dumps(fields, sort_keys=True)
 
 
-def _store_stamp(store: Store) -> bytes:
-    return str(store.meta.get("created_unix")).encode()
-
-
 def _scene_cloud(store: Store, config: InstanceConfig) -> tuple[SceneCloud, dict | None]:
     """The scene cloud, reused from ``scene_points.parquet`` when it is current.
 
@@ -181,7 +178,7 @@ def _scene_cloud(store: Store, config: InstanceConfig) -> tuple[SceneCloud, dict
     """
     path = store.table_path(SCENE_POINTS_TABLE)
     key = config.fingerprint(_CLOUD_FIELDS).encode()
-    meta = {b"care.cloud.config": key, b"care.store.created": _store_stamp(store)}
+    meta = {b"care.cloud.config": key, b"care.store.created": store_stamp(store)}
     if path.is_file() and not config.overwrite:
         md = pq.read_schema(path).metadata or {}
         if all(md.get(k) == v for k, v in meta.items()):
@@ -201,13 +198,16 @@ def _is_current(store: Store, config: InstanceConfig, vocabulary: tuple[str, ...
     md = pq.read_schema(paths[0]).metadata or {}
     return (
         md.get(b"care.instances.config") == config.fingerprint().encode()
-        and md.get(b"care.store.created") == _store_stamp(store)
+        and md.get(b"care.store.created") == store_stamp(store)
         and md.get(b"care.vocabulary") == json.dumps(list(vocabulary)).encode()
     )
 
 
 def _store_encoder(store: Store, config: InstanceConfig) -> Encoder:
-    return make_encoder(store.encoder.name, EncoderOptions(batch_size=config.batch_size))
+    """The model that made the store's features (its recorded weights and options)."""
+    from care.encoders.record import encoder_for_store
+
+    return encoder_for_store(store.path, batch_size=config.batch_size)
 
 
 def _per_view_features(
@@ -278,12 +278,13 @@ def build_instances(
         store_path: the feature store directory.
         config: the build settings (default :class:`InstanceConfig`).
         rrd: also log the map to this Rerun file (:mod:`fuse.viz_instances`).
-        encoder: the encoder for ``features="crops"``; default: the store's encoder by
-            name with default options.
+        encoder: the encoder for ``features="crops"``; default: the store's own model,
+            rebuilt from its record (:func:`care.encoders.record.encoder_for_store`).
 
     Returns the path of ``instances.parquet``.
     """
     config = config or InstanceConfig()
+    ensure_map_frame(store_path)  # the gravity-aligned frame every pose is read in
     store = Store(store_path)
     vocabulary, text = vocabulary_text(store, config.vocabulary)
     out = store.table_path(INSTANCES_TABLE)
@@ -321,7 +322,7 @@ def build_instances(
         meta = {
             **candidate_metadata(vocabulary, config.logit_scale, store.encoder.name),
             b"care.instances.config": config.fingerprint().encode(),
-            b"care.store.created": _store_stamp(store),
+            b"care.store.created": store_stamp(store),
         }
         # Every table is staged and renamed into place at the end, the instances last: a
         # failed build leaves the previous map whole (the cloud, the per-view rows and the

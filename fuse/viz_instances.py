@@ -100,7 +100,7 @@ def log_instances(store_path: Path, rrd: Path, *, app_id: str = "care_instances"
     meta = store.views(["view_id", "width", "height", "K", "cam_to_world", "rgb_jpeg"])
     keep = np.isin(meta.column("view_id").to_numpy(), chosen)
     meta = meta.filter(keep)
-    poses = np.asarray(meta.column("cam_to_world").to_pylist()).reshape(-1, 4, 4)
+    poses = store.poses()[keep]  # in the map frame, like the cloud
     Ks = np.asarray(meta.column("K").to_pylist()).reshape(-1, 3, 3)
     ids = meta.column("view_id").to_numpy()
     for j, view_id in enumerate(ids):  # one camera per distinct chosen view

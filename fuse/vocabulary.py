@@ -2,7 +2,7 @@
 
 By default a map uses the class names the store cached at ingest (``text.parquet``). An
 override picks names from that cache; names the cache lacks are encoded by the store's own
-encoder (default options), so the text side always matches the features' space.
+encoder, rebuilt from the record ingest left (:mod:`care.encoders.record`), so the text side always matches the features' space.
 """
 
 from __future__ import annotations
@@ -44,11 +44,11 @@ def vocabulary_text(
 
 
 def _encode(store: Store, names: list[str]) -> np.ndarray:
-    from care.encoders import make_encoder
+    from care.encoders.record import encoder_for_store
 
     encoder_name = store.encoder.name
     try:
-        return np.asarray(make_encoder(encoder_name).encode_text(names), np.float32)
+        return np.asarray(encoder_for_store(store.path).encode_text(names), np.float32)
     except (CareError, ImportError) as err:
         msg = (
             f"{store.path}: cannot embed {names} with the store's encoder {encoder_name!r} "

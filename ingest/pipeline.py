@@ -20,6 +20,7 @@ import numpy as np
 from tqdm import tqdm
 
 from care.encoders import Encoder, EncoderOptions, RecordingContext, make_encoder
+from care.encoders.record import RECORD_KEY, EncoderRecord
 from care.errors import IngestError
 from care.frames import Frame
 from care.store import SCHEMA_VERSION, StoreWriter
@@ -110,9 +111,9 @@ def _up_to_date(config: IngestConfig, fp: str) -> bool:
 def _vocabulary(config: IngestConfig, label_names: tuple[str, ...]) -> list[str]:
     if config.vocabulary is None:
         return list(label_names)
-    from care.vocab import load_vocabulary
+    from care.vocab import vocabulary_option
 
-    return list(load_vocabulary(config.vocabulary))
+    return list(vocabulary_option(config.vocabulary))
 
 
 def _open_logger(config: IngestConfig, frames: RecordingFrames) -> Any:
@@ -164,7 +165,7 @@ def run_ingest(config: IngestConfig, encoder: Encoder | None = None) -> Path:
                 _stream(frames, writer, encoder, config.encoder_options.batch_size, logger, bar)
                 if encoder is not None and vocab:
                     writer.set_text(vocab, encoder.encode_text(vocab))
-                writer.commit(_meta(config, frames, source, fp, vocab))
+                writer.commit(_meta(config, frames, source, fp, vocab, encoder))
         except BaseException:
             if logger is not None:
                 logger.close()
@@ -214,9 +215,14 @@ def _meta(
     source: dict[str, Any],
     fp: str,
     vocab: list[str],
+    encoder: Encoder | None,
 ) -> dict[str, Any]:
     described = frames.describe()
+    record = (
+        None if encoder is None else EncoderRecord.of(encoder, config.encoder_options).as_json()
+    )
     return {
+        RECORD_KEY: record,
         "fingerprint": fp,
         "source": {k: source[k] for k in ("path", "size", "mtime_ns")},
         "topics": described["topics"],

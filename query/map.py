@@ -9,7 +9,9 @@ the recording again. The record maps one-to-one onto the map-table contract of t
 
 from __future__ import annotations
 
+import dataclasses
 import json
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -99,6 +101,9 @@ class CandidateMap:
     """Concatenated scene-point indices of every instance mask."""
     encoder_name: str = ""
     cell_size: float | None = None
+    text_encoder: Callable[[Sequence[str]], np.ndarray] | None = None
+    """The store's own text side for free text (:class:`query.openvocab.StoreText`, set by
+    :func:`load_map`); None for maps built in memory."""
 
     def __post_init__(self) -> None:
         n_cand = len(self.features)
@@ -306,8 +311,14 @@ def _vocabulary_text(store: Path, vocabulary: tuple[str, ...]) -> np.ndarray:
     return emb[[index[name] for name in vocabulary]]
 
 
-def load_map(store: Path, kind: MapKind = "instances") -> CandidateMap:
-    """Read a store's ``instances.parquet`` or ``cells.parquet`` (and ``text.parquet``)."""
+def load_map(
+    store: Path, kind: MapKind = "instances", *, weights: Path | None = None
+) -> CandidateMap:
+    """Read a store's ``instances.parquet`` or ``cells.parquet`` (and ``text.parquet``).
+
+    Free text is embedded by the store's own model (``weights`` if its weights directory
+    moved), loaded at the first free-text query.
+    """
     store = Path(store)
     if kind not in MAP_TABLES:
         msg = f"unknown map kind {kind!r}; choose one of {', '.join(MAP_TABLES)}"
@@ -315,4 +326,7 @@ def load_map(store: Path, kind: MapKind = "instances") -> CandidateMap:
     path = store / f"{MAP_TABLES[kind]}.parquet"
     table = read_table(path)
     vocabulary = tuple(json.loads(_meta(table, "care.vocabulary", path)))
-    return map_from_table(table, _vocabulary_text(store, vocabulary), kind, path=path)
+    from query.openvocab import StoreText
+
+    cmap = map_from_table(table, _vocabulary_text(store, vocabulary), kind, path=path)
+    return dataclasses.replace(cmap, text_encoder=StoreText(store, weights))

@@ -16,7 +16,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from care.errors import ReplanError
-from query.confidence import confidence as class_confidence
 from query.map import MEASURES, CandidateMap
 from replan.strategies import Pick, Situation, Strategy, best_of, candidate_set, get_strategy
 
@@ -25,6 +24,7 @@ __all__ = [
     "Attempts",
     "Choice",
     "available_after",
+    "candidates_near",
     "next_goal",
     "run_attempts",
 ]
@@ -52,6 +52,20 @@ class Attempts:
     def solved(self) -> np.ndarray:
         """(Q,) bool: some attempt succeeded."""
         return self.success.any(axis=1)
+
+
+def candidates_near(cmap: CandidateMap, xy: np.ndarray, radius: float) -> np.ndarray:
+    """Sorted ids of the candidates within ``radius`` m (floor plane) of any position in
+    ``xy`` (P, 2): the candidates a robot that went there has seen not to be the object."""
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    if not np.isfinite(xy).all():
+        msg = "visited positions must be finite x,y in metres"
+        raise ReplanError(msg)
+    pos = cmap.positions[:, :2].astype(np.float64)
+    near = np.zeros(cmap.num_candidates, bool)
+    for p in xy:
+        near |= ((pos - p) ** 2).sum(axis=1) <= radius**2
+    return np.flatnonzero(near)
 
 
 def available_after(
@@ -106,19 +120,23 @@ def run_attempts(
     positions: np.ndarray | None = None,
     exclude_radius: float = 0.0,
     rng: np.random.Generator | None = None,
+    searched: np.ndarray | None = None,
 ) -> Attempts:
     """Play Q episodes: attempt 1 by max confidence, then ``strategy`` on what remains after
     each failure, up to ``attempts`` attempts; an episode stops at its first success.
 
     ``conf``/``success``/``rank`` are (Q, N); ``positions`` (N, 3) turns on the grid's radius
-    exclusion. ``no_replan`` makes one attempt whatever ``attempts`` says.
+    exclusion. ``no_replan`` makes one attempt whatever ``attempts`` says. ``searched``
+    (Q, N) bool: candidates already searched before the episode (places the robot has been);
+    a row with any is already replanning, so its attempt 1 is ``strategy``'s choice too (none
+    for ``no_replan``), as :func:`next_goal` answers after a visit.
     """
     strategy = get_strategy(strategy) if isinstance(strategy, str) else strategy
     if attempts < 1:
         msg = f"attempts must be at least 1, got {attempts}"
         raise ReplanError(msg)
     n_q, n_c = conf.shape
-    shapes = {"success": success, "rank": rank}
+    shapes = {"success": success, "rank": rank, "searched": searched}
     bad = [
         f"{n} {np.shape(a)}"
         for n, a in shapes.items()
@@ -135,11 +153,21 @@ def run_attempts(
     value = np.full((n_q, attempts), np.nan)
     fell = np.zeros((n_q, attempts), bool)
     size = np.zeros((n_q, attempts), np.int64)
-    available = np.ones((n_q, n_c), bool)
+    available = np.ones((n_q, n_c), bool) if searched is None else ~searched
+    replanning = np.zeros(n_q, bool) if searched is None else searched.any(axis=1)
     first, found = best_of(conf, available, conf, maximise=True)
-    chosen = np.where(found, first, -1)
+    chosen = np.where(found & ~replanning, first, -1)
     rows = np.arange(n_q)
     for a in range(n_a):
+        if a == 0 and replanning.any() and strategy.rule is not None:
+            pick, set_size = _step(
+                strategy, conf, available, columns,
+                criterion=criterion, k=k, rank=rank, rng=rng, success=success,
+            )  # fmt: skip
+            chosen = np.where(replanning, pick.candidate, chosen)
+            value[:, 0] = np.where(replanning, pick.value, np.nan)
+            fell[:, 0] = replanning & pick.fell_back
+            size[:, 0] = np.where(replanning, set_size, 0)
         if a > 0:
             live = ~ok[:, :a].any(axis=1) & (cand[:, a - 1] >= 0)
             available = available_after(
@@ -155,7 +183,8 @@ def run_attempts(
             fell[:, a] = live & pick.fell_back
             size[:, a] = np.where(live, set_size, 0)
         else:
-            value[:, 0] = np.where(found, conf[rows, np.maximum(chosen, 0)], np.nan)
+            first_rows = found & ~replanning
+            value[:, 0] = np.where(first_rows, conf[rows, np.maximum(chosen, 0)], value[:, 0])
         cand[:, a] = chosen
         ok[:, a] = (chosen >= 0) & success[rows, np.maximum(chosen, 0)]
     return Attempts(cand, ok, value, fell, size)
@@ -188,36 +217,45 @@ def next_goal(
     k: int = 4,
     exclude_radius: float | None = None,
     seed: int = 0,
+    visited_at: np.ndarray | list[tuple[float, float]] = (),  # type: ignore[assignment]
 ) -> Choice:
     """The next candidate to try for ``query`` after the ``visited`` (failed) ones.
 
+    ``query`` is a class id, a class name or free text, resolved exactly as ``care query``
+    does (:func:`query.openvocab.open_query`: text the vocabulary lacks joins it through the
+    store's own text encoder), or an already resolved ``QueryTarget``.
+
     With nothing visited this is the first attempt (max confidence); afterwards ``strategy``
     over ``criterion``'s top-k set among unvisited candidates. ``exclude_radius`` (grid only,
-    default 1 m) also skips cells near failed ones.
+    default 1 m) also skips cells near failed ones. ``visited_at``: map positions (x, y) the
+    robot went to without finding the object; the candidates within the exclusion radius of
+    one (1 m by default, for instances too) count as visited.
     """
-    y = cmap.class_id(query) if isinstance(query, str) else int(query)
-    conf = class_confidence(cmap, np.array([y]))
+    from query.openvocab import QueryTarget, open_query
+
+    target = query if isinstance(query, QueryTarget) else open_query(cmap, query)
+    conf = target.confidence()[None]
     visited_ids = np.asarray(visited, dtype=np.int64).reshape(-1)
     if visited_ids.size and (visited_ids.min() < 0 or visited_ids.max() >= cmap.num_candidates):
         msg = f"visited candidate ids must lie in 0..{cmap.num_candidates - 1}"
         raise ReplanError(msg)
+    default_radius = DEFAULT_EXCLUDE_RADIUS if exclude_radius is None else exclude_radius
+    places = np.asarray(visited_at, dtype=np.float64).reshape(-1, 2)
     available = np.ones_like(conf, dtype=bool)
-    radius = (
-        (DEFAULT_EXCLUDE_RADIUS if exclude_radius is None else exclude_radius)
-        if cmap.kind == "grid"
-        else 0.0
-    )
+    available[0, candidates_near(cmap, places, default_radius)] = False
+    radius = default_radius if cmap.kind == "grid" else 0.0
     positions = cmap.positions if cmap.kind == "grid" else None
     for v in visited_ids:
         available = available_after(available, np.array([v]), positions, radius)
     chosen = get_strategy(strategy)
-    first = visited_ids.size == 0  # no_replan after a visit: _step says it makes no attempt
+    # no_replan after a visit: _step says it makes no attempt
+    first = visited_ids.size == 0 and not len(places)
     if first:
         cand, found = best_of(conf, available, conf, maximise=True)
         pick = Pick(np.where(found, cand, -1), conf[0, cand].astype(np.float64), np.zeros(1, bool))
         size = np.zeros(1, np.int64)
     else:
-        rank = cmap.class_rank(np.array([y]), limit=k) if criterion == "category" else None
+        rank = target.class_rank(limit=k)[None] if criterion == "category" else None
         columns = {name: cmap.column(name) for name in MEASURES}
         pick, size = _step(
             chosen, conf, available, columns, criterion=criterion, k=k, rank=rank,

@@ -45,7 +45,13 @@ from care.encoders.base import Encoder, EncoderOptions, l2_normalise
 from care.errors import EncoderError
 from care.frames import Frame
 
-__all__ = ["MAX_ROW_GROUP_BYTES", "STAMP_TOLERANCE_NS", "PrecomputedEncoder", "text_path_for"]
+__all__ = [
+    "MAX_ROW_GROUP_BYTES",
+    "STAMP_TOLERANCE_NS",
+    "PrecomputedEncoder",
+    "lookup_text",
+    "text_path_for",
+]
 
 STAMP_TOLERANCE_NS = 1_000_000
 """Largest |image stamp - feature stamp| accepted as the same view (1 ms)."""
@@ -224,25 +230,33 @@ class PrecomputedEncoder(Encoder):
                 "name, embedding made by the same model (the precomputed encoder has no text side)."
             )
             raise EncoderError(msg)
-        table = _open(path).read()
-        missing = [c for c in ("name", "embedding") if c not in table.column_names]
-        if missing:
-            msg = f"{path}: no column {', '.join(missing)}; it needs name and embedding."
-            raise EncoderError(msg)
-        known = {n: i for i, n in enumerate(table.column("name").to_pylist())}
-        absent = [n for n in names if n not in known]
-        if absent:
-            shown = ", ".join(repr(n) for n in absent[:5])
-            msg = f"{path}: no embedding for {shown}; add them, made by the model of the features."
-            raise EncoderError(msg)
-        emb = table.column("embedding").combine_chunks()
-        lengths = np.diff(emb.offsets.to_numpy())
-        if np.any(lengths != self.dim):
-            msg = f"{path}: embeddings of length {sorted(set(lengths.tolist()))}, features have d={self.dim}."
-            raise EncoderError(msg)
-        matrix = emb.values.to_numpy(zero_copy_only=False).reshape(-1, self.dim)
-        rows = np.array([known[n] for n in names], dtype=np.int64)
-        return l2_normalise(matrix[rows].astype(np.float32)).reshape(len(names), self.dim)
+        return lookup_text(path, names, self.dim)
+
+
+def lookup_text(path: Path, names: Sequence[str], dim: int) -> np.ndarray:
+    """(n, d) L2-normalised embeddings of ``names`` from a ``name, embedding`` table: the
+    precomputed encoder's text side, also used on its own once a store exists."""
+    table = _open(path).read()
+    missing = [c for c in ("name", "embedding") if c not in table.column_names]
+    if missing:
+        msg = f"{path}: no column {', '.join(missing)}; it needs name and embedding."
+        raise EncoderError(msg)
+    known = {n: i for i, n in enumerate(table.column("name").to_pylist())}
+    absent = [n for n in names if n not in known]
+    if absent:
+        shown = ", ".join(repr(n) for n in absent[:5])
+        msg = f"{path}: no embedding for {shown}; add them, made by the model of the features."
+        raise EncoderError(msg)
+    emb = table.column("embedding").combine_chunks()
+    lengths = np.diff(emb.offsets.to_numpy())
+    if np.any(lengths != dim):
+        msg = (
+            f"{path}: embeddings of length {sorted(set(lengths.tolist()))}, features have d={dim}."
+        )
+        raise EncoderError(msg)
+    matrix = emb.values.to_numpy(zero_copy_only=False).reshape(-1, dim)
+    rows = np.array([known[n] for n in names], dtype=np.int64)
+    return l2_normalise(matrix[rows].astype(np.float32)).reshape(len(names), dim)
 
 
 def _open(path: Path) -> pq.ParquetFile:

@@ -3,7 +3,8 @@
 No weights can be downloaded here, so each test model is built from a real ``CLIPConfig``,
 written with ``save_pretrained`` together with a byte-level BPE tokenizer made from a small
 vocabulary and a ``CLIPImageProcessor``, and loaded through ``make_encoder("clip", ...)``,
-the same path users take with ``--weights DIR``.
+the same path users take with ``--weights DIR`` (the recipe: ``save_tiny_clip`` in
+``tests/conftest.py``).
 """
 
 from __future__ import annotations
@@ -23,68 +24,19 @@ from care.encoders.clip import ClipEncoder
 from care.errors import EncoderError
 from care.frames import Frame
 
-PATCH = 8
+PATCH = 8  # as in save_tiny_clip (tests/conftest.py)
 IMAGE = 32
 DIM = 16
 
 
-def _save_tiny_clip(out: Path, layers: int) -> Path:
-    from transformers import CLIPConfig, CLIPImageProcessor, CLIPModel, CLIPTokenizer
-
-    out.mkdir(parents=True)
-    from transformers.convert_slow_tokenizer import bytes_to_unicode
-
-    # A real byte-level BPE: one token per byte symbol (with and without the end-of-word
-    # mark), plus merges for "chair", so any text tokenizes.
-    vocab = {"<|startoftext|>": 0, "<|endoftext|>": 1}
-    for c in bytes_to_unicode().values():
-        vocab[c] = len(vocab)
-        vocab[c + "</w>"] = len(vocab)
-    merges = ["c h", "ch a", "cha i", "chai r</w>"]
-    for token in ("ch", "cha", "chai", "chair</w>"):
-        vocab[token] = len(vocab)
-    (out / "vocab.json").write_text(json.dumps(vocab))
-    (out / "merges.txt").write_text("#version: 0.2\n" + "\n".join(merges) + "\n")
-    tokenizer = CLIPTokenizer(vocab=str(out / "vocab.json"), merges=str(out / "merges.txt"))
-    torch.manual_seed(0)
-    config = CLIPConfig(
-        text_config={
-            "vocab_size": len(vocab),
-            "hidden_size": 32,
-            "intermediate_size": 64,
-            "num_hidden_layers": 2,
-            "num_attention_heads": 4,
-            "max_position_embeddings": 32,
-            "bos_token_id": 0,
-            "eos_token_id": 1,
-            "pad_token_id": 1,
-        },
-        vision_config={
-            "hidden_size": 32,
-            "intermediate_size": 64,
-            "num_hidden_layers": layers,
-            "num_attention_heads": 4,
-            "image_size": IMAGE,
-            "patch_size": PATCH,
-        },
-        projection_dim=DIM,
-    )
-    CLIPModel(config).save_pretrained(out)
-    tokenizer.save_pretrained(out)
-    CLIPImageProcessor(
-        size={"shortest_edge": IMAGE}, crop_size={"height": IMAGE, "width": IMAGE}
-    ).save_pretrained(out)
-    return out
+@pytest.fixture(scope="module")
+def clip_dir(tmp_path_factory: pytest.TempPathFactory, save_tiny_clip) -> Path:
+    return save_tiny_clip(tmp_path_factory.mktemp("clip") / "tiny-clip", layers=2)
 
 
 @pytest.fixture(scope="module")
-def clip_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return _save_tiny_clip(tmp_path_factory.mktemp("clip") / "tiny-clip", layers=2)
-
-
-@pytest.fixture(scope="module")
-def clip_dir_1layer(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return _save_tiny_clip(tmp_path_factory.mktemp("clip") / "tiny-clip-1", layers=1)
+def clip_dir_1layer(tmp_path_factory: pytest.TempPathFactory, save_tiny_clip) -> Path:
+    return save_tiny_clip(tmp_path_factory.mktemp("clip") / "tiny-clip-1", layers=1)
 
 
 @pytest.fixture(scope="module")

@@ -217,8 +217,11 @@ def test_next_goal_live_api() -> None:
     assert next_goal(cmap, 0, [0, 2, 3]).candidate == -1
     with pytest.raises(ReplanError, match="no further attempt"):
         next_goal(cmap, "chair", [0], strategy="no_replan")  # its one attempt was made
-    with pytest.raises(QueryError, match="not a class"):
-        next_goal(cmap, "couch", [])
+    # free text resolves as in `care query`: an in-memory map has no store text side, so the
+    # sentence model maps it to the nearest class
+    assert next_goal(cmap, "couch", []) == next_goal(cmap, "sofa", [])
+    with pytest.raises(QueryError, match="empty"):
+        next_goal(cmap, "  ", [])
     with pytest.raises(ReplanError, match="unknown replan strategy"):
         next_goal(cmap, "chair", [0], strategy="best")
 
@@ -300,3 +303,25 @@ def test_mismatched_episode_inputs_are_one_clear_error() -> None:
         run_attempts("random", conf, np.zeros((1, 2), bool), {})
     with pytest.raises(ReplanError, match="no 'stderr' column"):
         run_attempts("min_stderr", conf, np.zeros((1, 3), bool), {})
+
+
+@pytest.mark.parametrize("kind", ["grid", "instances"])
+def test_visited_positions_count_the_candidates_around_them(kind: str) -> None:
+    from scipy.spatial import cKDTree
+
+    from replan.attempts import candidates_near
+
+    cmap = _tiny_map(kind)
+    places = np.array([[0.3, 0.5], [8.5, 0.2]])
+    tree = cKDTree(cmap.positions[:, :2].astype(np.float64))
+    expected = sorted({i for hits in tree.query_ball_point(places, r=1.0) for i in hits})
+    np.testing.assert_array_equal(candidates_near(cmap, places, 1.0), expected)
+    by_place = next_goal(cmap, "chair", visited_at=places, strategy="min_stderr", k=2)
+    # the places exclude what lies within the radius of them, not again around each candidate
+    by_id = next_goal(cmap, "chair", expected, strategy="min_stderr", k=2, exclude_radius=0)
+    assert by_place == by_id
+    assert by_place.strategy == "min_stderr"  # a replan, not a first attempt
+    nowhere = next_goal(cmap, "chair", visited_at=[(50.0, 50.0)], strategy="min_stderr", k=2)
+    assert nowhere.strategy == "min_stderr"  # the robot looked somewhere: not a first attempt
+    with pytest.raises(ReplanError, match="finite"):
+        next_goal(cmap, "chair", visited_at=[(np.nan, 0.0)])

@@ -1,0 +1,129 @@
+"""The store's map frame, found once and shared by both maps (``map_frame.json``).
+
+The first fusion of a store finds the gravity-aligned map frame from a bounded sample of the
+views' depth points (:func:`care.mapframe.estimate_map_frame`) and writes it beside the
+tables, with the options it was found with; every later step reads the same frame
+(:attr:`care.store.Store.map_frame`), so the grid, the instances and every position in the
+outputs agree. ``care fuse ... --up-axis/--floor-z`` replaces it (and so rebuilds the maps).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+
+from care.geometry import backproject, transform_points
+from care.mapframe import MapFrame, UpAxis, estimate_map_frame
+from care.store import MAP_FRAME_FILE, Store, decode_png
+
+__all__ = [
+    "MIN_BAND_SHARE",
+    "SAMPLE_POINTS",
+    "SAMPLE_VIEWS",
+    "check_height_band",
+    "ensure_map_frame",
+    "sample_points",
+    "store_stamp",
+]
+
+SAMPLE_VIEWS = 120
+"""Most views whose depth is sampled (evenly spaced over the recording)."""
+SAMPLE_POINTS = 30_000
+"""Most points handed to the plane fit (a fixed-seed subset)."""
+_PIXELS_ACROSS = 60
+"""Sampled depth pixels across the shorter image side (stride 8 at 640 x 480)."""
+
+
+def sample_points(store: Store) -> tuple[np.ndarray, np.ndarray]:
+    """(P, 3) world points from up to :data:`SAMPLE_VIEWS` views and the (V, 4, 4) world poses
+    of every view; only the sampled views' depth is decoded."""
+    poses = store.poses(in_map=False)
+    keep = set(np.linspace(0, len(poses) - 1, min(len(poses), SAMPLE_VIEWS)).round().astype(int))
+    pf = pq.ParquetFile(store.table_path("views"))
+    chunks, row = [], 0
+    for batch in pf.iter_batches(batch_size=16, columns=["depth_png", "depth_scale", "K"]):
+        for item in batch.to_pylist():
+            if row in keep:
+                depth = decode_png(item["depth_png"]).astype(np.float32) * np.float32(
+                    item["depth_scale"]
+                )
+                K = np.asarray(item["K"], np.float64).reshape(3, 3)
+                stride = max(1, min(depth.shape) // _PIXELS_ACROSS)
+                pts, _ = backproject(depth, K, stride=stride)
+                chunks.append(transform_points(poses[row], pts))
+            row += 1
+    points = np.concatenate(chunks) if chunks else np.zeros((0, 3))
+    if len(points) > SAMPLE_POINTS:
+        pick = np.random.default_rng(0).choice(len(points), SAMPLE_POINTS, replace=False)
+        points = points[np.sort(pick)]
+    return points, poses
+
+
+def ensure_map_frame(
+    store_path: Path, up_axis: UpAxis | None = None, floor_z: float | None = None
+) -> MapFrame:
+    """The store's map frame: the one in ``map_frame.json`` when ``up_axis`` is None (the
+    default: keep what an earlier step found), else found anew with these options; found
+    with ``auto`` when there is none yet. Written atomically."""
+    store = Store(store_path)
+    path = store.path / MAP_FRAME_FILE
+    if up_axis is None:
+        if path.is_file():
+            return store.map_frame
+        up_axis = UpAxis.AUTO
+    options = {"up_axis": up_axis.value, "floor_z": floor_z}
+    if path.is_file():
+        try:
+            if json.loads(path.read_text()).get("options") == options:
+                return store.map_frame
+        except (OSError, ValueError):
+            pass  # unreadable: found again below
+    points, poses = sample_points(store)
+    frame = estimate_map_frame(points, poses, up_axis=up_axis, floor=floor_z)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        tmp.write_text(json.dumps({"options": options, "frame": frame.as_json()}, indent=2))
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return frame
+
+
+MIN_BAND_SHARE = 0.3
+"""Least share of the sampled depth points between the floor and the top of a map's height
+band; below it the map frame (or the band) is wrong and the map would be a slice of the scene
+(a y-down trajectory read as z-up keeps a fifth of the room, the first release's bug)."""
+
+
+def check_height_band(store: Store, z_min: float, z_max: float) -> float:
+    """The share of sampled depth points between the floor (or ``z_min`` below it) and
+    ``z_max`` in the map frame, or one clear error when it is below :data:`MIN_BAND_SHARE`."""
+    from care.errors import FuseError
+
+    points, _ = sample_points(store)
+    frame = store.map_frame
+    z = points @ frame.map_from_world[2, :3] + frame.map_from_world[2, 3]
+    lo, hi = min(z_min, 0.0) - 0.1, max(z_max, 0.0)  # the floor, with its noise
+    share = float(np.mean((z >= lo) & (z <= hi))) if len(z) else 0.0
+    if share < MIN_BAND_SHARE:
+        msg = (
+            f"{store.path}: only {share:.0%} of the depth points lie between z = {lo} and "
+            f"{hi} m of the map frame ({frame.describe()}); the up axis or floor is wrong: "
+            "pass --up-axis (the world axis that points up) and --floor-z, or widen the band"
+        )
+        raise FuseError(msg)
+    return share
+
+
+def store_stamp(store: Store) -> bytes:
+    """What a map records of the store it was built from: the store's creation and its map
+    frame (a new ingest or another frame makes every map stale)."""
+    frame = store.map_frame
+    if frame.is_identity:
+        return str(store.meta.get("created_unix")).encode()
+    matrix = ",".join(repr(float(v)) for v in frame.map_from_world.reshape(-1))
+    return f"{store.meta.get('created_unix')}|{matrix}".encode()

@@ -1,0 +1,271 @@
+"""Goals a navigation stack can use: a pose in the map frame, facing the object, in free space.
+
+A candidate is a place where the object may be (a cell centre, an instance centre); a robot
+cannot drive *into* it. :class:`GoalMaker` turns a candidate into a
+``geometry_msgs/PoseStamped``-shaped goal:
+
+- ``header.frame_id``: the store's world frame, or ``care_map`` when the store's
+  gravity-aligned map frame differs from it (then the goal also comes in the world frame, with
+  ``map_from_world``);
+- ``header.stamp``: the stamp of the last view fused into the map (the map's time);
+- ``pose.position``: an *approach point* on the floor (z = 0): the free cell nearest to the
+  object that keeps ``clearance`` metres from every obstacle, searched within ``reach`` of the
+  object (the grid success radius of ``method.md``: from there the object counts as found);
+  without a grid, or when no free cell lies within reach, the object's own position;
+- ``pose.orientation``: a yaw facing the object from the approach point (identity when the goal
+  is the object itself).
+
+Free space comes from the grid's own layers (``cells.parquet``): a cell the depth saw with
+nothing above ``obstacle_height`` is free, an ``obstacle`` cell is not, an unseen cell is not
+(the robot cannot know it is free). Instance goals use the store's grid when it has one.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+
+from care.errors import QueryError
+from care.mapframe import MapFrame
+from care.store import MAP_FRAME_FILE, read_table
+from fuse.layout import CELLS_TABLE, GridLayout
+from query.map import CandidateMap
+
+__all__ = ["MAP_FRAME_ID", "FreeSpace", "Goal", "GoalConfig", "GoalMaker"]
+
+MAP_FRAME_ID = "care_map"
+"""``frame_id`` of goals when the store's gravity-aligned map frame is not its world frame
+(publish ``map_from_world`` as a static transform to use them, or take ``world_pose_stamped``)."""
+
+
+def _map_frame(store: Path) -> np.ndarray | None:
+    """The store's ``map_from_world``, None when the map frame is the world frame."""
+    path = store / MAP_FRAME_FILE
+    if not path.is_file():
+        return None
+    frame = MapFrame.from_json(json.loads(path.read_text())["frame"])
+    return None if frame.is_identity else frame.map_from_world
+
+
+@dataclass(frozen=True)
+class GoalConfig:
+    """How a candidate becomes a goal pose."""
+
+    clearance: float = 0.3
+    """Metres the approach point keeps from every obstacle cell (about a robot's radius)."""
+    reach: float = 1.0
+    """Farthest (m, floor plane) the approach point may lie from the object: the grid success
+    radius of ``method.md``."""
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.clearance) and self.clearance >= 0):
+            msg = f"goal clearance must be a finite distance >= 0 m, got {self.clearance}"
+            raise QueryError(msg)
+        if not (math.isfinite(self.reach) and self.reach > 0):
+            msg = f"goal reach must be a finite distance > 0 m, got {self.reach}"
+            raise QueryError(msg)
+
+
+@dataclass(frozen=True)
+class Goal:
+    """Where to send the robot for one candidate."""
+
+    candidate: int
+    frame_id: str
+    stamp_ns: int
+    target: tuple[float, float, float]
+    """Where the object is (candidate position, map frame)."""
+    position: tuple[float, float, float]
+    """Where to go: the approach point, or the target when there is none."""
+    yaw: float
+    """Heading (rad, about z) facing the target from ``position``; 0 when they coincide."""
+    approach: bool
+    """``position`` is a free-space approach point (else it is the target itself)."""
+    clearance: float | None
+    """Distance (m) from ``position`` to the nearest obstacle cell; None without a grid."""
+
+    map_from_world: np.ndarray | None = None
+    """(4, 4) the store's map frame (None: the map frame is the recording's world frame)."""
+    world_frame: str = "map"
+    """The recording's world frame name."""
+
+    def pose_matrix(self) -> np.ndarray:
+        """(4, 4) the goal pose in the map frame: at ``position``, yawed by ``yaw`` about z."""
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        out = np.eye(4)
+        out[:2, :2] = [[c, -s], [s, c]]
+        out[:3, 3] = self.position
+        return out
+
+    def pose_stamped(self, *, in_world: bool = False) -> dict:
+        """The goal as ``geometry_msgs/PoseStamped`` JSON (ROS 2 field names), in the map
+        frame or (``in_world``) in the recording's world frame."""
+        pose, frame_id = self.pose_matrix(), self.frame_id
+        if in_world and self.map_from_world is not None:
+            pose, frame_id = np.linalg.solve(self.map_from_world, pose), self.world_frame
+        from scipy.spatial.transform import Rotation
+
+        qx, qy, qz, qw = Rotation.from_matrix(pose[:3, :3]).as_quat()
+        sec, nanosec = divmod(int(self.stamp_ns), 1_000_000_000)
+        x, y, z = (float(v) for v in pose[:3, 3])
+        return {
+            "header": {"frame_id": frame_id, "stamp": {"sec": sec, "nanosec": nanosec}},
+            "pose": {
+                "position": {"x": x, "y": y, "z": z},
+                "orientation": {"x": float(qx), "y": float(qy), "z": float(qz), "w": float(qw)},
+            },
+        }
+
+    def as_dict(self) -> dict:
+        """JSON of the goal: the PoseStamped (and, where the map frame is not the world frame,
+        the same goal in the world frame and the transform), the target and how the point was
+        found."""
+        out = {
+            "pose_stamped": self.pose_stamped(),
+            "target": list(self.target),
+            "yaw": self.yaw,
+            "approach": self.approach,
+            "clearance": self.clearance,
+        }
+        if self.map_from_world is not None:
+            out["world_pose_stamped"] = self.pose_stamped(in_world=True)
+            out["map_from_world"] = self.map_from_world.reshape(-1).tolist()
+        return out
+
+
+@dataclass(frozen=True)
+class FreeSpace:
+    """The grid's free cells and each one's distance to the nearest obstacle."""
+
+    layout: GridLayout
+    free: np.ndarray
+    """(nx, ny) bool: seen and not an obstacle."""
+    clearance: np.ndarray
+    """(nx, ny) float32 metres from the cell centre to the nearest obstacle cell's centre."""
+
+    @classmethod
+    def from_cells(
+        cls, layout: GridLayout, ix: np.ndarray, iy: np.ndarray, obstacle: np.ndarray
+    ) -> FreeSpace:
+        nx, ny = layout.shape
+        seen = np.zeros((nx, ny), bool)
+        blocked = np.zeros((nx, ny), bool)
+        seen[ix, iy] = True
+        blocked[ix[obstacle], iy[obstacle]] = True
+        if blocked.any():
+            from scipy import ndimage  # at first use: keeps `import query.goals` light
+
+            dist = ndimage.distance_transform_edt(~blocked) * layout.cell_size
+        else:
+            dist = np.full((nx, ny), np.inf)
+        return cls(layout, seen & ~blocked, dist.astype(np.float32))
+
+    @classmethod
+    def from_store(cls, store: Path) -> FreeSpace | None:
+        """The free space of a store's grid; None when it has no grid, or a grid table
+        without the obstacle layers (a map written by other tools: goals are then the
+        candidates' own positions, said by ``Goal.approach``)."""
+        path = Path(store) / f"{CELLS_TABLE}.parquet"
+        if not path.is_file():
+            return None
+        header = read_table(path, [])
+        md = header.schema.metadata or {}
+        if b"care.grid.shape" not in md or not {"ix", "iy", "obstacle"} <= set(
+            pq.read_schema(path).names
+        ):
+            return None
+        layout = GridLayout.from_table(header)
+        cells = read_table(path, ["ix", "iy", "obstacle"])
+        ix = cells.column("ix").to_numpy().astype(np.int64)
+        iy = cells.column("iy").to_numpy().astype(np.int64)
+        obstacle = cells.column("obstacle").to_numpy(zero_copy_only=False).astype(bool)
+        return cls.from_cells(layout, ix, iy, obstacle)
+
+    def approach(
+        self, target_xy: tuple[float, float], config: GoalConfig
+    ) -> tuple[float, float, float] | None:
+        """(x, y, clearance) of the free cell nearest to ``target_xy`` within ``reach`` whose
+        clearance is at least ``config.clearance``; if none keeps that clearance, the one with
+        the most clearance; None when no free cell lies within reach."""
+        size = self.layout.cell_size
+        ox, oy = self.layout.origin
+        nx, ny = self.layout.shape
+        cx, cy = (target_xy[0] - ox) / size, (target_xy[1] - oy) / size
+        r = config.reach / size
+        x0, x1 = max(math.floor(cx - r), 0), min(math.ceil(cx + r) + 1, nx)
+        y0, y1 = max(math.floor(cy - r), 0), min(math.ceil(cy + r) + 1, ny)
+        if x0 >= x1 or y0 >= y1:
+            return None
+        gx, gy = np.meshgrid(np.arange(x0, x1), np.arange(y0, y1), indexing="ij")
+        px, py = ox + (gx + 0.5) * size, oy + (gy + 0.5) * size
+        dist = np.hypot(px - target_xy[0], py - target_xy[1])
+        ok = self.free[x0:x1, y0:y1] & (dist <= config.reach)
+        if not ok.any():
+            return None
+        clear = self.clearance[x0:x1, y0:y1]
+        safe = ok & (clear >= config.clearance)
+        if safe.any():
+            best = np.flatnonzero(safe.reshape(-1))[np.argmin(dist[safe])]
+        else:
+            best = np.flatnonzero(ok.reshape(-1))[np.argmax(clear[ok])]
+        return float(px.flat[best]), float(py.flat[best]), float(clear.flat[best])
+
+
+@dataclass(frozen=True)
+class GoalMaker:
+    """Turns a map's candidates into goals: the store's frame, stamp and free space."""
+
+    frame_id: str
+    stamp_ns: int
+    free_space: FreeSpace | None
+    config: GoalConfig = GoalConfig()
+    map_from_world: np.ndarray | None = None
+    """The store's map frame when it is not the world frame (goals then also come in the world
+    frame)."""
+    world_frame: str = "map"
+
+    @classmethod
+    def from_store(cls, store: Path, config: GoalConfig | None = None) -> GoalMaker:
+        """Frame from the store's ``meta.json`` (``map`` when it names none), stamp of its last
+        view (0, ROS's "latest", for a directory that holds maps without views)."""
+        store = Path(store)
+        meta_path = store / "meta.json"
+        meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
+        views = store / "views.parquet"
+        stamps = (
+            read_table(views, ["stamp_ns"]).column("stamp_ns").to_numpy() if views.is_file() else []
+        )
+        world = str(meta.get("world_frame") or "map")
+        frame = _map_frame(store)
+        return cls(
+            frame_id=world if frame is None else MAP_FRAME_ID,
+            stamp_ns=int(np.max(stamps)) if len(stamps) else 0,
+            free_space=FreeSpace.from_store(store),
+            config=config or GoalConfig(),
+            map_from_world=frame,
+            world_frame=world,
+        )
+
+    def goal(self, cmap: CandidateMap, candidate: int) -> Goal:
+        """The goal for one candidate of ``cmap``."""
+        if not 0 <= candidate < cmap.num_candidates:
+            msg = f"candidate {candidate} is not in the map (0..{cmap.num_candidates - 1})"
+            raise QueryError(msg)
+        target = tuple(float(v) for v in cmap.positions[candidate])
+        found = self.free_space.approach(target[:2], self.config) if self.free_space else None
+        if found is None:
+            return Goal(
+                candidate, self.frame_id, self.stamp_ns, target, target, 0.0, False, None,
+                self.map_from_world, self.world_frame,
+            )  # fmt: skip
+        x, y, clear = found
+        yaw = math.atan2(target[1] - y, target[0] - x)
+        return Goal(
+            candidate, self.frame_id, self.stamp_ns, target, (x, y, 0.0), yaw, True, clear,
+            self.map_from_world, self.world_frame,
+        )  # fmt: skip

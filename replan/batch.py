@@ -1,0 +1,327 @@
+"""Queries plus replans as one batch job, for maps without ground truth.
+
+Given many queries (class names or free text, each optionally with places the robot has
+already searched), :func:`plan_batch` answers all of them over one loaded map: the ranked
+candidates with their measures, and for every strategy and selection criterion the sequence of
+attempts it would make if every earlier one failed. Text resolves exactly as in ``care query``
+(:func:`query.openvocab.open_queries`, the free texts embedded in one call); the episodes are :func:`replan.attempts.run_attempts`
+with no success anywhere, vectorised over the queries, so every row equals what repeated
+:func:`replan.attempts.next_goal` calls answer (random strategies draw from one generator
+seeded by ``BatchConfig.seed``: reproducible, but not the draws of separate calls).
+
+The result is one long Arrow table (:data:`BATCH_SCHEMA`): a row per (query, ``ranking``
+position) and per (query, strategy, criterion, attempt).
+"""
+
+from __future__ import annotations
+
+import csv
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+
+from care.errors import ReplanError
+from query.confidence import rank_by_confidence
+from query.goals import Goal, GoalMaker
+from query.map import MEASURES, CandidateMap
+from query.openvocab import open_queries
+from replan.attempts import DEFAULT_EXCLUDE_RADIUS, candidates_near, run_attempts
+from replan.strategies import CRITERIA, STRATEGIES
+
+__all__ = [
+    "BATCH_SCHEMA",
+    "RANKING",
+    "BatchConfig",
+    "BatchQuery",
+    "plan_batch",
+    "read_queries",
+]
+
+RANKING = "ranking"
+"""``strategy`` of the rows that list the max-confidence ranking (``attempt`` = rank)."""
+
+BATCH_SCHEMA = pa.schema(
+    [
+        ("query_index", pa.int32()),
+        ("query", pa.string()),
+        ("target", pa.string()),
+        ("method", pa.string()),
+        ("strategy", pa.string()),
+        ("criterion", pa.string()),
+        ("k", pa.int32()),
+        ("attempt", pa.int32()),
+        ("candidate", pa.int64()),
+        ("confidence", pa.float32()),
+        ("entropy", pa.float32()),
+        ("stderr", pa.float32()),
+        ("pwkl", pa.float32()),
+        ("num_views", pa.int32()),
+        ("fell_back", pa.bool_()),
+        ("set_size", pa.int64()),
+        ("x", pa.float32()),
+        ("y", pa.float32()),
+        ("z", pa.float32()),
+        ("goal_x", pa.float64()),
+        ("goal_y", pa.float64()),
+        ("goal_yaw", pa.float64()),
+        ("goal_approach", pa.bool_()),
+    ]
+)
+"""One row per listed candidate or attempt; ``candidate`` -1 where no attempt was left."""
+
+
+@dataclass(frozen=True)
+class BatchQuery:
+    """One query of a batch: what to look for, and where the robot has already looked."""
+
+    text: str
+    visited_at: tuple[tuple[float, float], ...] = ()
+
+
+@dataclass(frozen=True)
+class BatchConfig:
+    """What every query of a batch is answered with."""
+
+    strategies: tuple[str, ...] = tuple(s for s in STRATEGIES if not STRATEGIES[s].needs_truth)
+    """Replan strategies whose attempt sequences are listed (the oracle needs ground truth)."""
+    criteria: tuple[str, ...] = tuple(CRITERIA)
+    k: int = 4
+    """Size parameter of the candidate sets."""
+    attempts: int = 3
+    """Attempts per sequence (the first and its replans)."""
+    top: int = 10
+    """Ranked candidates listed per query."""
+    exclude_radius: float = DEFAULT_EXCLUDE_RADIUS
+    """Grid: metres around a failed cell skipped later; also the radius of a visited place."""
+    seed: int = 0
+    """Seed of the random strategies' one generator."""
+    chunk: int = 256
+    """Queries played at once (bounds the (Q, N) confidence and availability arrays)."""
+
+    def __post_init__(self) -> None:
+        unknown = [s for s in self.strategies if s not in STRATEGIES]
+        unknown += [c for c in self.criteria if c not in CRITERIA]
+        if unknown:
+            msg = (
+                f"unknown strategy or criterion {', '.join(map(repr, unknown))}; strategies: "
+                f"{', '.join(STRATEGIES)}; criteria: {', '.join(CRITERIA)}"
+            )
+            raise ReplanError(msg)
+        if any(STRATEGIES[s].needs_truth for s in self.strategies):
+            msg = "the oracle needs ground truth; a batch without it cannot list its attempts"
+            raise ReplanError(msg)
+        if min(self.k, self.attempts, self.top, self.chunk) < 1:
+            msg = "k, attempts, top and chunk must each be at least 1"
+            raise ReplanError(msg)
+        if not (np.isfinite(self.exclude_radius) and self.exclude_radius >= 0):
+            msg = f"exclude radius must be a finite distance >= 0 m, got {self.exclude_radius}"
+            raise ReplanError(msg)
+
+
+def read_queries(path: Path) -> list[BatchQuery]:
+    """Queries from a text file (one a line; blank lines and ``#`` comments skipped) or a
+    ``.csv`` with a ``query`` column and an optional ``visited`` column of places
+    ``x,y;x,y`` (metres, map frame)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        msg = f"{path}: cannot read the batch file ({err})"
+        raise ReplanError(msg) from err
+    if path.suffix.lower() != ".csv":
+        lines = (ln.strip() for ln in text.splitlines())
+        return [BatchQuery(ln) for ln in lines if ln and not ln.startswith("#")]
+    rows = list(csv.DictReader(text.splitlines()))
+    if not rows or "query" not in rows[0]:
+        msg = f"{path}: a batch CSV needs a header with a 'query' column (and optionally 'visited')"
+        raise ReplanError(msg)
+    out = []
+    for line, row in enumerate(rows, start=2):
+        places = []
+        for item in (row.get("visited") or "").split(";"):
+            if not item.strip():
+                continue
+            try:
+                x, y = (float(v) for v in item.split(","))
+            except ValueError as err:
+                msg = f"{path}, line {line}: visited {item!r} is not x,y in metres"
+                raise ReplanError(msg) from err
+            places.append((x, y))
+        if not (row.get("query") or "").strip():
+            msg = f"{path}, line {line}: empty query"
+            raise ReplanError(msg)
+        out.append(BatchQuery(row["query"].strip(), tuple(places)))
+    return out
+
+
+@dataclass(frozen=True)
+class _Resolved:
+    """The queries of one chunk as arrays: confidence, category ranks and searched places."""
+
+    target: list[str]
+    method: list[str]
+    conf: np.ndarray
+    rank: np.ndarray | None
+    searched: np.ndarray
+
+
+def _resolve(cmap: CandidateMap, queries: Sequence[BatchQuery], config: BatchConfig) -> _Resolved:
+    conf = np.empty((len(queries), cmap.num_candidates), np.float32)
+    rank = np.empty(conf.shape, np.int16) if "category" in config.criteria else None
+    searched = np.zeros(conf.shape, bool)
+    unique = list(dict.fromkeys(q.text for q in queries))
+    targets = dict(zip(unique, open_queries(cmap, unique), strict=True))
+    for i, q in enumerate(queries):
+        searched[i, candidates_near(cmap, np.array(q.visited_at), config.exclude_radius)] = True
+    for text, target in targets.items():
+        rows = [i for i, q in enumerate(queries) if q.text == text]
+        conf[rows] = target.confidence()
+        if rank is not None:
+            rank[rows] = target.class_rank(limit=config.k)
+    return _Resolved(
+        [targets[q.text].match.names[0] for q in queries],
+        [targets[q.text].match.method for q in queries],
+        conf,
+        rank,
+        searched,
+    )
+
+
+def _rows(
+    cmap: CandidateMap,
+    goals: GoalMaker | None,
+    cache: dict[int, Goal],
+    candidate: np.ndarray,
+    conf: np.ndarray,
+) -> dict[str, np.ndarray]:
+    """The per-candidate columns of rows listing ``candidate`` (-1: none)."""
+    c = np.maximum(candidate, 0)
+    has = candidate >= 0
+    cols: dict[str, np.ndarray] = {
+        "candidate": candidate,
+        "confidence": np.where(has, conf, np.nan).astype(np.float32),
+        **{m: np.where(has, cmap.column(m)[c], np.nan).astype(np.float32) for m in MEASURES},
+        "num_views": np.where(has, cmap.num_views[c], 0).astype(np.int32),
+        **{
+            axis: np.where(has, cmap.positions[c, j], np.nan).astype(np.float32)
+            for j, axis in enumerate("xyz")
+        },
+    }
+    gx, gy, yaw = (np.full(len(c), np.nan) for _ in range(3))
+    approach = np.zeros(len(c), bool)
+    if goals is not None:
+        for i, cand in enumerate(candidate):
+            if cand < 0:
+                continue
+            goal = cache.get(int(cand))
+            if goal is None:
+                goal = cache[int(cand)] = goals.goal(cmap, int(cand))
+            gx[i], gy[i], yaw[i] = goal.position[0], goal.position[1], goal.yaw
+            approach[i] = goal.approach
+    cols.update(goal_x=gx, goal_y=gy, goal_yaw=yaw, goal_approach=approach)
+    return cols
+
+
+@dataclass(frozen=True)
+class _Chunk:
+    """One chunk of queries being answered, and how rows of it become table rows."""
+
+    cmap: CandidateMap
+    queries: Sequence[BatchQuery]
+    first: int
+    """Index of the chunk's first query in the whole batch."""
+    res: _Resolved
+    goals: GoalMaker | None
+    cache: dict[int, Goal]
+
+    def table(
+        self,
+        rows: np.ndarray,
+        strategy: str,
+        criterion: str | None,
+        k: int,
+        attempt: np.ndarray,
+        cand: np.ndarray,
+        fell: np.ndarray,
+        size: np.ndarray,
+    ) -> pa.Table:
+        """Table rows for chunk-relative query ``rows`` listing candidates ``cand``."""
+        n = len(cand)
+        return pa.table(
+            {
+                "query_index": (rows + self.first).astype(np.int32),
+                "query": [self.queries[i].text for i in rows],
+                "target": [self.res.target[i] for i in rows],
+                "method": [self.res.method[i] for i in rows],
+                "strategy": [strategy] * n,
+                "criterion": [criterion] * n,
+                "k": np.full(n, k, np.int32),
+                "attempt": attempt.astype(np.int32),
+                **_rows(
+                    self.cmap,
+                    self.goals,
+                    self.cache,
+                    cand,
+                    self.res.conf[rows, np.maximum(cand, 0)],
+                ),
+                "fell_back": fell,
+                "set_size": size,
+            },
+            schema=BATCH_SCHEMA,
+        )
+
+
+def plan_batch(
+    cmap: CandidateMap,
+    queries: Sequence[BatchQuery],
+    config: BatchConfig | None = None,
+    *,
+    goals: GoalMaker | None = None,
+    progress: bool = False,
+) -> pa.Table:
+    """Every query's ranking and every strategy's attempt sequence, as :data:`BATCH_SCHEMA`."""
+    from tqdm import tqdm
+
+    config = config or BatchConfig()
+    columns = {name: cmap.column(name) for name in MEASURES}
+    positions = cmap.positions if cmap.kind == "grid" else None
+    radius = config.exclude_radius if cmap.kind == "grid" else 0.0
+    rng = np.random.default_rng(config.seed)
+    cache: dict[int, Goal] = {}
+    parts: list[pa.Table] = []
+    bar = tqdm(total=len(queries), desc="batch queries", unit="query", disable=not progress)
+    for lo in range(0, len(queries), config.chunk):
+        chunk = queries[lo : lo + config.chunk]
+        res = _resolve(cmap, chunk, config)
+        part = _Chunk(cmap, chunk, lo, res, goals, cache)
+        top = min(config.top, cmap.num_candidates)
+        order = rank_by_confidence(res.conf)[:, :top]
+        rows = np.repeat(np.arange(len(chunk)), top)
+        parts.append(
+            part.table(
+                rows, RANKING, None, top, np.tile(np.arange(1, top + 1), len(chunk)),
+                order.reshape(-1), np.zeros(len(rows), bool), np.zeros(len(rows), np.int64),
+            )
+        )  # fmt: skip
+        rows = np.repeat(np.arange(len(chunk)), config.attempts)
+        attempt = np.tile(np.arange(1, config.attempts + 1), len(chunk))
+        for name in config.strategies:
+            for criterion in config.criteria if STRATEGIES[name].uses_set else (None,):
+                played = run_attempts(
+                    name, res.conf, np.zeros(res.conf.shape, bool), columns,
+                    criterion=criterion or "confidence", k=config.k, attempts=config.attempts,
+                    rank=res.rank if criterion == "category" else None, positions=positions,
+                    exclude_radius=radius, rng=rng, searched=res.searched,
+                )  # fmt: skip
+                parts.append(
+                    part.table(
+                        rows, name, criterion, config.k, attempt, played.candidate.reshape(-1),
+                        played.fell_back.reshape(-1), played.set_size.reshape(-1),
+                    )
+                )  # fmt: skip
+        bar.update(len(chunk))
+    bar.close()
+    return pa.concat_tables(parts) if parts else BATCH_SCHEMA.empty_table()
