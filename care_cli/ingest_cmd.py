@@ -189,11 +189,28 @@ def topics(
     camera_frame: CameraOpt = None,
     max_dt: MaxDtOpt = 0.02,
     static_pose: StaticOpt = False,
+    stamps: Annotated[
+        bool,
+        typer.Option(
+            "--stamps",
+            help="Print only the stamps (ns) of the colour images ingest would keep, one a "
+            "line: the keys of a --precomputed features file.",
+        ),
+    ] = False,
 ) -> None:
     """List a recording's topics, types and counts, and what ingest would pick."""
     from care.errors import CareError
     from ingest.readers import open_reader
     from ingest.source import RecordingFrames
+
+    if stamps:
+        options = _read_options(
+            rgb, depth, camera_info, pose_source, world_frame, camera_frame, max_dt, static_pose
+        )
+        with RecordingFrames(recording, options) as frames:
+            for frame in frames:
+                typer.echo(str(frame.stamp_ns))
+        return
 
     with open_reader(recording) as reader:
         listed = reader.topics()

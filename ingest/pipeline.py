@@ -152,6 +152,8 @@ def run_ingest(config: IngestConfig, encoder: Encoder | None = None) -> Path:
         if encoder is not None:
             encoder.prepare(RecordingContext(recording, frames.label_names))
         info = encoder.info(vocab) if encoder is not None else None
+        # the text side first: a missing text table or model fails before any frame is read
+        text = encoder.encode_text(vocab) if encoder is not None and vocab else None
         logger = _open_logger(config, frames)
         total = frames.topics[frames.selection.rgb].count if frames.selection else None
         bar = tqdm(
@@ -163,8 +165,8 @@ def run_ingest(config: IngestConfig, encoder: Encoder | None = None) -> Path:
         try:
             with StoreWriter(config.out, info) as writer:
                 _stream(frames, writer, encoder, config.encoder_options.batch_size, logger, bar)
-                if encoder is not None and vocab:
-                    writer.set_text(vocab, encoder.encode_text(vocab))
+                if text is not None:
+                    writer.set_text(vocab, text)
                 writer.commit(_meta(config, frames, source, fp, vocab, encoder))
         except BaseException:
             if logger is not None:
