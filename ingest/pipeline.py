@@ -26,7 +26,7 @@ from care.frames import Frame
 from care.store import SCHEMA_VERSION, StoreWriter
 from ingest.source import ReadOptions, RecordingFrames
 
-__all__ = ["INGEST_VERSION", "IngestConfig", "fingerprint", "run_ingest"]
+__all__ = ["INGEST_VERSION", "IngestConfig", "fingerprint", "request_fingerprint", "run_ingest"]
 
 INGEST_VERSION = "1"
 """Bumped when ingest's output for the same input changes; part of the fingerprint."""
@@ -95,7 +95,41 @@ def fingerprint(config: IngestConfig, encoder: Encoder | None, source: dict[str,
     return hashlib.sha256(json.dumps(_jsonable(key), sort_keys=True).encode()).hexdigest()
 
 
-def _up_to_date(config: IngestConfig, fp: str) -> bool:
+def request_fingerprint(config: IngestConfig, source: dict[str, Any]) -> str:
+    """Hash of everything the store depends on that is known *before* the encoder is built:
+    the options, the source's identity, a local weights directory's digest and the version of
+    the package that runs the model. A re-run whose request matches returns without importing
+    torch or loading a model (under a second)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    options = asdict(config.encoder_options)
+    options.pop("device", None)
+    options.pop("batch_size", None)
+    weights = options.get("weights")
+    digest = None
+    if weights is not None and Path(weights).expanduser().is_dir():
+        from care.encoders.record import weights_digest
+
+        digest = weights_digest(Path(weights).expanduser())
+    try:
+        runtime = {"transformers": version("transformers"), "torch": version("torch")}
+    except PackageNotFoundError:
+        runtime = {}
+    key = {
+        "ingest_version": INGEST_VERSION,
+        "schema_version": SCHEMA_VERSION,
+        "source": source,
+        "read": asdict(config.read),
+        "encoder": config.encoder,
+        "encoder_options": options if config.encoder is not None else None,
+        "weights_digest": digest,
+        "runtime": runtime if config.encoder is not None else None,
+        "vocabulary": config.vocabulary,
+    }
+    return hashlib.sha256(json.dumps(_jsonable(key), sort_keys=True).encode()).hexdigest()
+
+
+def _up_to_date(config: IngestConfig, fp: str, key: str = "fingerprint") -> bool:
     meta_path = config.out / "meta.json"
     if config.force or not meta_path.is_file():
         return False
@@ -105,7 +139,7 @@ def _up_to_date(config: IngestConfig, fp: str) -> bool:
         meta = json.loads(meta_path.read_text())
     except (OSError, json.JSONDecodeError):
         return False
-    return meta.get("fingerprint") == fp
+    return meta.get(key) == fp
 
 
 def _vocabulary(config: IngestConfig, label_names: tuple[str, ...]) -> list[str]:
@@ -140,9 +174,12 @@ def run_ingest(config: IngestConfig, encoder: Encoder | None = None) -> Path:
     if not recording.exists():
         msg = f"{recording}: no such file or directory; check the recording path."
         raise IngestError(msg)
+    source = _source_identity(recording)
+    request = request_fingerprint(config, source) if encoder is None else None
+    if request is not None and _up_to_date(config, request, "request_fingerprint"):
+        return config.out  # before building the encoder: no model is loaded
     if encoder is None and config.encoder is not None:
         encoder = make_encoder(config.encoder, config.encoder_options)
-    source = _source_identity(recording)
     fp = fingerprint(config, encoder, source)
     if _up_to_date(config, fp):
         return config.out
@@ -167,7 +204,12 @@ def run_ingest(config: IngestConfig, encoder: Encoder | None = None) -> Path:
                 _stream(frames, writer, encoder, config.encoder_options.batch_size, logger, bar)
                 if text is not None:
                     writer.set_text(vocab, text)
-                writer.commit(_meta(config, frames, source, fp, vocab, encoder))
+                writer.commit(
+                    {
+                        **_meta(config, frames, source, fp, vocab, encoder),
+                        "request_fingerprint": request,
+                    }
+                )
         except BaseException:
             if logger is not None:
                 logger.close()
