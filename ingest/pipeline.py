@@ -24,6 +24,7 @@ from care.encoders.record import RECORD_KEY, EncoderRecord
 from care.errors import IngestError
 from care.frames import Frame
 from care.store import SCHEMA_VERSION, StoreWriter
+from ingest.select import FrameSelection, FrameSelector
 from ingest.source import ReadOptions, RecordingFrames
 
 __all__ = ["INGEST_VERSION", "IngestConfig", "fingerprint", "request_fingerprint", "run_ingest"]
@@ -46,6 +47,8 @@ class IngestConfig:
     """Encoder name from ``care.encoders.ENCODERS``; None stores views without features."""
     encoder_options: EncoderOptions = field(default_factory=EncoderOptions)
     """Weights, device, batch size, ... of the encoder."""
+    select: FrameSelection = field(default_factory=FrameSelection)
+    """Which synchronised frames to keep (time range, every Nth, enough motion)."""
     vocabulary: str | None = None
     """Vocabulary (bundled name or file) whose text embeddings are cached in the store;
     default the recording's own class names if it has any."""
@@ -86,6 +89,7 @@ def fingerprint(config: IngestConfig, encoder: Encoder | None, source: dict[str,
         "schema_version": SCHEMA_VERSION,
         "source": source,
         "read": asdict(config.read),
+        "select": asdict(config.select),
         "encoder": None
         if encoder is None
         else {"name": encoder.name, "version": encoder.version, "dim": encoder.dim},
@@ -120,6 +124,7 @@ def request_fingerprint(config: IngestConfig, source: dict[str, Any]) -> str:
         "schema_version": SCHEMA_VERSION,
         "source": source,
         "read": asdict(config.read),
+        "select": asdict(config.select),
         "encoder": config.encoder,
         "encoder_options": options if config.encoder is not None else None,
         "weights_digest": digest,
@@ -201,15 +206,21 @@ def run_ingest(config: IngestConfig, encoder: Encoder | None = None) -> Path:
         )
         try:
             with StoreWriter(config.out, info) as writer:
-                _stream(frames, writer, encoder, config.encoder_options.batch_size, logger, bar)
+                selector = FrameSelector(config.select)
+                _stream(
+                    frames,
+                    writer,
+                    encoder,
+                    config.encoder_options.batch_size,
+                    logger,
+                    bar,
+                    selector,
+                )
                 if text is not None:
                     writer.set_text(vocab, text)
-                writer.commit(
-                    {
-                        **_meta(config, frames, source, fp, vocab, encoder),
-                        "request_fingerprint": request,
-                    }
-                )
+                meta = _meta(config, frames, source, fp, vocab, encoder)
+                meta["counts"]["skipped"] = dict(sorted(selector.skipped.items()))
+                writer.commit({**meta, "request_fingerprint": request})
         except BaseException:
             if logger is not None:
                 logger.close()
@@ -230,6 +241,7 @@ def _stream(
     batch_size: int,
     logger: Any,
     bar: tqdm,
+    selector: FrameSelector,
 ) -> None:
     batch: list[Frame] = []
 
@@ -243,10 +255,14 @@ def _stream(
         batch.clear()
 
     for frame in frames:
+        bar.update(1)
+        if not selector.keep(frame):
+            if selector.done:
+                break
+            continue
         if logger is not None:
             logger.log(writer.num_views + len(batch), frame)
         batch.append(frame)
-        bar.update(1)
         if len(batch) >= max(1, batch_size):
             flush()
     if batch:
