@@ -14,8 +14,6 @@ from typing import Annotated, Any, NoReturn
 
 import typer
 
-from query.goals import GoalConfig, GoalMaker
-
 __all__ = ["register"]
 
 StoreArg = Annotated[Path, typer.Argument(help="Store directory with fused maps (`care fuse`).")]
@@ -31,10 +29,11 @@ RayAddressOpt = Annotated[
 ]
 
 ClearanceOpt = Annotated[
-    float,
+    float | None,
     typer.Option(
-        help="Metres a goal's approach point keeps from obstacles (the robot's radius); the "
-        "point is the nearest free grid cell within 1 m of the object."
+        help="Metres a goal's approach point keeps from obstacles (the robot's radius; default "
+        "query.goals.GoalConfig's); the point is the nearest free grid cell within reach of the "
+        "object."
     ),
 ]
 
@@ -138,7 +137,7 @@ def query(
     kind: MapOpt = "instances",
     top: Annotated[int, typer.Option(help="How many candidates to list.")] = 10,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
-    clearance: ClearanceOpt = GoalConfig.clearance,
+    clearance: ClearanceOpt = None,
     weights: WeightsOpt = None,
     batch: Annotated[
         Path | None,
@@ -234,7 +233,7 @@ def replan(
         float, typer.Option(help="Grid: skip cells within this distance (m) of failed ones.")
     ] = 1.0,
     seed: Annotated[int, typer.Option(help="Seed of the random strategies.")] = 0,
-    clearance: ClearanceOpt = GoalConfig.clearance,
+    clearance: ClearanceOpt = None,
     weights: WeightsOpt = None,
 ) -> None:
     """The next candidate to try for TEXT after the --visited ones (JSON on stdout), with its
@@ -266,7 +265,7 @@ def _batch(
     batch: Path,
     out: Path | None,
     weights: Path | None,
-    clearance: float,
+    clearance: float | None,
     top: int,
     k: int,
     attempts: int,
@@ -315,8 +314,12 @@ def _visited(values: list[str]) -> tuple[list[int], list[tuple[float, float]]]:
     return ids, places
 
 
-def _goal_maker(store: Path, clearance: float) -> GoalMaker:
-    return GoalMaker.from_store(store, GoalConfig(clearance=clearance))
+def _goal_maker(store: Path, clearance: float | None) -> Any:
+    """The store's :class:`query.goals.GoalMaker` (imported here: ``care --help`` stays fast)."""
+    from query.goals import GoalConfig, GoalMaker
+
+    config = GoalConfig() if clearance is None else GoalConfig(clearance=clearance)
+    return GoalMaker.from_store(store, config)
 
 
 def _fail(message: str) -> NoReturn:

@@ -143,11 +143,26 @@ def ingest(
     camera_frame: CameraOpt = None,
     max_dt: MaxDtOpt = 0.02,
     static_pose: StaticOpt = False,
+    start: Annotated[
+        float | None, typer.Option(help="Skip the frames of the first START seconds.")
+    ] = None,
+    end: Annotated[
+        float | None, typer.Option(help="Stop reading END seconds after the first frame.")
+    ] = None,
+    every: Annotated[int, typer.Option(help="Keep every Nth frame of the time range.")] = 1,
+    min_motion: Annotated[
+        float,
+        typer.Option(help="Skip frames that moved less than this (m) from the last one kept ..."),
+    ] = 0.0,
+    min_rotation: Annotated[
+        float, typer.Option(help="... and turned less than this (degrees).")
+    ] = 0.0,
 ) -> None:
     """Read a robot recording into a feature store (views, poses, features)."""
     from care.encoders import EncoderOptions
     from care.store import Store
     from ingest.pipeline import IngestConfig, run_ingest
+    from ingest.select import FrameSelection
 
     config = IngestConfig(
         recording=recording,
@@ -164,6 +179,7 @@ def ingest(
             perception=perception,
             seed=seed,
         ),
+        select=FrameSelection(start, end, every, min_motion, min_rotation),
         vocabulary=vocabulary,
         rrd=rrd,
         rrd_every=rrd_every,
@@ -173,9 +189,11 @@ def ingest(
     store = Store(path)
     counts = store.meta.get("counts", {})
     dropped = counts.get("dropped") or {}
+    skipped = counts.get("skipped") or {}
     typer.echo(
         f"{path}: {store.num_views} views from {counts.get('rgb_messages', '?')} colour images"
         + (f", dropped {dropped}" if dropped else "")
+        + (f", skipped {skipped}" if skipped else "")
     )
 
 
@@ -189,11 +207,28 @@ def topics(
     camera_frame: CameraOpt = None,
     max_dt: MaxDtOpt = 0.02,
     static_pose: StaticOpt = False,
+    stamps: Annotated[
+        bool,
+        typer.Option(
+            "--stamps",
+            help="Print only the stamps (ns) of the colour images ingest would keep, one a "
+            "line: the keys of a --precomputed features file.",
+        ),
+    ] = False,
 ) -> None:
     """List a recording's topics, types and counts, and what ingest would pick."""
     from care.errors import CareError
     from ingest.readers import open_reader
     from ingest.source import RecordingFrames
+
+    if stamps:
+        options = _read_options(
+            rgb, depth, camera_info, pose_source, world_frame, camera_frame, max_dt, static_pose
+        )
+        with RecordingFrames(recording, options) as frames:
+            for frame in frames:
+                typer.echo(str(frame.stamp_ns))
+        return
 
     with open_reader(recording) as reader:
         listed = reader.topics()

@@ -24,9 +24,10 @@ from care.encoders.record import RECORD_KEY, EncoderRecord
 from care.errors import IngestError
 from care.frames import Frame
 from care.store import SCHEMA_VERSION, StoreWriter
+from ingest.select import FrameSelection, FrameSelector
 from ingest.source import ReadOptions, RecordingFrames
 
-__all__ = ["INGEST_VERSION", "IngestConfig", "fingerprint", "run_ingest"]
+__all__ = ["INGEST_VERSION", "IngestConfig", "fingerprint", "request_fingerprint", "run_ingest"]
 
 INGEST_VERSION = "1"
 """Bumped when ingest's output for the same input changes; part of the fingerprint."""
@@ -46,6 +47,8 @@ class IngestConfig:
     """Encoder name from ``care.encoders.ENCODERS``; None stores views without features."""
     encoder_options: EncoderOptions = field(default_factory=EncoderOptions)
     """Weights, device, batch size, ... of the encoder."""
+    select: FrameSelection = field(default_factory=FrameSelection)
+    """Which synchronised frames to keep (time range, every Nth, enough motion)."""
     vocabulary: str | None = None
     """Vocabulary (bundled name or file) whose text embeddings are cached in the store;
     default the recording's own class names if it has any."""
@@ -86,6 +89,7 @@ def fingerprint(config: IngestConfig, encoder: Encoder | None, source: dict[str,
         "schema_version": SCHEMA_VERSION,
         "source": source,
         "read": asdict(config.read),
+        "select": asdict(config.select),
         "encoder": None
         if encoder is None
         else {"name": encoder.name, "version": encoder.version, "dim": encoder.dim},
@@ -95,7 +99,42 @@ def fingerprint(config: IngestConfig, encoder: Encoder | None, source: dict[str,
     return hashlib.sha256(json.dumps(_jsonable(key), sort_keys=True).encode()).hexdigest()
 
 
-def _up_to_date(config: IngestConfig, fp: str) -> bool:
+def request_fingerprint(config: IngestConfig, source: dict[str, Any]) -> str:
+    """Hash of everything the store depends on that is known *before* the encoder is built:
+    the options, the source's identity, a local weights directory's digest and the version of
+    the package that runs the model. A re-run whose request matches returns without importing
+    torch or loading a model (under a second)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    options = asdict(config.encoder_options)
+    options.pop("device", None)
+    options.pop("batch_size", None)
+    weights = options.get("weights")
+    digest = None
+    if weights is not None and Path(weights).expanduser().is_dir():
+        from care.encoders.record import weights_digest
+
+        digest = weights_digest(Path(weights).expanduser())
+    try:
+        runtime = {"transformers": version("transformers"), "torch": version("torch")}
+    except PackageNotFoundError:
+        runtime = {}
+    key = {
+        "ingest_version": INGEST_VERSION,
+        "schema_version": SCHEMA_VERSION,
+        "source": source,
+        "read": asdict(config.read),
+        "select": asdict(config.select),
+        "encoder": config.encoder,
+        "encoder_options": options if config.encoder is not None else None,
+        "weights_digest": digest,
+        "runtime": runtime if config.encoder is not None else None,
+        "vocabulary": config.vocabulary,
+    }
+    return hashlib.sha256(json.dumps(_jsonable(key), sort_keys=True).encode()).hexdigest()
+
+
+def _up_to_date(config: IngestConfig, fp: str, key: str = "fingerprint") -> bool:
     meta_path = config.out / "meta.json"
     if config.force or not meta_path.is_file():
         return False
@@ -105,7 +144,7 @@ def _up_to_date(config: IngestConfig, fp: str) -> bool:
         meta = json.loads(meta_path.read_text())
     except (OSError, json.JSONDecodeError):
         return False
-    return meta.get("fingerprint") == fp
+    return meta.get(key) == fp
 
 
 def _vocabulary(config: IngestConfig, label_names: tuple[str, ...]) -> list[str]:
@@ -140,9 +179,12 @@ def run_ingest(config: IngestConfig, encoder: Encoder | None = None) -> Path:
     if not recording.exists():
         msg = f"{recording}: no such file or directory; check the recording path."
         raise IngestError(msg)
+    source = _source_identity(recording)
+    request = request_fingerprint(config, source) if encoder is None else None
+    if request is not None and _up_to_date(config, request, "request_fingerprint"):
+        return config.out  # before building the encoder: no model is loaded
     if encoder is None and config.encoder is not None:
         encoder = make_encoder(config.encoder, config.encoder_options)
-    source = _source_identity(recording)
     fp = fingerprint(config, encoder, source)
     if _up_to_date(config, fp):
         return config.out
@@ -152,6 +194,8 @@ def run_ingest(config: IngestConfig, encoder: Encoder | None = None) -> Path:
         if encoder is not None:
             encoder.prepare(RecordingContext(recording, frames.label_names))
         info = encoder.info(vocab) if encoder is not None else None
+        # the text side first: a missing text table or model fails before any frame is read
+        text = encoder.encode_text(vocab) if encoder is not None and vocab else None
         logger = _open_logger(config, frames)
         total = frames.topics[frames.selection.rgb].count if frames.selection else None
         bar = tqdm(
@@ -162,10 +206,21 @@ def run_ingest(config: IngestConfig, encoder: Encoder | None = None) -> Path:
         )
         try:
             with StoreWriter(config.out, info) as writer:
-                _stream(frames, writer, encoder, config.encoder_options.batch_size, logger, bar)
-                if encoder is not None and vocab:
-                    writer.set_text(vocab, encoder.encode_text(vocab))
-                writer.commit(_meta(config, frames, source, fp, vocab, encoder))
+                selector = FrameSelector(config.select)
+                _stream(
+                    frames,
+                    writer,
+                    encoder,
+                    config.encoder_options.batch_size,
+                    logger,
+                    bar,
+                    selector,
+                )
+                if text is not None:
+                    writer.set_text(vocab, text)
+                meta = _meta(config, frames, source, fp, vocab, encoder)
+                meta["counts"]["skipped"] = dict(sorted(selector.skipped.items()))
+                writer.commit({**meta, "request_fingerprint": request})
         except BaseException:
             if logger is not None:
                 logger.close()
@@ -186,6 +241,7 @@ def _stream(
     batch_size: int,
     logger: Any,
     bar: tqdm,
+    selector: FrameSelector,
 ) -> None:
     batch: list[Frame] = []
 
@@ -199,10 +255,14 @@ def _stream(
         batch.clear()
 
     for frame in frames:
+        bar.update(1)
+        if not selector.keep(frame):
+            if selector.done:
+                break
+            continue
         if logger is not None:
             logger.log(writer.num_views + len(batch), frame)
         batch.append(frame)
-        bar.update(1)
         if len(batch) >= max(1, batch_size):
             flush()
     if batch:

@@ -213,3 +213,47 @@ def test_store_round_trip(feature_file: Path, tmp_path: Path) -> None:
     np.testing.assert_allclose(
         back, _unit(_maps().astype(np.float16).astype(np.float32)), atol=2e-3
     )
+
+
+def test_cli_precomputed_store_from_listed_stamps(tmp_path: Path) -> None:
+    """The README's path: list the stamps, compute features for them elsewhere (here: random),
+    ingest; a missing text table fails before any frame; free text in the table joins the
+    vocabulary, other text falls back to the sentence model and says so."""
+    import json
+    import subprocess
+    import sys
+
+    from fuse.grid import GridConfig, build_grid
+
+    rec = Path(__file__).resolve().parents[2] / "data" / "sample" / "scene_000.mcap"
+    care = [sys.executable, "-m", "care_cli.main"]
+    listed = subprocess.run([*care, "topics", rec, "--stamps"], capture_output=True, text=True)
+    stamps = [int(s) for s in listed.stdout.split()]
+    assert len(stamps) == 80
+    rng = np.random.default_rng(2)
+    feats = _write(
+        tmp_path / "f.parquet", rng.normal(size=(80, 6, 8, D)).astype(np.float32), stamps
+    )
+    names = ["chair", "table", "sofa"]
+    ingest = [*care, "ingest", rec, "--out", tmp_path / "store", "--encoder", "precomputed",
+              "--precomputed", feats, "--vocabulary", ",".join(names)]  # fmt: skip
+    early = subprocess.run(ingest, capture_output=True, text=True)
+    assert early.returncode == 1
+    assert "text embeddings" in early.stderr
+    assert "ingest scene_000" not in early.stderr  # no frame was read
+    emb = rng.normal(size=(4, D)).astype(np.float32)
+    pq.write_table(
+        pa.table({"name": [*names, "a red mug"], "embedding": [e.tolist() for e in emb]}),
+        text_path_for(feats),
+    )
+    subprocess.run(ingest, capture_output=True, text=True, check=True)
+    build_grid(tmp_path / "store", GridConfig(cell_size=0.1, stride=4))
+    query = [*care, "query", tmp_path / "store", "--map", "grid", "--json"]
+    mug = json.loads(
+        subprocess.run([*query, "a red mug"], capture_output=True, text=True, check=True).stdout
+    )
+    assert mug["method"] == "joins the vocabulary [precomputed text encoder]"
+    other = json.loads(
+        subprocess.run([*query, "a lamp"], capture_output=True, text=True, check=True).stdout
+    )
+    assert other["method"].startswith("sentence")
