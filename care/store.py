@@ -196,7 +196,9 @@ def group_rows(table: pa.Table) -> int:
     """
     per_row = 1
     for column, field in zip(table.columns, table.schema, strict=True):
-        if pa.types.is_list(field.type) and table.num_rows:
+        if pa.types.is_fixed_size_list(field.type):
+            per_row = max(per_row, field.type.list_size)
+        elif pa.types.is_list(field.type) and table.num_rows:
             lengths = pc.list_value_length(column).to_numpy(zero_copy_only=False)
             per_row = max(per_row, int(lengths.mean()))
     return max(1, _GROUP_LIST_VALUES // per_row)

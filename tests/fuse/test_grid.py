@@ -10,6 +10,7 @@ from pathlib import Path
 import duckdb
 import numpy as np
 import polars as pl
+import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 from PIL import Image
@@ -198,6 +199,29 @@ def test_grid_layers_and_readers(tmp_path: Path) -> None:
     np.testing.assert_array_equal(
         grid_image(np.array([0]), np.array([0]), np.array([7.0]), (2, 3))[2], [7.0, np.nan]
     )
+
+
+def test_cell_views_read_as_numbers_by_polars_and_duckdb(tmp_path: Path) -> None:
+    """The per-view features are a fixed-size float16 list: polars and duckdb, which no one
+    here wrote, read the same numbers as pyarrow."""
+    store = _store(tmp_path / "s")
+    build_grid(store, GridConfig(cell_size=0.1))
+    path = store / "cell_views.parquet"
+    table = pq.read_table(path)
+    dim = _text().shape[1]
+    assert table.schema.field("feature").type == pa.list_(pa.float16(), dim)
+    want = table.column("feature").combine_chunks().flatten().to_numpy().astype(np.float64)
+    want = want.reshape(table.num_rows, dim)
+    df = pl.read_parquet(path)
+    assert df.schema["feature"] == pl.Array(pl.Float16, dim)
+    np.testing.assert_array_equal(df["feature"].to_numpy().astype(np.float64), want)
+    rows = duckdb.sql(
+        f"select feature[1], feature[{dim}], list_sum(feature) from '{path}'"
+    ).fetchall()
+    got = np.array(rows, dtype=np.float64)
+    np.testing.assert_array_equal(got[:, 0], want[:, 0])
+    np.testing.assert_array_equal(got[:, 1], want[:, -1])
+    np.testing.assert_allclose(got[:, 2], want.sum(1), rtol=1e-5, atol=1e-5)
 
 
 def test_rerun_is_skipped_and_overwrite_rebuilds(tmp_path: Path) -> None:
