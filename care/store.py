@@ -441,13 +441,16 @@ class Store:
         return col.values.to_numpy().reshape(-1, 3, 3)
 
     def iter_frames(
-        self, *, batch_size: int = 8, extras: bool = True
+        self, *, batch_size: int = 8, extras: bool = True, view_ids: set[int] | None = None
     ) -> Iterator[tuple[int, Frame]]:
-        """Decoded ``(view_id, Frame)`` pairs, streamed a row group at a time."""
+        """Decoded ``(view_id, Frame)`` pairs, streamed a row group at a time (only those of
+        ``view_ids`` when given: the others are not decoded)."""
         path = self.table_path("views")
         _check_version(pq.read_schema(path), path)
         pf = pq.ParquetFile(path)
         for batch in pf.iter_batches(batch_size=batch_size):
+            if view_ids is not None:
+                batch = batch.filter(pa.array(np.isin(batch.column("view_id"), list(view_ids))))
             for row in batch.to_pylist():
                 extra = {
                     name: decode_png(row[f"{name}_png"])
@@ -479,12 +482,17 @@ class Store:
             raise StoreError(msg)
         return EncoderInfo.from_metadata(pq.read_schema(path).metadata or {})
 
-    def iter_features(self, *, batch_size: int = 8) -> Iterator[tuple[int, np.ndarray]]:
-        """``(view_id, feature map (fh, fw, d) float16)`` pairs, streamed."""
+    def iter_features(
+        self, *, batch_size: int = 8, view_ids: set[int] | None = None
+    ) -> Iterator[tuple[int, np.ndarray]]:
+        """``(view_id, feature map (fh, fw, d) float16)`` pairs, streamed (only those of
+        ``view_ids`` when given)."""
         path = self.table_path("features")
         info = self.encoder
         _check_version(pq.read_schema(path), path)
         for batch in pq.ParquetFile(path).iter_batches(batch_size=batch_size):
+            if view_ids is not None:
+                batch = batch.filter(pa.array(np.isin(batch.column("view_id"), list(view_ids))))
             ids = batch.column("view_id").to_numpy()
             fh = batch.column("fh").to_numpy()
             fw = batch.column("fw").to_numpy()

@@ -36,7 +36,7 @@ from fuse.measures import PROB_FLOOR, candidate_columns, pwkl_comoment, stderr_f
 
 __all__ = ["COLUMN_CHUNK", "CandidateSums"]
 
-COLUMN_CHUNK = 65_536
+COLUMN_CHUNK = 16_384
 """Candidates per chunk when the state becomes map columns (bounds the float64 temporaries)."""
 
 
@@ -49,6 +49,7 @@ class CandidateSums:
         scale: logit scale s of the class distributions.
         capacity: initial number of candidates allocated; grows on demand.
         dtype: precision of the per-channel mean and M2 (float32; float64 for a reference).
+        limit: most candidates this state will hold (growth never allocates beyond it).
     """
 
     def __init__(
@@ -59,6 +60,7 @@ class CandidateSums:
         *,
         capacity: int = 1024,
         dtype: type = np.float32,
+        limit: int | None = None,
     ) -> None:
         self.dim = int(dim)
         self.text = np.asarray(text, dtype=np.float64)
@@ -67,9 +69,10 @@ class CandidateSums:
             raise ValueError(msg)
         self.scale = float(scale)
         self.size = 0
+        self.limit = None if limit is None else max(int(limit), 1)
         d, n = self.dim, self.text.shape[0]
         self.num_classes = n
-        cap = max(int(capacity), 1)
+        cap = max(min(int(capacity), self.limit or int(capacity)), 1)
         # per candidate: [mu (d) | M2 (d)], [Pbar (n) | abar (n)], [W1, W2, views, C]
         self._tables = (
             np.zeros((cap, 2 * d), dtype),
@@ -89,6 +92,8 @@ class CandidateSums:
             # in place: realloc moves large blocks without copying, so growing often is cheap
             # and a small step leaves little capacity zeroed (touched) but never used
             grown = max(size, cap + cap // 4)
+            if self.limit is not None:
+                grown = max(size, min(grown, self.limit))
             for table in self._tables:
                 table.resize((grown, table.shape[1]), refcheck=False)
         self.size = max(self.size, int(size))
@@ -203,8 +208,9 @@ class CandidateSums:
         s = self._tables[2][rows]
         return pwkl_comoment(s[:, 3], s[:, 2])
 
-    def iter_columns(self, chunk: int = COLUMN_CHUNK) -> Iterator[pa.Table]:
-        """The common candidate columns, ``chunk`` candidates at a time, in id order.
+    def iter_columns(self, chunk: int = COLUMN_CHUNK, first_id: int = 0) -> Iterator[pa.Table]:
+        """The common candidate columns, ``chunk`` candidates at a time, in id order;
+        ``first_id`` is the map's id of this state's candidate 0 (a bounded-memory pass).
 
         Each chunk's float64 temporaries (the re-normalised features, the (chunk, n) class
         distributions) are freed before the next, so turning the state into columns never
@@ -219,7 +225,7 @@ class CandidateSums:
                 num_views=self._tables[2][rows, 2],
                 stderr=self.stderr(rows),
                 pwkl=self.pwkl(rows),
-                first_id=lo,
+                first_id=first_id + lo,
             )
 
     def columns(self) -> pa.Table:
