@@ -50,6 +50,7 @@ __all__ = [
     "encode_png",
     "group_rows",
     "open_writer",
+    "read_schema",
     "read_table",
     "write_table_atomic",
 ]
@@ -234,6 +235,18 @@ def write_table_atomic(
         tmp.replace(path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def read_schema(path: Path) -> pa.Schema:
+    """The schema (with metadata) of a Parquet table of this project, checked like
+    :func:`read_table`, without reading any column."""
+    path = Path(path)
+    if not path.is_file():
+        msg = f"{path}: no such table; build it first (see `care --help`)."
+        raise StoreError(msg)
+    schema = pq.read_schema(path)
+    _check_version(schema, path)
+    return schema
 
 
 def read_table(path: Path, columns: Sequence[str] | None = None) -> pa.Table:

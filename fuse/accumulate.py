@@ -208,7 +208,9 @@ class CandidateSums:
         s = self._tables[2][rows]
         return pwkl_comoment(s[:, 3], s[:, 2])
 
-    def iter_columns(self, chunk: int = COLUMN_CHUNK, first_id: int = 0) -> Iterator[pa.Table]:
+    def iter_columns(
+        self, chunk: int = COLUMN_CHUNK, first_id: int = 0, *, with_log_confidence: bool = False
+    ) -> Iterator[pa.Table]:
         """The common candidate columns, ``chunk`` candidates at a time, in id order;
         ``first_id`` is the map's id of this state's candidate 0 (a bounded-memory pass).
 
@@ -226,6 +228,7 @@ class CandidateSums:
                 stderr=self.stderr(rows),
                 pwkl=self.pwkl(rows),
                 first_id=first_id + lo,
+                with_log_confidence=with_log_confidence,
             )
 
     def columns(self) -> pa.Table:

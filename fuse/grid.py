@@ -50,7 +50,13 @@ from care.store import (
 )
 from fuse.accumulate import CandidateSums
 from fuse.cells import CellIndex, ViewSamples, unpack_cells, view_samples
-from fuse.measures import DEFAULT_LOGIT_SCALE, candidate_metadata, to_float16
+from fuse.measures import (
+    DEFAULT_LOGIT_SCALE,
+    MAX_TOP_CLASSES,
+    candidate_metadata,
+    to_float16,
+)
+from fuse.sidecar import SidecarWriter, sidecar_path
 from fuse.vocabulary import vocabulary_text
 
 __all__ = [
@@ -441,13 +447,17 @@ def _write_cells(
     capacity: int,
     path: Path,
     metadata: dict[bytes, bytes],
+    final: Path,
 ) -> None:
-    """Write ``cells.parquet`` (to ``path``) chunk by chunk in id order: the first pass's
-    cells from ``sums``, then each later pass's, fused from the views that see them."""
+    """Write ``cells.parquet`` (to ``path``, later renamed to ``final``) chunk by chunk in
+    id order, and its query sidecar (:mod:`fuse.sidecar`) beside ``final``: the first
+    pass's cells from ``sums``, then each later pass's, fused from the views that see them."""
     layout, grid_ix, grid_iy = _layout(first.index, config.cell_size)
     metadata = {**metadata, **layout.metadata()}
     n_cells = first.index.size
     writer: pq.ParquetWriter | None = None
+    n_top = min(len(text), MAX_TOP_CLASSES)
+    sidecar = SidecarWriter(sidecar_path(final), n_cells, text.shape[1], n_top, len(text), metadata)
     try:
         for p, first_id in enumerate(range(0, n_cells, capacity)):
             if p > 0:
@@ -459,7 +469,9 @@ def _write_cells(
                 sums.ensure(size)
                 _fuse_pass(store, config, sums, first.index, first_id, first.later.get(p, []))
             weight = sums.weight
-            for chunk in sums.iter_columns(first_id=first_id):
+            for chunk in sums.iter_columns(first_id=first_id, with_log_confidence=True):
+                sidecar.write(chunk)
+                chunk = chunk.drop_columns(["log_confidence"])
                 lo = chunk.column("candidate_id")[0].as_py()
                 rows = slice(lo, lo + chunk.num_rows)
                 table = _cells_chunk(
@@ -471,7 +483,9 @@ def _write_cells(
                     md[b"care.schema_version"] = str(SCHEMA_VERSION).encode()
                     writer = open_writer(path, table.schema.with_metadata(md))
                 append_rows(writer, table.replace_schema_metadata(writer.schema.metadata))
+        sidecar.commit()
     finally:
+        sidecar.abort()
         if writer is not None:
             writer.close()
 
@@ -511,7 +525,9 @@ def build_grid(store_path: Path, config: GridConfig | None = None, rrd: Path | N
                 b"care.grid.config": config.fingerprint().encode(),
                 b"care.store.created": str(store.meta.get("created_unix")).encode(),
             }
-            _write_cells(store, config, text, first, sums, capacity, tmp_cells, metadata)
+            _write_cells(
+                store, config, text, first, sums, capacity, tmp_cells, metadata, cells_path
+            )
             del sums, first
             tmp.replace(views_path)  # per-view table first: a current cells.parquet implies it
             tmp_cells.replace(cells_path)

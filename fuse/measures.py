@@ -36,6 +36,7 @@ __all__ = [
     "class_logits",
     "entropy",
     "list_column",
+    "log_confidence",
     "log_norm",
     "pwkl_comoment",
     "pwkl_linear",
@@ -73,6 +74,26 @@ def log_norm(
     feature alone, without materialising the whole (N, n) distribution.
     """
     return logsumexp(class_logits(features, text, scale), axis=1)
+
+
+def log_confidence(logits: np.ndarray, lnorm: np.ndarray) -> np.ndarray:
+    """(N, n) float64 ``log P_c[y]`` that keeps its precision where ``P_c[y]`` is near 1.
+
+    ``logits - log_norm`` is exact to ~1e-16 absolute, plenty for every class but a row's
+    most likely one, whose log-probability can be -1e-30: there it is
+    ``-log1p(sum_{z != y} exp(l_z - l_y))`` (method.md), so near-certain candidates keep
+    distinct values instead of tying at 0 (probability 1).
+    """
+    logits = np.asarray(logits, np.float64)
+    out = logits - np.asarray(lnorm, np.float64)[:, None]
+    if out.shape[1] == 0 or out.shape[0] == 0:
+        return out
+    rows = np.arange(len(logits))
+    top = logits.argmax(axis=1)
+    rest = np.exp(logits - logits[rows, top][:, None])
+    rest[rows, top] = 0.0
+    out[rows, top] = -np.log1p(rest.sum(axis=1))
+    return out
 
 
 def class_distribution(
@@ -237,13 +258,15 @@ def candidate_columns(
     pwkl: np.ndarray,
     top: int = MAX_TOP_CLASSES,
     first_id: int = 0,
+    with_log_confidence: bool = False,
 ) -> pa.Table:
     """The columns every map table shares, for N candidates, in row order.
 
     ``fused`` is the (N, d) weighted mean of each candidate's per-view features (it is
     re-normalised here); ``stderr`` and ``pwkl`` come from :func:`weighted_stderr` and
     :func:`pwkl_linear` (or their streaming forms). ``first_id``: candidate id of the first
-    row, for a map written in chunks. Confidence of class y is ``exp(s * feature . t_y - log_norm)``;
+    row, for a map written in chunks. ``with_log_confidence`` adds ``log_confidence``, a
+    fixed-size list of :func:`log_confidence` per class (float32), for the query sidecar. Confidence of class y is ``exp(s * feature . t_y - log_norm)``;
     ``top_classes`` / ``top_probs`` summarise P_c for the top-k category criterion.
     """
     # Measures are computed from the float16 feature as stored, so a reader's
@@ -255,6 +278,12 @@ def candidate_columns(
     lnorm = logsumexp(logits, axis=1) if logits.shape[1] else np.zeros(n_cand)
     P = np.exp(logits - lnorm[:, None])
     classes, probs = top_classes(P, top)
+    extra = {}
+    if with_log_confidence and logits.shape[1]:
+        logp = log_confidence(logits, lnorm).astype(np.float32)
+        extra["log_confidence"] = pa.FixedSizeListArray.from_arrays(
+            pa.array(logp.ravel()), logits.shape[1]
+        )
     return pa.table(
         {
             "candidate_id": pa.array(np.arange(first_id, first_id + n_cand, dtype=np.int32)),
@@ -266,6 +295,7 @@ def candidate_columns(
             "entropy": pa.array(entropy(P).astype(np.float32)),
             "stderr": pa.array(np.asarray(stderr, dtype=np.float32)),
             "pwkl": pa.array(np.asarray(pwkl, dtype=np.float32)),
+            **extra,
         }
     )
 

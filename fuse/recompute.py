@@ -9,6 +9,7 @@ record batch at a time.
 from __future__ import annotations
 
 import json
+import shutil
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -20,6 +21,7 @@ from care.errors import FuseError
 from care.store import Store, read_table, write_table_atomic
 from fuse.accumulate import CandidateSums
 from fuse.measures import candidate_metadata
+from fuse.sidecar import sidecar_path
 from fuse.vocabulary import vocabulary_text
 
 __all__ = ["recompute_candidates", "recompute_grid", "sums_from_views"]
@@ -113,5 +115,6 @@ def recompute_candidates(
     config = json.loads(md.get(key, b"{}"))
     config.update(vocabulary=None if vocabulary is None else list(names), logit_scale=scale)
     md[key] = json.dumps(config, sort_keys=True).encode()
+    shutil.rmtree(sidecar_path(path), ignore_errors=True)  # it described the map before
     write_table_atomic(new, path, md)
     return path

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from care.errors import ReplanError
-from query.confidence import confidence as class_confidence
+from query.confidence import log_confidence as class_log_confidence
 from query.map import MEASURES, CandidateMap
 from replan.strategies import Pick, Situation, Strategy, best_of, candidate_set, get_strategy
 
@@ -196,7 +196,8 @@ def next_goal(
     default 1 m) also skips cells near failed ones.
     """
     y = cmap.class_id(query) if isinstance(query, str) else int(query)
-    conf = class_confidence(cmap, np.array([y]))
+    # ranked by log-confidence: the same order as confidence, without float32's ties at 1.0
+    conf = class_log_confidence(cmap, np.array([y]))
     visited_ids = np.asarray(visited, dtype=np.int64).reshape(-1)
     if visited_ids.size and (visited_ids.min() < 0 or visited_ids.max() >= cmap.num_candidates):
         msg = f"visited candidate ids must lie in 0..{cmap.num_candidates - 1}"
@@ -207,14 +208,17 @@ def next_goal(
         if cmap.kind == "grid"
         else 0.0
     )
-    positions = cmap.positions if cmap.kind == "grid" else None
-    for v in visited_ids:
-        available = available_after(available, np.array([v]), positions, radius)
+    available[0, visited_ids] = False
+    if radius > 0:  # the map's spatial index: each exclusion costs its window, not N
+        for v in np.unique(visited_ids):
+            available[0, cmap.near(int(v), radius)] = False
     chosen = get_strategy(strategy)
     first = visited_ids.size == 0  # no_replan after a visit: _step says it makes no attempt
     if first:
         cand, found = best_of(conf, available, conf, maximise=True)
-        pick = Pick(np.where(found, cand, -1), conf[0, cand].astype(np.float64), np.zeros(1, bool))
+        pick = Pick(
+            np.where(found, cand, -1), np.exp(conf[0, cand].astype(np.float64)), np.zeros(1, bool)
+        )
         size = np.zeros(1, np.int64)
     else:
         rank = cmap.class_rank(np.array([y]), limit=k) if criterion == "category" else None
@@ -226,12 +230,16 @@ def next_goal(
     c = int(pick.candidate[0])
     fell = bool(pick.fell_back[0])
     used = "max_confidence" if first or fell else chosen.name
+    measure = "confidence" if first or fell else chosen.measure
+    value = float(pick.value[0]) if c >= 0 else float("nan")
+    if measure == "confidence" and not first:  # chosen by log-confidence: report P
+        value = float(np.exp(value))
     return Choice(
         candidate=c,
         strategy=used,
-        measure="confidence" if first or fell else chosen.measure,
-        value=float(pick.value[0]) if c >= 0 else float("nan"),
-        confidence=float(conf[0, c]) if c >= 0 else float("nan"),
+        measure=measure,
+        value=value,
+        confidence=float(np.exp(np.float64(conf[0, c]))) if c >= 0 else float("nan"),
         fell_back=fell,
         set_size=int(size[0]),
     )
