@@ -31,6 +31,7 @@ from collections.abc import Iterator
 
 import numpy as np
 import pyarrow as pa
+import torch
 
 from fuse.measures import PROB_FLOOR, candidate_columns, pwkl_comoment, stderr_from_moments
 
@@ -58,7 +59,7 @@ class CandidateSums:
         text: np.ndarray,
         scale: float,
         *,
-        capacity: int = 1024,
+        capacity: int = 4096,
         dtype: type = np.float32,
         limit: int | None = None,
     ) -> None:
@@ -145,13 +146,23 @@ class CandidateSums:
         w_old = old[:, 0]
         w_new = w_old + w
         share = np.divide(w, w_new, out=np.zeros_like(w), where=w_new > 0)
-        row = moments[ids]
-        mu, m2 = row[:, :d], row[:, d:]
-        delta = np.subtract(features, mu, dtype=moments.dtype)
-        m2 += delta * delta * (share * w_old).astype(moments.dtype)[:, None]
-        delta *= share.astype(moments.dtype)[:, None]
-        mu += delta
-        moments[ids] = row
+        # a candidate's first sample is its mean (M2 stays 0): written, not merged
+        seen = old[:, 2] > 0
+        fresh = np.flatnonzero(~seen)
+        if fresh.size:
+            moments[ids[fresh], :d] = features[fresh]
+        merge = np.flatnonzero(seen)
+        if merge.size:  # torch: gather, two fused multiply-adds, scatter (numpy: ~1.4x slower)
+            table = torch.from_numpy(moments)
+            index = torch.from_numpy(ids[merge])
+            row = table.index_select(0, index)
+            mu, m2 = row[:, :d], row[:, d:]
+            delta = torch.from_numpy(np.asarray(features[merge], dtype=moments.dtype)) - mu
+            c_m2 = torch.from_numpy((share * w_old)[merge].astype(moments.dtype)[:, None])
+            c_mu = torch.from_numpy(share[merge].astype(moments.dtype)[:, None])
+            m2.addcmul_(delta, delta * c_m2)
+            mu.addcmul_(delta, c_mu)
+            table.index_copy_(0, index, row)
         # the view's class distribution P and a = log max(P, floor) by a stable softmax, in
         # the precision of the dot products (the grid passes float32 ones)
         given = dots is not None
