@@ -1,9 +1,12 @@
 """The VLMaps-style grid map: dense features fused into occupied top-down cells, streaming.
 
 One pass over the store's views: each view becomes its (view, cell) samples
-(:func:`fuse.cells.view_samples`), which are appended to ``cell_views.parquet`` and added to
-per-cell sums (:class:`fuse.accumulate.CandidateSums`). Memory grows with the occupied
-cells, never with the number of views. At the end the store gets:
+(:func:`fuse.cells.view_samples`), which are appended to ``cell_views.parquet`` and merged
+into per-cell streaming statistics (:class:`fuse.accumulate.CandidateSums`, 5.7 KB a cell
+at d = 512, n = 100). Memory grows with the occupied cells, never with the number of views,
+and is capped by ``GridConfig.memory_budget``: cells beyond what the budget holds are fused
+in further passes over only the views that see them (:func:`build_grid`). At the end the
+store gets:
 
 - ``cells.parquet``: the common candidate columns (``fuse.measures.candidate_columns``) plus
   ``ix, iy`` (int32, from the grid origin), ``x, y`` (cell centre, metres), ``z_max``
@@ -12,9 +15,12 @@ cells, never with the number of views. At the end the store gets:
   ``obstacle_height``: something stands in the cell) and ``num_pixels``. Metadata:
   ``care.grid.cell_size``, ``care.grid.origin`` ([x, y] of the corner of cell (0, 0)),
   ``care.grid.shape`` ([nx, ny]), ``care.grid.config``.
+- ``cells.query/``: the query sidecar (:mod:`fuse.sidecar`), memory-mapped by
+  :func:`query.map.load_map`: per-class log-confidence, features and top classes.
 - ``cell_views.parquet``: every (cell_id, view_id, weight, num_pixels, feature) sample, so
   the columns can be recomputed for another vocabulary or logit scale
-  (:func:`fuse.recompute.recompute_grid`) without the views. Features are float16 there;
+  (:func:`fuse.recompute.recompute_grid`) without the views. Features are a fixed-size
+  float16 list there;
   the streaming pass uses them at full precision, so a recompute matches a fresh build up
   to that rounding (about 1e-3 relative), not bit for bit.
 - ``grid_rgb.png`` and ``grid_obstacles.png``: the same two layers as images for people;
