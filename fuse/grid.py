@@ -257,6 +257,8 @@ class _FirstPass:
     layers: _CellLayers
     later: dict[int, list[int]]
     """Pass number (>= 1) -> views with samples in that pass's cells, in view order."""
+    sums: CandidateSums | None
+    """The first pass's state; :func:`_write_cells` takes it (and drops it after use)."""
 
 
 def _samples(config: GridConfig, frame, feature_map: np.ndarray, text: np.ndarray) -> ViewSamples:
@@ -318,7 +320,7 @@ def _fuse_views(
                 pending.clear()
         if pending:
             append_rows(writer, pa.concat_tables(pending))
-    return _FirstPass(index, layers, later)
+    return _FirstPass(index, layers, later, sums)
 
 
 def _fuse_pass(
@@ -449,7 +451,6 @@ def _write_cells(
     config: GridConfig,
     text: np.ndarray,
     first: _FirstPass,
-    sums: CandidateSums,
     capacity: int,
     path: Path,
     metadata: dict[bytes, bytes],
@@ -464,6 +465,7 @@ def _write_cells(
     writer: pq.ParquetWriter | None = None
     n_top = min(len(text), MAX_TOP_CLASSES)
     sidecar = SidecarWriter(sidecar_path(final), n_cells, text.shape[1], n_top, len(text), metadata)
+    sums, first.sums = first.sums, None  # the only reference: each pass's state is freed
     try:
         for p, first_id in enumerate(range(0, n_cells, capacity)):
             if p > 0:
@@ -477,7 +479,8 @@ def _write_cells(
             weight = sums.weight
             for chunk in sums.iter_columns(first_id=first_id, with_log_confidence=True):
                 sidecar.write(chunk)
-                chunk = chunk.drop_columns(["log_confidence"])
+                if "log_confidence" in chunk.column_names:
+                    chunk = chunk.drop_columns(["log_confidence"])
                 lo = chunk.column("candidate_id")[0].as_py()
                 rows = slice(lo, lo + chunk.num_rows)
                 table = _cells_chunk(
@@ -520,6 +523,7 @@ def build_grid(store_path: Path, config: GridConfig | None = None, rrd: Path | N
             capacity = cells_per_pass(config, dim, len(text))
             sums = CandidateSums(dim, text, config.logit_scale, limit=capacity)
             first = _fuse_views(store, config, sums, tmp, capacity)
+            del sums  # first.sums holds it, until _write_cells lets it go
             if first.index.size == 0:
                 msg = (
                     f"{store.path}: no depth pixel fell between z_min={config.z_min} and "
@@ -531,10 +535,8 @@ def build_grid(store_path: Path, config: GridConfig | None = None, rrd: Path | N
                 b"care.grid.config": config.fingerprint().encode(),
                 b"care.store.created": str(store.meta.get("created_unix")).encode(),
             }
-            _write_cells(
-                store, config, text, first, sums, capacity, tmp_cells, metadata, cells_path
-            )
-            del sums, first
+            _write_cells(store, config, text, first, capacity, tmp_cells, metadata, cells_path)
+            del first
             tmp.replace(views_path)  # per-view table first: a current cells.parquet implies it
             tmp_cells.replace(cells_path)
         finally:
