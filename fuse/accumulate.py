@@ -37,7 +37,7 @@ from fuse.measures import PROB_FLOOR, candidate_columns, pwkl_comoment, stderr_f
 
 __all__ = ["COLUMN_CHUNK", "CandidateSums"]
 
-COLUMN_CHUNK = 16_384
+COLUMN_CHUNK = 4096
 """Candidates per chunk when the state becomes map columns (bounds the float64 temporaries)."""
 
 
