@@ -379,6 +379,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="smaller sizes (about a minute)")
     parser.add_argument("--workdir", type=Path, default=Path("/tmp/care-bench-fuse"))
+    parser.add_argument(
+        "--only", choices=("end-to-end", "throughput", "pwkl", "memory"), help="one table"
+    )
     args = parser.parse_args()
     from care.threads import Work, use_threads
 
@@ -386,16 +389,19 @@ def main() -> None:
     use_threads(Work.FUSE)
     keep_freed_memory()  # as the care program does, for both methods
     args.workdir.mkdir(parents=True, exist_ok=True)
-    if args.quick:
-        bench_end_to_end(20, 60, args.workdir)
-        bench_throughput(num_frames=10, strides=(8, 1))
-        bench_pwkl(n_cand=50, n=100, sizes=(5, 50, 500))
-        bench_memory((10, 40))
-    else:
-        bench_end_to_end(40, 200, args.workdir)
-        bench_throughput(num_frames=40, strides=(8, 2, 1), naive_pixels=200_000)
-        bench_pwkl(n_cand=200, n=200, sizes=(5, 50, 500))
-        bench_memory((10, 40, 160))
+    quick = args.quick
+    runs = {
+        "end-to-end": lambda: bench_end_to_end(*((20, 60) if quick else (40, 200)), args.workdir),
+        "throughput": lambda: bench_throughput(num_frames=10, strides=(8, 1))
+        if quick
+        else bench_throughput(num_frames=40, strides=(8, 2, 1), naive_pixels=200_000),
+        "pwkl": lambda: bench_pwkl(n_cand=50 if quick else 200, n=100 if quick else 200,
+                                   sizes=(5, 50, 500)),
+        "memory": lambda: bench_memory((10, 40) if quick else (10, 40, 160)),
+    }  # fmt: skip
+    for name, run in runs.items():
+        if args.only in (None, name):
+            run()
 
 
 if __name__ == "__main__":
