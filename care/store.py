@@ -49,6 +49,7 @@ __all__ = [
     "decode_png",
     "encode_png",
     "group_rows",
+    "iter_batches",
     "open_writer",
     "read_schema",
     "read_table",
@@ -259,6 +260,22 @@ def read_table(path: Path, columns: Sequence[str] | None = None) -> pa.Table:
     return pq.read_table(path, columns=list(columns) if columns else None)
 
 
+def iter_batches(
+    path: Path, batch_size: int, columns: Sequence[str] | None = None
+) -> Iterator[pa.RecordBatch]:
+    """A Parquet file's rows in batches, one row group in memory at a time.
+
+    ``ParquetFile.iter_batches`` keeps the buffers of every row group it has read until the
+    iterator ends (pyarrow 2x, measured: +1.4 MB a view over a 1,485-view store, 2 GB by
+    the end), so streaming a large store through it grew without bound. Reading row group
+    by row group frees each before the next.
+    """
+    pf = pq.ParquetFile(path)
+    for group in range(pf.num_row_groups):
+        table = pf.read_row_group(group, columns=list(columns) if columns else None)
+        yield from table.to_batches(max_chunksize=batch_size)
+
+
 _MAX_BUFFERED_VALUES = 1 << 26
 """Feature values buffered before a row group is written whatever ``rows_per_group`` says:
 bounds the memory (128 MiB of float16) and keeps the list column's int32 offsets valid."""
@@ -460,8 +477,7 @@ class Store:
         ``view_ids`` when given: the others are not decoded)."""
         path = self.table_path("views")
         _check_version(pq.read_schema(path), path)
-        pf = pq.ParquetFile(path)
-        for batch in pf.iter_batches(batch_size=batch_size):
+        for batch in iter_batches(path, batch_size):
             if view_ids is not None:
                 batch = batch.filter(pa.array(np.isin(batch.column("view_id"), list(view_ids))))
             for row in batch.to_pylist():
@@ -503,7 +519,7 @@ class Store:
         path = self.table_path("features")
         info = self.encoder
         _check_version(pq.read_schema(path), path)
-        for batch in pq.ParquetFile(path).iter_batches(batch_size=batch_size):
+        for batch in iter_batches(path, batch_size):
             if view_ids is not None:
                 batch = batch.filter(pa.array(np.isin(batch.column("view_id"), list(view_ids))))
             ids = batch.column("view_id").to_numpy()

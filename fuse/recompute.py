@@ -15,10 +15,9 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.parquet as pq
 
 from care.errors import FuseError
-from care.store import Store, read_table, write_table_atomic
+from care.store import Store, iter_batches, read_table, write_table_atomic
 from fuse.accumulate import CandidateSums
 from fuse.measures import candidate_metadata
 from fuse.sidecar import sidecar_path
@@ -45,7 +44,7 @@ def sums_from_views(
     sums = CandidateSums(dim, text, scale, capacity=max(num_candidates, 1))
     sums.ensure(num_candidates)
     columns = [id_column, "feature", *([weight_column] if weight_column else [])]
-    for batch in pq.ParquetFile(path).iter_batches(batch_size=65536, columns=columns):
+    for batch in iter_batches(path, 65536, columns):
         ids = batch.column(id_column).to_numpy()
         flat = batch.column("feature").values.to_numpy(zero_copy_only=False)
         if flat.size != ids.size * dim:
