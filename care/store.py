@@ -525,9 +525,13 @@ class Store:
             ids = batch.column("view_id").to_numpy()
             fh = batch.column("fh").to_numpy()
             fw = batch.column("fw").to_numpy()
+            # one zero-copy view of the batch's values, sliced per row: a per-row
+            # `feats[i].values.to_numpy()` cost more than reading the row (30 ms a view)
             feats = batch.column("feature")
+            offsets = feats.offsets.to_numpy()
+            values = feats.values.to_numpy(zero_copy_only=False)
             for i in range(batch.num_rows):
-                flat = feats[i].values.to_numpy(zero_copy_only=False)
+                flat = values[offsets[i] : offsets[i + 1]]
                 yield int(ids[i]), flat.reshape(int(fh[i]), int(fw[i]), info.dim)
 
     def text_embeddings(self) -> tuple[list[str], np.ndarray]:
