@@ -149,8 +149,12 @@ class CandidateSums:
         # a candidate's first sample is its mean (M2 stays 0): written, not merged
         seen = old[:, 2] > 0
         fresh = np.flatnonzero(~seen)
-        if fresh.size:
-            moments[ids[fresh], :d] = features[fresh]
+        if fresh.size:  # torch's index_copy_: numpy's fancy row assignment is ~10x slower
+            torch.from_numpy(moments)[:, :d].index_copy_(
+                0,
+                torch.from_numpy(ids[fresh]),
+                torch.from_numpy(np.ascontiguousarray(features[fresh], dtype=moments.dtype)),
+            )
         merge = np.flatnonzero(seen)
         if merge.size:  # torch: gather, two fused multiply-adds, scatter (numpy: ~1.4x slower)
             table = torch.from_numpy(moments)
@@ -183,12 +187,13 @@ class CandidateSums:
         comoment = np.einsum("ij,ij->i", dP, da) * (m_old / m_new)
         crow[:, :n] += (dP / m_new[:, None]).astype(classes.dtype)
         crow[:, n:] += (da / m_new[:, None]).astype(classes.dtype)
-        classes[ids] = crow
+        index = torch.from_numpy(ids)
+        torch.from_numpy(classes).index_copy_(0, index, torch.from_numpy(crow))
         old[:, 0] = w_new
         old[:, 1] += w * w
         old[:, 2] = m_new
         old[:, 3] += comoment
-        scalars[ids] = old
+        torch.from_numpy(scalars).index_copy_(0, index, torch.from_numpy(old))
 
     @property
     def nbytes(self) -> int:
