@@ -1,104 +1,224 @@
-"""Latency of a query plus one replan over precomputed columns (the paper claims < 15 ms).
+"""Whole-building query latency: open a grid map, first attempt, replans (the paper: < 15 ms).
 
-A synthetic map of 5,000 instances (d = 512, n = 200 classes) with every column of the
-map-table contract; the replan is min stderr over the top-k confidence set (k = 8) and, for
-comparison, over the top-k category set. Prints:
+Synthetic grid maps of 5k, 50k, 500k and 1M cells (d = 512, 100 classes, 5 cm cells on a
+square floor, one class per 1 m block) are written with the fusion's own writers
+(``fuse.measures.candidate_columns`` chunk by chunk, ``care.store.open_writer``,
+``fuse.sidecar.SidecarWriter``) and cached under ``--workdir``. Each size then runs in a
+fresh process (so memory figures are its own) and prints:
 
-- a single live call, ``next_goal(map, query, visited=[first])`` (target < 1 ms);
-- per query, amortised over a batch of 1,000 queries as array operations (target < 50 us);
-- the naive way: a Python loop of single calls over the same 1,000 queries.
+- ``load_map`` time and the resident memory it added;
+- a live ``next_goal`` (min stderr over the top-k confidence set, k = 8, 1 m exclusion):
+  first attempt, replan after 1 failure, replan after 10 failures; for a vocabulary class
+  and for free text (``query.resolve_text`` with the offline sentence model, then the same
+  calls; the text embedding is included);
+- side by side, the way before this bench's issue (``--legacy-max`` cells at most): the
+  whole Parquet table decoded, confidence by an (N, d) product, and each failed attempt's
+  exclusion a pass over every cell (``replan.attempts.available_after``).
 
-Run: ``python bench/query.py``.
+Targets (issue 14): < 15 ms per attempt at 1M cells for a vocabulary class, < 50 ms for
+free text. Run: ``python bench/query.py`` (``--sizes 5000 50000`` for a quick look).
 """
 
 from __future__ import annotations
 
+import argparse
+import multiprocessing as mp
 import sys
 import time
 from pathlib import Path
 
 # this file is named like the `query` package: keep its own folder off the import path
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
-from query.confidence import confidence  # noqa: E402
-from query.map import MEASURES, CandidateMap  # noqa: E402
-from replan.attempts import next_goal  # noqa: E402
-from replan.strategies import STRATEGIES, Situation, best_of, candidate_set  # noqa: E402
-
-N, D, N_CLASSES, K, BATCH = 5_000, 512, 200, 8, 1_000
-PAPER_MS = 15.0
+D, N_CLASSES, K, CELL, BLOCK = 512, 100, 8, 0.05, 20
+SIZES = (5_000, 50_000, 500_000, 1_000_000)
+FREE_TEXT = "somewhere to sit down"
 
 
-def synthetic_map(seed: int = 0) -> CandidateMap:
+def write_map(folder: Path, n_cells: int, seed: int = 0) -> Path:
+    """A synthetic grid store: cells.parquet (+ sidecar) and text.parquet, written in chunks."""
+    import pyarrow as pa
+
+    from care.store import TEXT_SCHEMA, open_writer, write_table_atomic
+    from fuse.accumulate import COLUMN_CHUNK
+    from fuse.measures import candidate_columns, candidate_metadata
+    from fuse.sidecar import SidecarWriter, sidecar_path
+
+    if (folder / "cells.parquet").is_file() and (folder / "text.parquet").is_file():
+        return folder
+    folder.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
+    names = [f"class {i}" for i in range(N_CLASSES)]
+    names[:4] = ["chair", "sofa", "table", "bed"]
     text = rng.normal(size=(N_CLASSES, D)).astype(np.float32)
     text /= np.linalg.norm(text, axis=1, keepdims=True)
-    feats = text[rng.integers(0, N_CLASSES, N)] + 0.5 * rng.normal(size=(N, D)).astype(np.float32)
-    feats /= np.linalg.norm(feats, axis=1, keepdims=True)
-    logits = 100.0 * feats.astype(np.float64) @ text.T.astype(np.float64)
-    log_norm = np.logaddexp.reduce(logits, axis=1)
-    top = np.argsort(-logits, axis=1, kind="stable")[:, :100].astype(np.int16)
-    return CandidateMap(
-        kind="instances", vocabulary=tuple(f"class{i}" for i in range(N_CLASSES)), text=text,
-        logit_scale=100.0, features=feats.astype(np.float16).astype(np.float32),
-        log_norm=log_norm.astype(np.float32), top_classes=top,
-        entropy=rng.random(N).astype(np.float32), stderr=rng.random(N).astype(np.float32),
-        pwkl=rng.random(N).astype(np.float32), num_views=rng.integers(1, 6, N).astype(np.int32),
-        positions=rng.random((N, 3)).astype(np.float32),
-    )  # fmt: skip
+    side = int(np.ceil(np.sqrt(n_cells)))
+    ids = np.arange(n_cells)
+    ix, iy = ids // side, ids % side
+    block_class = rng.integers(0, N_CLASSES, (side // BLOCK + 1, side // BLOCK + 1))
+    md = {
+        **candidate_metadata(names, 100.0, "bench"),
+        b"care.grid.cell_size": repr(CELL).encode(),
+        b"care.grid.origin": b"[0.0, 0.0]",
+        b"care.grid.shape": f"[{side}, {side}]".encode(),
+        b"care.schema_version": b"1",
+    }
+    path = folder / "cells.parquet"
+    sidecar = SidecarWriter(sidecar_path(path), n_cells, D, N_CLASSES, N_CLASSES, md)
+    writer = None
+    for lo in range(0, n_cells, COLUMN_CHUNK):
+        rows = slice(lo, min(lo + COLUMN_CHUNK, n_cells))
+        m = rows.stop - lo
+        cls = block_class[ix[rows] // BLOCK, iy[rows] // BLOCK]
+        feats = text[cls] + rng.normal(size=(m, D)).astype(np.float32) * 0.04
+        table = candidate_columns(
+            feats, text, 100.0, num_views=rng.integers(1, 30, m), stderr=rng.random(m),
+            pwkl=rng.random(m), first_id=lo, with_log_confidence=True,
+        )  # fmt: skip
+        sidecar.write(table)
+        table = table.drop_columns(["log_confidence"])
+        for name, values in (
+            ("x", (ix[rows] + 0.5) * CELL), ("y", (iy[rows] + 0.5) * CELL),
+            ("z_max", rng.random(m)),
+        ):  # fmt: skip
+            table = table.append_column(name, pa.array(values.astype(np.float32)))
+        if writer is None:
+            writer = open_writer(path, table.schema.with_metadata(md))
+        writer.write_table(table.replace_schema_metadata(md))
+    writer.close()
+    sidecar.commit()
+    write_table_atomic(
+        pa.table({"name": names, "embedding": list(text)}, schema=TEXT_SCHEMA),
+        folder / "text.parquet",
+    )
+    return folder
 
 
-def batch_query_replan(cmap: CandidateMap, ys: np.ndarray, criterion: str) -> np.ndarray:
-    """First attempt and one min-stderr replan for every query of the batch at once."""
-    conf = confidence(cmap, ys)
-    available = np.ones(conf.shape, bool)
-    first, _ = best_of(conf, available, conf, maximise=True)
-    available[np.arange(len(ys)), first] = False
-    rank = cmap.class_rank(ys, limit=K) if criterion == "category" else None
-    cset = candidate_set(criterion, conf, available, K, rank)
-    columns = {m: cmap.column(m) for m in MEASURES}
-    return STRATEGIES["min_stderr"].rule(Situation(conf, available, cset, columns)).candidate
-
-
-def _best_of(fn, repeat: int) -> float:
+def _best(fn, repeat: int = 5) -> float:
     times = []
     for _ in range(repeat):
         t0 = time.perf_counter()
         fn()
         times.append(time.perf_counter() - t0)
-    return min(times)
+    return min(times) * 1e3
+
+
+def _visits(cmap, y: int, n: int) -> list[int]:
+    """The first n attempts of an episode where every attempt fails."""
+    from replan.attempts import next_goal
+
+    visited: list[int] = []
+    for _ in range(n):
+        visited.append(next_goal(cmap, y, visited, strategy="min_stderr", k=K).candidate)
+    return visited
+
+
+def _legacy_goal(cmap, y: int, visited: list[int]) -> int:
+    """next_goal as it was: confidence by the (N, d) product, exclusion by full passes."""
+    from query.map import MEASURES
+    from replan.attempts import available_after
+    from replan.strategies import STRATEGIES, Situation, best_of, candidate_set
+
+    conf = np.exp(cmap.log_confidence_of(np.array([y])))
+    available = np.ones_like(conf, dtype=bool)
+    for v in visited:
+        available = available_after(available, np.array([v]), cmap.positions, 1.0)
+    if not visited:
+        return int(best_of(conf, available, conf, maximise=True)[0][0])
+    cset = candidate_set("confidence", conf, available, K)
+    columns = {m: cmap.column(m) for m in MEASURES}
+    return int(
+        STRATEGIES["min_stderr"].rule(Situation(conf, available, cset, columns)).candidate[0]
+    )
+
+
+def _run_size(folder: str, n_cells: int, legacy: bool, queue) -> None:
+    from bench.rss import current_rss_mb
+    from care.threads import Work, use_threads
+
+    use_threads(Work.QUERY)
+    import pyarrow.dataset  # noqa: F401  (pq.read_table imports it at first use: 0.5 s)
+
+    from query import load_map, resolve_text
+    from query.map import map_from_table
+    from replan.attempts import next_goal
+
+    path = Path(folder)
+    resolve_text_warm = resolve_text  # the sentence model loads at first use: not timed
+    before = current_rss_mb()
+    t0 = time.perf_counter()
+    cmap = load_map(path, "grid")
+    load_ms = (time.perf_counter() - t0) * 1e3
+    load_mb = current_rss_mb() - before
+    y = cmap.class_id("sofa")
+    resolve_text_warm(cmap, FREE_TEXT)
+    visited = _visits(cmap, y, 10)
+    out = {"load_ms": load_ms, "load_mb": load_mb}
+    for label, query in (("vocabulary", "sofa"), ("free text", FREE_TEXT)):
+
+        def goal(v: list[int], q: str = query) -> int:
+            cls = resolve_text(cmap, q).class_id
+            return next_goal(cmap, cls, v, strategy="min_stderr", k=K).candidate
+
+        out[label] = [_best(lambda v=v: goal(v)) for v in ([], visited[:1], visited)]
+    if legacy:
+        import pyarrow.parquet as pq
+
+        before = current_rss_mb()
+        t0 = time.perf_counter()
+        old = map_from_table(pq.read_table(path / "cells.parquet"), cmap.text, "grid")
+        out["legacy_load_ms"] = (time.perf_counter() - t0) * 1e3
+        out["legacy_load_mb"] = current_rss_mb() - before
+        out["legacy"] = [
+            _best(lambda v=v: _legacy_goal(old, y, v), 3) for v in ([], visited[:1], visited)
+        ]
+        same = [_legacy_goal(old, y, visited[:i]) == visited[i] for i in range(len(visited))]
+        out["legacy_agrees"] = sum(same)
+    queue.put(out)
 
 
 def main() -> None:
-    cmap = synthetic_map()
-    rng = np.random.default_rng(1)
-    ys = rng.integers(0, N_CLASSES, BATCH)
-    first = int(np.argmax(confidence(cmap, ys[:1])[0]))
-    cmap.class_rank(ys[:1])  # the class index is built once per map, at first use
-    print(f"map: {N} instances, d={D}, {N_CLASSES} classes; replan: min stderr, k={K}")
-    for criterion in ("confidence", "category"):
-        live = _best_of(
-            lambda c=criterion: next_goal(cmap, int(ys[0]), [first], criterion=c, k=K), 50
-        )
-        batch = _best_of(lambda c=criterion: batch_query_replan(cmap, ys, c), 5)
-        naive = (
-            _best_of(
-                lambda c=criterion: [
-                    next_goal(cmap, int(y), [0], criterion=c, k=K) for y in ys[:200]
-                ],
-                1,
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", type=int, nargs="+", default=list(SIZES))
+    parser.add_argument("--workdir", type=Path, default=Path("/tmp/care-bench-query"))
+    parser.add_argument(
+        "--legacy-max", type=int, default=500_000, help="largest map also run the old way"
+    )
+    args = parser.parse_args()
+    print(f"grid maps: d={D}, {N_CLASSES} classes, {CELL} m cells; replan: min stderr, k={K}, 1 m")
+    print(
+        "| cells | load_map ms | load MiB | query | first ms | replan ms | replan after 10 ms |"
+        " old way: load ms / MiB | old first / replan / after 10 ms | speed-up after 10 |"
+    )
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    ctx = mp.get_context("spawn")
+    for n in args.sizes:
+        folder = write_map(args.workdir / f"grid-{n}", n)
+        queue = ctx.Queue()
+        legacy = n <= args.legacy_max
+        proc = ctx.Process(target=_run_size, args=(str(folder), n, legacy, queue))
+        proc.start()
+        r = queue.get()
+        proc.join()
+        for label in ("vocabulary", "free text"):
+            first, replan, after10 = r[label]
+            old = ""
+            if legacy and label == "vocabulary":
+                lf, lr, l10 = r["legacy"]
+                old = (
+                    f"{r['legacy_load_ms']:,.0f} / {r['legacy_load_mb']:,.0f} | "
+                    f"{lf:.1f} / {lr:.1f} / {l10:.1f} (same picks {r['legacy_agrees']}/10) | "
+                    f"x{l10 / after10:.0f}"
+                )
+            else:
+                old = " | | "
+            print(
+                f"| {n:,} | {r['load_ms']:.0f} | {r['load_mb']:.0f} | {label} | {first:.2f} | "
+                f"{replan:.2f} | {after10:.2f} | {old} |"
             )
-            / 200
-        )
-        per_query = batch / BATCH
-        print(
-            f"{criterion:>10} set | single live call {live * 1e3:7.3f} ms (target < 1 ms, "
-            f"paper {PAPER_MS:.0f} ms: x{PAPER_MS / (live * 1e3):.0f}) | batch of {BATCH}: "
-            f"{per_query * 1e6:6.1f} us/query (target < 50 us; loop of single calls "
-            f"{naive * 1e6:7.1f} us/query, x{naive / per_query:.1f})"
-        )
 
 
 if __name__ == "__main__":

@@ -17,8 +17,9 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import os
 
-__all__ = ["keep_freed_memory"]
+__all__ = ["keep_freed_memory", "resident_bytes"]
 
 _M_TRIM_THRESHOLD = -1
 _M_MMAP_THRESHOLD = -3
@@ -40,3 +41,13 @@ def keep_freed_memory() -> bool:
     return bool(mallopt(_M_MMAP_THRESHOLD, _MMAP_MAX_THRESHOLD)) and bool(
         mallopt(_M_TRIM_THRESHOLD, _NO_TRIM)
     )
+
+
+def resident_bytes() -> int:
+    """Resident memory of this process now (0 where ``/proc`` is missing): what a memory
+    budget already has to carry before a stage allocates."""
+    try:
+        with open("/proc/self/statm") as statm:
+            return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return 0

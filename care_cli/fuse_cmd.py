@@ -77,6 +77,23 @@ def _vocabulary(value: str | None) -> tuple[str, ...] | None:
     return None if value is None else vocabulary_option(value)
 
 
+def _bytes(value: str) -> int:
+    """``8G``, ``512M``, ``1.5GiB`` or a plain number of bytes."""
+    from care.errors import FuseError
+
+    units = {"": 1, "k": 1 << 10, "m": 1 << 20, "g": 1 << 30, "t": 1 << 40}
+    text = value.strip().lower().removesuffix("ib").removesuffix("b")
+    unit = text[-1:] if text[-1:] in units else ""
+    try:
+        amount = float(text[: len(text) - len(unit)])
+    except ValueError:
+        amount = -1.0
+    if amount <= 0:
+        msg = f"--memory-budget {value!r}: give a size such as 8G, 512M or a number of bytes"
+        raise FuseError(msg)
+    return int(amount * units[unit])
+
+
 @fuse_app.command("grid")
 def grid(
     store: StoreArg,
@@ -100,6 +117,13 @@ def grid(
     overwrite: OverwriteOpt = False,
     recompute: _recompute_opt("cell_views.parquet") = False,
     rrd: RrdOpt = None,
+    memory_budget: Annotated[
+        str | None,
+        typer.Option(
+            help="Memory the fusion may use, e.g. 8G or 512M (default: half of this machine's); "
+            "a floor too large for it is fused in several passes over the views."
+        ),
+    ] = None,
     up_axis: UpAxisOpt = None,
     floor_z: FloorOpt = None,
 ) -> None:
@@ -127,6 +151,7 @@ def grid(
             vocabulary=_vocabulary(vocabulary),
             obstacle_height=obstacle_height,
             overwrite=overwrite,
+            memory_budget=None if memory_budget is None else _bytes(memory_budget),
         )
         path = build_grid(store, config, rrd=rrd)
     _summary(path)

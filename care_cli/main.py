@@ -12,6 +12,7 @@ import typer
 
 from care.errors import CareError
 from care.malloc import keep_freed_memory
+from care.threads import Work, use_threads
 
 app = typer.Typer(
     name="care",
@@ -32,6 +33,7 @@ def _register() -> None:
 def main() -> None:
     """Run the CLI, turning project errors into one line and a non-zero exit."""
     keep_freed_memory()  # per-frame stages reuse resident pages (see care.malloc)
+    use_threads(Work.DEFAULT)  # thread pools sized by kind of work (see care.threads)
     _register()
     try:
         app()

@@ -355,14 +355,14 @@ def _attempt_rows(
 def evaluate_scene(scene: Scene, config: EvalConfig) -> pa.Table:
     """All attempt rows of one scene (every map kind and protocol of ``config``).
 
-    BLAS runs on one thread here: a float32 matrix product sums in an order that depends on
+    BLAS and torch run on :data:`care.threads.THREADS` [EVAL] (one) thread here: a float32 matrix product sums in an order that depends on
     the thread count, and its last bits decide near-ties between candidates, so a Ray
     worker (one thread) and a pool process (all cores) would otherwise choose differently.
     Scenes run in parallel anyway.
     """
-    from threadpoolctl import threadpool_limits
+    from care.threads import Work, threads_for
 
-    with threadpool_limits(limits=1):
+    with threads_for(Work.EVAL):
         return _evaluate_scene(scene, config)
 
 

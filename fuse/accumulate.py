@@ -1,39 +1,68 @@
-"""Streaming per-candidate sums, the state from which every measure column is computed.
+"""Streaming per-candidate statistics, the state from which every measure column is computed.
 
-Both maps fuse the same way: each view contributes weighted samples ``(candidate, w, f)``
-and each candidate keeps ``W1, W2, sum w f, sum w f^2``, its view count and the pwKL sums
-``S, Q, A`` of the per-view class distributions. That is O(d + n) memory per candidate, one
-pass over the views, and no per-view state kept in memory (the per-view tables on disk keep
-the samples for recomputation). A view's samples are added to three float64 tables (the
-two feature sums and the scalar/pwKL sums) with one ``torch.index_add_`` each, from
-reused contiguous buffers; capacity grows by a quarter as new candidates appear.
+Both maps fuse the same way: each view contributes weighted samples ``(candidate, w, f)``.
+Each candidate keeps, in float32 unless told otherwise:
+
+- the weighted running mean ``mu`` (d) and sum of squared deviations ``M2`` (d) of its
+  per-view features, merged one sample at a time by Welford's / Chan's update
+  (``delta = f - mu; mu += delta w / W; M2 += delta^2 w W_old / W``), so
+  ``sigma_k^2 = M2_k / W1`` never subtracts two large sums: views that agree to 1e-4 keep
+  their spread to float32 precision, where ``sum w f^2 / W1 - mu^2`` would lose it;
+- the mean class distribution ``Pbar`` (n) and mean log-distribution ``abar`` (n) of the
+  per-view class distributions (float64: their errors enter ``C`` to first order), and one
+  number ``C = sum_j sum_y (P_j - Pbar)
+  (a_j - abar)``, updated the same way. It is the linear pwKL identity of method.md in its
+  stable streaming form: ``sum_y [m S_y - Q_y A_y] = m C`` (a co-moment), so ``D = C / (m-1)``;
+  the S, Q, A sums collapse to one number plus two means per candidate;
+- ``W1, W2`` (float64) and the view count.
+
+At d = 512 and n = 100 that is 8 d + 16 n + 32 = 5,728 bytes per candidate (the float64
+sums it replaces took 12.5 KB). One pass over the views, no per-view state in memory (the
+per-view tables on disk keep the samples for recomputation).
+
+A sample of a candidate already seen in the same call is merged after the earlier one
+(calls stream views in order; :func:`fuse.recompute.sums_from_views` passes many views at
+once), so the result never depends on how the samples were batched.
 """
 
 from __future__ import annotations
+
+from collections.abc import Iterator
 
 import numpy as np
 import pyarrow as pa
 import torch
 
-from fuse.measures import PROB_FLOOR, candidate_columns, pwkl_linear, weighted_stderr
+from fuse.measures import PROB_FLOOR, candidate_columns, pwkl_comoment, stderr_from_moments
 
-__all__ = ["CandidateSums"]
+__all__ = ["COLUMN_CHUNK", "CandidateSums"]
+
+COLUMN_CHUNK = 4096
+"""Candidates per chunk when the state becomes map columns (bounds the float64 temporaries)."""
 
 
 class CandidateSums:
-    """Accumulates weighted per-view samples of candidates 0..size-1 (float64 throughout).
-
-    Float64 because the measures subtract sums: ``sum w f^2 / W1 - mu^2`` and
-    ``m S - Q A`` lose about as many digits as the views agree.
+    """Streaming statistics of candidates 0..size-1 (see the module docstring).
 
     Args:
         dim: feature dimension d.
         text: (n, d) L2-normalised text embeddings of the vocabulary.
         scale: logit scale s of the class distributions.
         capacity: initial number of candidates allocated; grows on demand.
+        dtype: precision of the per-channel mean and M2 (float32; float64 for a reference).
+        limit: most candidates this state will hold (growth never allocates beyond it).
     """
 
-    def __init__(self, dim: int, text: np.ndarray, scale: float, *, capacity: int = 1024) -> None:
+    def __init__(
+        self,
+        dim: int,
+        text: np.ndarray,
+        scale: float,
+        *,
+        capacity: int = 4096,
+        dtype: type = np.float32,
+        limit: int | None = None,
+    ) -> None:
         self.dim = int(dim)
         self.text = np.asarray(text, dtype=np.float64)
         if self.text.ndim != 2 or self.text.shape[1] != self.dim:
@@ -41,13 +70,21 @@ class CandidateSums:
             raise ValueError(msg)
         self.scale = float(scale)
         self.size = 0
+        self.limit = None if limit is None else max(int(limit), 1)
         d, n = self.dim, self.text.shape[0]
-        cap = max(int(capacity), 1)
-        # per candidate: sum w f, sum w f^2, and [W1, W2, views, S (n), Q (n), A (n)]
-        self._tables = (np.zeros((cap, d)), np.zeros((cap, d)), np.zeros((cap, 3 + 3 * n)))
-        self._S, self._Q, self._A = (slice(3 + i * n, 3 + (i + 1) * n) for i in range(3))
-        # per-view scratch, reused: fresh buffers every view cost page faults
-        self._scratch = (np.empty((0, d)), np.empty((0, d)), np.empty((0, 3 + 3 * n)))
+        self.num_classes = n
+        cap = max(min(int(capacity), self.limit or int(capacity)), 1)
+        # per candidate: [mu (d) | M2 (d)], [Pbar (n) | abar (n)], [W1, W2, views, C]
+        self._tables = (
+            np.zeros((cap, 2 * d), dtype),
+            np.zeros((cap, 2 * n), np.float64),
+            np.zeros((cap, 4), np.float64),
+        )
+
+    @classmethod
+    def bytes_per_candidate(cls, dim: int, num_classes: int, dtype: type = np.float32) -> int:
+        """Streaming state per candidate: what a memory budget divides by."""
+        return 2 * dim * np.dtype(dtype).itemsize + 2 * num_classes * 8 + 4 * 8
 
     def ensure(self, size: int) -> None:
         """Make room for candidates 0..size-1 (new ones start at zero)."""
@@ -56,6 +93,8 @@ class CandidateSums:
             # in place: realloc moves large blocks without copying, so growing often is cheap
             # and a small step leaves little capacity zeroed (touched) but never used
             grown = max(size, cap + cap // 4)
+            if self.limit is not None:
+                grown = max(size, min(grown, self.limit))
             for table in self._tables:
                 table.resize((grown, table.shape[1]), refcheck=False)
         self.size = max(self.size, int(size))
@@ -78,80 +117,146 @@ class CandidateSums:
         if k == 0:
             return
         self.ensure(int(ids.max()) + 1)
-        if self._scratch[0].shape[0] < k:
-            grown = max(k, self._scratch[0].shape[0] * 5 // 4)
-            self._scratch = tuple(np.empty((grown, b.shape[1])) for b in self._scratch)
-        f, wf, rows = (b[:k] for b in self._scratch)
-        w = np.asarray(weights, dtype=np.float64)
-        np.copyto(f, features)
-        # contiguous operands: numpy's fast loops skip strided row slices
-        index = torch.from_numpy(ids)
-        np.multiply(f, w[:, None], out=wf)
-        torch.from_numpy(self._tables[0]).index_add_(0, index, torch.from_numpy(wf))
-        np.multiply(wf, f, out=wf)
-        torch.from_numpy(self._tables[1]).index_add_(0, index, torch.from_numpy(wf))
-        rows[:, 0] = w
-        np.multiply(w, w, out=rows[:, 1])
-        rows[:, 2] = 1.0
+        weights = np.asarray(weights, dtype=np.float64)
+        features = np.asarray(features)
+        order = np.argsort(ids, kind="stable")
+        sorted_ids = ids[order]
+        repeat = sorted_ids[1:] == sorted_ids[:-1]
+        if not repeat.any():
+            self._merge(ids, weights, features, dots)
+            return
+        # r-th sample of each candidate in round r: every round holds distinct candidates
+        starts = np.flatnonzero(np.r_[True, ~repeat])
+        occurrence = np.arange(k) - np.repeat(starts, np.diff(np.r_[starts, k]))
+        rounds = np.empty(k, np.int64)
+        rounds[order] = occurrence
+        for r in range(int(occurrence.max()) + 1):
+            rows = np.flatnonzero(rounds == r)
+            self._merge(
+                ids[rows], weights[rows], features[rows], None if dots is None else dots[rows]
+            )
+
+    def _merge(
+        self, ids: np.ndarray, w: np.ndarray, features: np.ndarray, dots: np.ndarray | None
+    ) -> None:
+        """Chan's merge of one sample into each of the distinct candidates ``ids``."""
+        moments, classes, scalars = self._tables
+        d, n = self.dim, self.num_classes
+        old = scalars[ids]  # (k, 4) gathered
+        w_old = old[:, 0]
+        w_new = w_old + w
+        share = np.divide(w, w_new, out=np.zeros_like(w), where=w_new > 0)
+        # a candidate's first sample is its mean (M2 stays 0): written, not merged
+        seen = old[:, 2] > 0
+        fresh = np.flatnonzero(~seen)
+        if fresh.size:  # torch's index_copy_: numpy's fancy row assignment is ~10x slower
+            torch.from_numpy(moments)[:, :d].index_copy_(
+                0,
+                torch.from_numpy(ids[fresh]),
+                torch.from_numpy(np.ascontiguousarray(features[fresh], dtype=moments.dtype)),
+            )
+        merge = np.flatnonzero(seen)
+        if merge.size:  # torch: gather, two fused multiply-adds, scatter (numpy: ~1.4x slower)
+            table = torch.from_numpy(moments)
+            index = torch.from_numpy(ids[merge])
+            row = table.index_select(0, index)
+            mu, m2 = row[:, :d], row[:, d:]
+            delta = torch.from_numpy(np.asarray(features[merge], dtype=moments.dtype)) - mu
+            c_m2 = torch.from_numpy((share * w_old)[merge].astype(moments.dtype)[:, None])
+            c_mu = torch.from_numpy(share[merge].astype(moments.dtype)[:, None])
+            m2.addcmul_(delta, delta * c_m2)
+            mu.addcmul_(delta, c_mu)
+            table.index_copy_(0, index, row)
         # the view's class distribution P and a = log max(P, floor) by a stable softmax, in
         # the precision of the dot products (the grid passes float32 ones)
-        logits = f @ self.text.T if dots is None else np.array(dots)
+        given = dots is not None
+        logits = np.array(dots) if given else np.asarray(features, np.float64) @ self.text.T
         logits *= self.scale
         logits -= logits.max(axis=1, keepdims=True)
         P = np.exp(logits)
         total = P.sum(axis=1, keepdims=True)
         P /= total
         logits -= np.log(total)
-        a = np.maximum(logits, np.log(PROB_FLOOR), out=logits)
-        rows[:, self._Q] = P
-        rows[:, self._A] = a
-        np.multiply(rows[:, self._Q], rows[:, self._A], out=rows[:, self._S])
-        torch.from_numpy(self._tables[2]).index_add_(0, index, torch.from_numpy(rows))
+        a = np.maximum(logits, np.float32(np.log(PROB_FLOOR)), out=logits)
+        m_old = old[:, 2]
+        m_new = m_old + 1.0
+        crow = classes[ids]
+        dP = np.subtract(P, crow[:, :n], dtype=np.float64)
+        da = np.subtract(a, crow[:, n:], dtype=np.float64)
+        # co-moment: C += m_old / m_new * (P - Pbar) . (a - abar)
+        comoment = np.einsum("ij,ij->i", dP, da) * (m_old / m_new)
+        crow[:, :n] += (dP / m_new[:, None]).astype(classes.dtype)
+        crow[:, n:] += (da / m_new[:, None]).astype(classes.dtype)
+        index = torch.from_numpy(ids)
+        torch.from_numpy(classes).index_copy_(0, index, torch.from_numpy(crow))
+        old[:, 0] = w_new
+        old[:, 1] += w * w
+        old[:, 2] = m_new
+        old[:, 3] += comoment
+        torch.from_numpy(scalars).index_copy_(0, index, torch.from_numpy(old))
 
     @property
     def nbytes(self) -> int:
-        """Bytes held by the accumulators: O(capacity x (d + n)), independent of the views."""
-        return sum(b.nbytes for b in (*self._tables, *self._scratch))
-
-    def _column(self, columns: int | slice) -> np.ndarray:
-        """W1 (0), W2 (1), views (2) or a slice of S, Q, A, for candidates 0..size-1."""
-        return self._tables[2][: self.size, columns]
+        """Bytes held by the state: O(capacity x (d + n)), independent of the views."""
+        return sum(b.nbytes for b in self._tables)
 
     @property
     def num_views(self) -> np.ndarray:
-        return self._column(2).astype(np.int64)
+        return self._tables[2][: self.size, 2].astype(np.int64)
 
     @property
     def weight(self) -> np.ndarray:
         """(N,) W1, the summed sample weights."""
-        return self._column(0).copy()  # a view would dangle once the table grows
+        return self._tables[2][: self.size, 0].copy()  # a view would dangle once it grows
 
-    def fused(self) -> np.ndarray:
+    def fused(self, rows: slice | None = None) -> np.ndarray:
         """(N, d) weighted mean per-view feature (not yet re-normalised)."""
-        W1 = np.maximum(self._column(0), np.finfo(np.float64).tiny)
-        return self._tables[0][: self.size] / W1[:, None]
+        rows = rows or slice(0, self.size)
+        return self._tables[0][rows, : self.dim]
 
-    def stderr(self) -> np.ndarray:
-        return weighted_stderr(
-            self._column(0),
-            self._column(1),
-            self._tables[0][: self.size],
-            self._tables[1][: self.size],
-            self.num_views,
-        )
+    def stderr(self, rows: slice | None = None) -> np.ndarray:
+        rows = rows or slice(0, self.size)
+        s = self._tables[2][rows]
+        return stderr_from_moments(s[:, 0], s[:, 1], self._tables[0][rows, self.dim :], s[:, 2])
 
-    def pwkl(self) -> np.ndarray:
-        return pwkl_linear(
-            self._column(self._S), self._column(self._Q), self._column(self._A), self.num_views
-        )
+    def pwkl(self, rows: slice | None = None) -> np.ndarray:
+        rows = rows or slice(0, self.size)
+        s = self._tables[2][rows]
+        return pwkl_comoment(s[:, 3], s[:, 2])
+
+    def iter_columns(
+        self, chunk: int = COLUMN_CHUNK, first_id: int = 0, *, with_log_confidence: bool = False
+    ) -> Iterator[pa.Table]:
+        """The common candidate columns, ``chunk`` candidates at a time, in id order;
+        ``first_id`` is the map's id of this state's candidate 0 (a bounded-memory pass).
+
+        Each chunk's float64 temporaries (the re-normalised features, the (chunk, n) class
+        distributions) are freed before the next, so turning the state into columns never
+        holds more than one chunk of them.
+        """
+        for lo in range(0, self.size, max(int(chunk), 1)):
+            rows = slice(lo, min(lo + chunk, self.size))
+            yield candidate_columns(
+                self.fused(rows),
+                self.text,
+                self.scale,
+                num_views=self._tables[2][rows, 2],
+                stderr=self.stderr(rows),
+                pwkl=self.pwkl(rows),
+                first_id=first_id + lo,
+                with_log_confidence=with_log_confidence,
+            )
 
     def columns(self) -> pa.Table:
         """The common candidate columns (:func:`fuse.measures.candidate_columns`)."""
-        return candidate_columns(
-            self.fused(),
-            self.text,
-            self.scale,
-            num_views=self.num_views,
-            stderr=self.stderr(),
-            pwkl=self.pwkl(),
-        )
+        chunks = list(self.iter_columns())
+        if not chunks:
+            return candidate_columns(
+                np.zeros((0, self.dim)),
+                self.text,
+                self.scale,
+                num_views=np.zeros(0),
+                stderr=np.zeros(0),
+                pwkl=np.zeros(0),
+            )
+        return pa.concat_tables(chunks).combine_chunks()

@@ -65,6 +65,14 @@ class CellIndex:
         self._ids = np.insert(self._ids, pos[new], ids[new])
         return ids
 
+    def find(self, keys: np.ndarray) -> np.ndarray:
+        """Ids of keys already indexed (a later pass over the same views); -1 where unknown."""
+        keys = np.asarray(keys, np.int64)
+        pos = np.minimum(np.searchsorted(self._keys, keys), max(self.size - 1, 0))
+        if self.size == 0:
+            return np.full(keys.size, -1, np.int64)
+        return np.where(self._keys[pos] == keys, self._ids[pos], -1)
+
     def keys_by_id(self) -> np.ndarray:
         """(size,) packed key of each id."""
         out = np.empty(self.size, np.int64)
@@ -98,6 +106,18 @@ class ViewSamples:
     @property
     def size(self) -> int:
         return int(self.keys.size)
+
+    def take(self, rows: np.ndarray) -> ViewSamples:
+        """The samples of ``rows`` only (a pass of bounded-memory fusion keeps its cells)."""
+        return ViewSamples(
+            self.keys[rows],
+            self.weight[rows],
+            self.feature[rows],
+            self.num_pixels[rows],
+            self.top_z[rows],
+            self.top_rgb[rows],
+            None if self.dots is None else self.dots[rows],
+        )
 
 
 def _empty(dim: int, num_classes: int | None) -> ViewSamples:

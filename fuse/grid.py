@@ -1,9 +1,12 @@
 """The VLMaps-style grid map: dense features fused into occupied top-down cells, streaming.
 
 One pass over the store's views: each view becomes its (view, cell) samples
-(:func:`fuse.cells.view_samples`), which are appended to ``cell_views.parquet`` and added to
-per-cell sums (:class:`fuse.accumulate.CandidateSums`). Memory grows with the occupied
-cells, never with the number of views. At the end the store gets:
+(:func:`fuse.cells.view_samples`), which are appended to ``cell_views.parquet`` and merged
+into per-cell streaming statistics (:class:`fuse.accumulate.CandidateSums`, 5.7 KB a cell
+at d = 512, n = 100). Memory grows with the occupied cells, never with the number of views,
+and is capped by ``GridConfig.memory_budget``: cells beyond what the budget holds are fused
+in further passes over only the views that see them (:func:`build_grid`). At the end the
+store gets:
 
 - ``cells.parquet``: the common candidate columns (``fuse.measures.candidate_columns``) plus
   ``ix, iy`` (int32, from the grid origin), ``x, y`` (cell centre, metres), ``z_max``
@@ -12,9 +15,12 @@ cells, never with the number of views. At the end the store gets:
   ``obstacle_height``: something stands in the cell) and ``num_pixels``. Metadata:
   ``care.grid.cell_size``, ``care.grid.origin`` ([x, y] of the corner of cell (0, 0)),
   ``care.grid.shape`` ([nx, ny]), ``care.grid.config``.
+- ``cells.query/``: the query sidecar (:mod:`fuse.sidecar`), memory-mapped by
+  :func:`query.map.load_map`: per-class log-confidence, features and top classes.
 - ``cell_views.parquet``: every (cell_id, view_id, weight, num_pixels, feature) sample, so
   the columns can be recomputed for another vocabulary or logit scale
-  (:func:`fuse.recompute.recompute_grid`) without the views. Features are float16 there;
+  (:func:`fuse.recompute.recompute_grid`) without the views. Features are a fixed-size
+  float16 list there;
   the streaming pass uses them at full precision, so a recompute matches a fresh build up
   to that rounding (about 1e-3 relative), not bit for bit.
 - ``grid_rgb.png`` and ``grid_obstacles.png``: the same two layers as images for people;
@@ -40,45 +46,70 @@ from PIL import Image
 from tqdm import tqdm
 
 from care.errors import FuseError
+from care.malloc import resident_bytes
 from care.store import (
     SCHEMA_VERSION,
     Store,
     append_rows,
     open_writer,
+    parquet_options,
     read_table,
-    write_table_atomic,
 )
 from fuse.accumulate import CandidateSums
 from fuse.cells import CellIndex, ViewSamples, unpack_cells, view_samples
 from fuse.frame import check_height_band, ensure_map_frame, store_stamp
 from fuse.layout import CELLS_TABLE, GridLayout
-from fuse.measures import DEFAULT_LOGIT_SCALE, candidate_metadata, list_column, to_float16
+from fuse.measures import (
+    DEFAULT_LOGIT_SCALE,
+    MAX_TOP_CLASSES,
+    candidate_metadata,
+    to_float16,
+)
 from fuse.rosmap import occupancy_image, write_ros_map
+from fuse.sidecar import SidecarWriter, sidecar_path
 from fuse.vocabulary import vocabulary_text
 
 __all__ = [
     "CELLS_TABLE",
-    "CELL_VIEWS_SCHEMA",
     "CELL_VIEWS_TABLE",
     "GridConfig",
     "GridLayout",
     "build_grid",
+    "cell_views_schema",
+    "cells_per_pass",
+    "default_memory_budget",
     "grid_image",
     "write_grid_images",
 ]
 
 CELL_VIEWS_TABLE = "cell_views"
 
-CELL_VIEWS_SCHEMA = pa.schema(
-    [
-        pa.field("cell_id", pa.int32(), nullable=False),
-        pa.field("view_id", pa.int32(), nullable=False),
-        pa.field("weight", pa.float32(), nullable=False),
-        pa.field("num_pixels", pa.int32(), nullable=False),
-        pa.field("feature", pa.list_(pa.float16()), nullable=False),
-    ],
-    metadata={b"care.schema_version": str(SCHEMA_VERSION).encode()},
-)
+
+def cell_views_schema(dim: int) -> pa.Schema:
+    """``cell_views.parquet``: one row per (view, cell) sample.
+
+    ``feature`` is a fixed-size list of ``dim`` float16: no offsets to write or read, and
+    polars (``Array(Float16, dim)``) and duckdb (``FLOAT[]``) read it as numbers.
+    """
+    return pa.schema(
+        [
+            pa.field("cell_id", pa.int32(), nullable=False),
+            pa.field("view_id", pa.int32(), nullable=False),
+            pa.field("weight", pa.float32(), nullable=False),
+            pa.field("num_pixels", pa.int32(), nullable=False),
+            pa.field("feature", pa.list_(pa.float16(), int(dim)), nullable=False),
+        ],
+        metadata={b"care.schema_version": str(SCHEMA_VERSION).encode()},
+    )
+
+
+def _open_views_writer(path: Path, dim: int) -> pq.ParquetWriter:
+    """The project's Parquet options, without min/max statistics of the feature values:
+    nobody filters on them, and computing them took a sixth of each write."""
+    schema = cell_views_schema(dim)
+    options = parquet_options(schema)
+    options["write_statistics"] = [f.name for f in schema if f.name != "feature"]
+    return pq.ParquetWriter(path, schema, **options)
 
 
 @dataclass(frozen=True)
@@ -105,8 +136,15 @@ class GridConfig:
     """A cell whose highest point is above this height (m) is an obstacle."""
     overwrite: bool = False
     """Rebuild even if a finished grid with the same config exists."""
+    memory_budget: int | None = None
+    """Bytes the fusion may use (default: :func:`default_memory_budget`); sets how, not what."""
+    cells_per_pass: int | None = None
+    """Cells fused per pass, overriding what the budget allows (tests, benchmarks)."""
 
     def __post_init__(self) -> None:
+        if self.cells_per_pass is not None and self.cells_per_pass < 1:
+            msg = f"invalid grid config: cells_per_pass={self.cells_per_pass}; need at least 1"
+            raise FuseError(msg)
         if self.cell_size <= 0 or self.stride < 1 or self.sigma_z <= 0 or self.z_min > self.z_max:
             msg = (
                 f"invalid grid config: cell_size={self.cell_size}, stride={self.stride}, "
@@ -116,9 +154,10 @@ class GridConfig:
             raise FuseError(msg)
 
     def fingerprint(self) -> str:
-        """JSON of everything that shapes the map (not ``overwrite``)."""
+        """JSON of everything that shapes the map (not how it is built: ``overwrite``, memory)."""
         fields = dataclasses.asdict(self)
-        fields.pop("overwrite")
+        for how in ("overwrite", "memory_budget", "cells_per_pass"):
+            fields.pop(how)
         return json.dumps(fields, sort_keys=True)
 
 
@@ -155,15 +194,17 @@ class _CellLayers:
 
 
 def _view_rows(view_id: int, ids: np.ndarray, samples: ViewSamples) -> pa.Table:
+    dim = samples.feature.shape[1]
+    feature = pa.FixedSizeListArray.from_arrays(pa.array(to_float16(samples.feature).ravel()), dim)
     return pa.table(
         {
             "cell_id": pa.array(ids.astype(np.int32)),
             "view_id": pa.array(np.full(ids.size, view_id, np.int32)),
             "weight": pa.array(samples.weight.astype(np.float32)),
             "num_pixels": pa.array(samples.num_pixels.astype(np.int32)),
-            "feature": list_column(to_float16(samples.feature), pa.float16()),
+            "feature": feature,
         },
-        schema=CELL_VIEWS_SCHEMA,
+        schema=cell_views_schema(dim),
     )
 
 
@@ -179,37 +220,71 @@ def _is_current(store: Store, config: GridConfig, vocabulary: tuple[str, ...]) -
     )
 
 
-def _fuse_views(
-    store: Store, config: GridConfig, sums: CandidateSums, views_path: Path
-) -> tuple[CellIndex, _CellLayers]:
-    """The streaming pass: every view's samples into ``sums`` and ``views_path``."""
-    text = sums.text
-    index, layers = CellIndex(), _CellLayers()
-    sigma = config.sigma_z if config.distance_weighting else None
-    pending: list[pa.Table] = []
+@dataclass
+class _FirstPass:
+    """What the streaming pass leaves: every cell indexed, the layers, and the views that a
+    later pass must read again (cells beyond the first pass's ``capacity``)."""
+
+    index: CellIndex
+    layers: _CellLayers
+    later: dict[int, list[int]]
+    """Pass number (>= 1) -> views with samples in that pass's cells, in view order."""
+    sums: CandidateSums | None
+    """The first pass's state; :func:`_write_cells` takes it (and drops it after use)."""
+
+
+def _samples(config: GridConfig, frame, feature_map: np.ndarray, text: np.ndarray) -> ViewSamples:
+    return view_samples(
+        frame,
+        feature_map,
+        cell_size=config.cell_size,
+        stride=config.stride,
+        z_min=config.z_min,
+        z_max=config.z_max,
+        sigma_z=config.sigma_z if config.distance_weighting else None,
+        text=text,
+    )
+
+
+def _views(store: Store, wanted: set[int] | None = None, desc: str = "fuse grid"):
+    """``(view_id, frame, feature map)`` in view order (only ``wanted`` ones when given)."""
     # a store with fewer feature rows than views (or more) is out of step, not a smaller map
     pairs = zip_longest(
-        store.iter_frames(extras=False), store.iter_features(), fillvalue=(None, None)
+        store.iter_frames(extras=False, view_ids=wanted),
+        store.iter_features(view_ids=wanted),
+        fillvalue=(None, None),
     )
-    with open_writer(views_path, CELL_VIEWS_SCHEMA) as writer:
-        for (view_id, frame), (feature_id, feature_map) in tqdm(
-            pairs, total=store.num_views, desc="fuse grid", unit="view", leave=False
-        ):
-            if view_id != feature_id:
-                msg = f"{store.path}: views and features out of step ({view_id} vs {feature_id}); re-run `care ingest`"
-                raise FuseError(msg)
-            samples = view_samples(
-                frame,
-                feature_map,
-                cell_size=config.cell_size,
-                stride=config.stride,
-                z_min=config.z_min,
-                z_max=config.z_max,
-                sigma_z=sigma,
-                text=text,
-            )
+    total = store.num_views if wanted is None else len(wanted)
+    for (view_id, frame), (feature_id, feature_map) in tqdm(
+        pairs, total=total, desc=desc, unit="view", leave=False
+    ):
+        if view_id != feature_id:
+            msg = f"{store.path}: views and features out of step ({view_id} vs {feature_id}); re-run `care ingest`"
+            raise FuseError(msg)
+        yield view_id, frame, feature_map
+
+
+def _fuse_views(
+    store: Store, config: GridConfig, sums: CandidateSums, views_path: Path, capacity: int
+) -> _FirstPass:
+    """The streaming pass: every view's samples into ``views_path``, those of cells
+    ``0..capacity-1`` into ``sums``; cells are indexed in order of first appearance."""
+    text = sums.text
+    index, layers = CellIndex(), _CellLayers()
+    later: dict[int, list[int]] = {}
+    pending: list[pa.Table] = []
+    with _open_views_writer(views_path, sums.dim) as writer:
+        for view_id, frame, feature_map in _views(store):
+            samples = _samples(config, frame, feature_map, text)
             ids = index.lookup(samples.keys)
-            sums.add(ids, samples.weight, samples.feature, samples.dots)
+            if ids.size and ids.max() >= capacity:
+                keep = np.flatnonzero(ids < capacity)
+                for p in np.unique(ids[ids >= capacity] // capacity):
+                    later.setdefault(int(p), []).append(view_id)
+                first = samples.take(keep)
+                sums.add(ids[keep], first.weight, first.feature, first.dots)
+            else:
+                sums.add(ids, samples.weight, samples.feature, samples.dots)
             layers.add(ids, samples)
             pending.append(_view_rows(view_id, ids, samples))
             if len(pending) >= 16:
@@ -217,39 +292,71 @@ def _fuse_views(
                 pending.clear()
         if pending:
             append_rows(writer, pa.concat_tables(pending))
-    return index, layers
+    return _FirstPass(index, layers, later, sums)
 
 
-def _cells_table(
-    columns: pa.Table, index: CellIndex, layers: _CellLayers, config: GridConfig, weight: np.ndarray
-) -> tuple[pa.Table, GridLayout]:
-    """The common columns plus the grid's own, and the layout of the occupied cells."""
+def _fuse_pass(
+    store: Store,
+    config: GridConfig,
+    sums: CandidateSums,
+    index: CellIndex,
+    first_id: int,
+    views: list[int],
+) -> None:
+    """A later pass of bounded-memory fusion: the samples of cells ``first_id..`` (as many
+    as ``sums`` holds) from the views that see them, in view order as the first pass."""
+    last = first_id + sums.size
+    for _, frame, feature_map in _views(store, set(views), desc=f"fuse grid (cells {first_id}+)"):
+        samples = _samples(config, frame, feature_map, sums.text)
+        ids = index.find(samples.keys)
+        keep = np.flatnonzero((ids >= first_id) & (ids < last))
+        part = samples.take(keep)
+        sums.add(ids[keep] - first_id, part.weight, part.feature, part.dots)
+
+
+def _layout(index: CellIndex, cell_size: float) -> tuple[GridLayout, np.ndarray, np.ndarray]:
+    """The layout of the occupied cells and every cell's (ix, iy) from the grid origin."""
     ix, iy = unpack_cells(index.keys_by_id())
     lo = (int(ix.min()), int(iy.min()))
-    cs = config.cell_size
     layout = GridLayout(
-        cs,
-        (round(lo[0] * cs, 9), round(lo[1] * cs, 9)),
+        cell_size,
+        (round(lo[0] * cell_size, 9), round(lo[1] * cell_size, 9)),
         (int(ix.max()) - lo[0] + 1, int(iy.max()) - lo[1] + 1),
     )
-    n = index.size
-    z_max = layers.z_max[:n]
+    return layout, ix - lo[0], iy - lo[1]
+
+
+def _cells_chunk(
+    columns: pa.Table,
+    rows: slice,
+    grid_ix: np.ndarray,
+    grid_iy: np.ndarray,
+    layout: GridLayout,
+    layers: _CellLayers,
+    config: GridConfig,
+    weight: np.ndarray,
+) -> pa.Table:
+    """The common columns of cells ``rows`` plus the grid's own."""
+    cs = config.cell_size
+    ix, iy = grid_ix[rows], grid_iy[rows]
+    ox, oy = round(layout.origin[0] / cs), round(layout.origin[1] / cs)
+    z_max = layers.z_max[rows]
     grid_columns = {
-        "ix": pa.array((ix - lo[0]).astype(np.int32)),
-        "iy": pa.array((iy - lo[1]).astype(np.int32)),
-        "x": pa.array(((ix + 0.5) * cs).astype(np.float32)),
-        "y": pa.array(((iy + 0.5) * cs).astype(np.float32)),
+        "ix": pa.array(ix.astype(np.int32)),
+        "iy": pa.array(iy.astype(np.int32)),
+        "x": pa.array(((ix + ox + 0.5) * cs).astype(np.float32)),
+        "y": pa.array(((iy + oy + 0.5) * cs).astype(np.float32)),
         "z_max": pa.array(z_max),
         "weight": pa.array(weight.astype(np.float32)),
-        "r": pa.array(layers.rgb[:n, 0]),
-        "g": pa.array(layers.rgb[:n, 1]),
-        "b": pa.array(layers.rgb[:n, 2]),
+        "r": pa.array(layers.rgb[rows, 0]),
+        "g": pa.array(layers.rgb[rows, 1]),
+        "b": pa.array(layers.rgb[rows, 2]),
         "obstacle": pa.array(z_max > config.obstacle_height),
-        "num_pixels": pa.array(layers.num_pixels[:n].astype(np.int32)),
+        "num_pixels": pa.array(layers.num_pixels[rows].astype(np.int32)),
     }
     for name, col in grid_columns.items():
         columns = columns.append_column(name, col)
-    return columns, layout
+    return columns
 
 
 def _write_png(image: np.ndarray, path: Path) -> None:
@@ -281,8 +388,102 @@ def write_grid_images(store: Store, cells: pa.Table) -> None:
     )
 
 
+def default_memory_budget() -> int:
+    """Bytes a grid fusion may use when not told: half of this machine's memory."""
+    try:
+        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") // 2
+    except (ValueError, OSError, AttributeError):
+        return 8 << 30
+
+
+FIXED_MEMORY = 1536 << 20
+"""Bytes of a budget kept for everything but the per-cell state: the program, a view's
+temporaries, the cell_views writer's buffers, one chunk of map columns, the cell index."""
+
+
+def cells_per_pass(config: GridConfig, dim: int, num_classes: int) -> int:
+    """Cells whose streaming state fits the memory budget beside what is already resident.
+
+    ``config.cells_per_pass`` wins when set; otherwise ``(budget - resident - FIXED_MEMORY)``
+    over the state of a cell (:meth:`CandidateSums.bytes_per_candidate`, plus its index and
+    layer entries). A floor whose cells all fit is fused in one pass, exactly as without a
+    budget.
+    """
+    if config.cells_per_pass is not None:
+        return config.cells_per_pass
+    budget = config.memory_budget or default_memory_budget()
+    free = budget - resident_bytes() - FIXED_MEMORY
+    per_cell = CandidateSums.bytes_per_candidate(dim, num_classes) + 64
+    if free < 1024 * per_cell:
+        msg = (
+            f"a memory budget of {budget / 2**30:.2f} GiB leaves room for fewer than 1024 cells "
+            f"(this process already holds {resident_bytes() / 2**30:.2f} GiB); raise --memory-budget"
+        )
+        raise FuseError(msg)
+    return int(free // per_cell)
+
+
+def _write_cells(
+    store: Store,
+    config: GridConfig,
+    text: np.ndarray,
+    first: _FirstPass,
+    capacity: int,
+    path: Path,
+    metadata: dict[bytes, bytes],
+    final: Path,
+) -> None:
+    """Write ``cells.parquet`` (to ``path``, later renamed to ``final``) chunk by chunk in
+    id order, and its query sidecar (:mod:`fuse.sidecar`) beside ``final``: the first
+    pass's cells from ``sums``, then each later pass's, fused from the views that see them."""
+    layout, grid_ix, grid_iy = _layout(first.index, config.cell_size)
+    metadata = {**metadata, **layout.metadata()}
+    n_cells = first.index.size
+    writer: pq.ParquetWriter | None = None
+    n_top = min(len(text), MAX_TOP_CLASSES)
+    sidecar = SidecarWriter(sidecar_path(final), n_cells, text.shape[1], n_top, len(text), metadata)
+    sums, first.sums = first.sums, None  # the only reference: each pass's state is freed
+    try:
+        for p, first_id in enumerate(range(0, n_cells, capacity)):
+            if p > 0:
+                del sums  # the previous pass's state goes before the next one's is allocated
+                size = min(capacity, n_cells - first_id)
+                sums = CandidateSums(
+                    text.shape[1], text, config.logit_scale, capacity=size, limit=size
+                )
+                sums.ensure(size)
+                _fuse_pass(store, config, sums, first.index, first_id, first.later.get(p, []))
+            weight = sums.weight
+            for chunk in sums.iter_columns(first_id=first_id, with_log_confidence=True):
+                sidecar.write(chunk)
+                if "log_confidence" in chunk.column_names:
+                    chunk = chunk.drop_columns(["log_confidence"])
+                lo = chunk.column("candidate_id")[0].as_py()
+                rows = slice(lo, lo + chunk.num_rows)
+                table = _cells_chunk(
+                    chunk, rows, grid_ix, grid_iy, layout, first.layers, config,
+                    weight[lo - first_id : lo - first_id + chunk.num_rows],
+                )  # fmt: skip
+                if writer is None:
+                    md = {**(table.schema.metadata or {}), **metadata}
+                    md[b"care.schema_version"] = str(SCHEMA_VERSION).encode()
+                    writer = open_writer(path, table.schema.with_metadata(md))
+                append_rows(writer, table.replace_schema_metadata(writer.schema.metadata))
+        sidecar.commit()
+    finally:
+        sidecar.abort()
+        if writer is not None:
+            writer.close()
+
+
 def build_grid(store_path: Path, config: GridConfig | None = None, rrd: Path | None = None) -> Path:
     """Fuse the store's views into ``cells.parquet`` (and siblings); returns its path.
+
+    Memory follows ``config.memory_budget``, not the floor area: the streaming pass keeps
+    the state of the first :func:`cells_per_pass` cells (ids in order of first appearance)
+    and notes which views see the others; each further block of cells is then fused in a
+    pass over just those views. Every cell gets the same samples in the same view order
+    either way, so the map is the same whatever the budget (``tests/fuse/test_grid.py``).
 
     ``rrd``: also log the grid layers to this Rerun file (:mod:`fuse.viz_grid`).
     """
@@ -295,27 +496,33 @@ def build_grid(store_path: Path, config: GridConfig | None = None, rrd: Path | N
         check_height_band(store, config.z_min, config.z_max)  # before any work
         views_path = store.table_path(CELL_VIEWS_TABLE)
         tmp = views_path.with_name(f".{views_path.name}.tmp-{os.getpid()}")
+        tmp_cells = cells_path.with_name(f".{cells_path.name}.tmp-{os.getpid()}")
         try:
-            sums = CandidateSums(store.encoder.dim, text, config.logit_scale)
-            index, layers = _fuse_views(store, config, sums, tmp)
-            if index.size == 0:
+            dim = store.encoder.dim
+            capacity = cells_per_pass(config, dim, len(text))
+            sums = CandidateSums(dim, text, config.logit_scale, limit=capacity)
+            first = _fuse_views(store, config, sums, tmp, capacity)
+            del sums  # first.sums holds it, until _write_cells lets it go
+            if first.index.size == 0:
                 msg = (
                     f"{store.path}: no depth pixel fell between z_min={config.z_min} and "
                     f"z_max={config.z_max} m; check the poses or widen the band"
                 )
                 raise FuseError(msg)
-            cells, layout = _cells_table(sums.columns(), index, layers, config, sums.weight)
             metadata = {
                 **candidate_metadata(vocabulary, config.logit_scale, store.encoder.name),
-                **layout.metadata(),
                 b"care.grid.config": config.fingerprint().encode(),
                 b"care.store.created": store_stamp(store),
             }
+            _write_cells(store, config, text, first, capacity, tmp_cells, metadata, cells_path)
+            del first
             tmp.replace(views_path)  # per-view table first: a current cells.parquet implies it
-            write_table_atomic(cells, cells_path, metadata)
+            tmp_cells.replace(cells_path)
         finally:
             tmp.unlink(missing_ok=True)
-        write_grid_images(store, read_table(cells_path))
+            tmp_cells.unlink(missing_ok=True)
+        columns = ["ix", "iy", "r", "g", "b", "obstacle"]
+        write_grid_images(store, read_table(cells_path, columns))
     if rrd is not None:
         from fuse.viz_grid import log_grid
 

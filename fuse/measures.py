@@ -36,10 +36,13 @@ __all__ = [
     "class_logits",
     "entropy",
     "list_column",
+    "log_confidence",
     "log_norm",
+    "pwkl_comoment",
     "pwkl_linear",
     "pwkl_pairwise",
     "pwkl_terms",
+    "stderr_from_moments",
     "to_float16",
     "top_classes",
     "weighted_stderr",
@@ -71,6 +74,26 @@ def log_norm(
     feature alone, without materialising the whole (N, n) distribution.
     """
     return logsumexp(class_logits(features, text, scale), axis=1)
+
+
+def log_confidence(logits: np.ndarray, lnorm: np.ndarray) -> np.ndarray:
+    """(N, n) float64 ``log P_c[y]`` that keeps its precision where ``P_c[y]`` is near 1.
+
+    ``logits - log_norm`` is exact to ~1e-16 absolute, plenty for every class but a row's
+    most likely one, whose log-probability can be -1e-30: there it is
+    ``-log1p(sum_{z != y} exp(l_z - l_y))`` (method.md), so near-certain candidates keep
+    distinct values instead of tying at 0 (probability 1).
+    """
+    logits = np.asarray(logits, np.float64)
+    out = logits - np.asarray(lnorm, np.float64)[:, None]
+    if out.shape[1] == 0 or out.shape[0] == 0:
+        return out
+    rows = np.arange(len(logits))
+    top = logits.argmax(axis=1)
+    rest = np.exp(logits - logits[rows, top][:, None])
+    rest[rows, top] = 0.0
+    out[rows, top] = -np.log1p(rest.sum(axis=1))
+    return out
 
 
 def class_distribution(
@@ -111,6 +134,39 @@ def weighted_stderr(
     m_eff = np.where(ok, W1 * W1 / np.where(ok, W2, 1.0), 1.0)
     se = np.sqrt(var).mean(axis=1) / np.sqrt(m_eff)
     return np.where(ok, se, np.inf)
+
+
+def stderr_from_moments(
+    W1: np.ndarray, W2: np.ndarray, M2: np.ndarray, num_views: np.ndarray
+) -> np.ndarray:
+    """(N,) :func:`weighted_stderr` from Welford/Chan moments: ``sigma_k^2 = M2_k / W1``.
+
+    ``M2_k = sum_j w_j (f_jk - mu_k)^2`` is accumulated from deviations
+    (:class:`fuse.accumulate.CandidateSums`), so nothing cancels here and float32 ``M2``
+    keeps views that agree to 1e-4 at float32 precision.
+    """
+    W1 = np.asarray(W1, dtype=np.float64)
+    W2 = np.asarray(W2, dtype=np.float64)
+    num_views = np.asarray(num_views)
+    ok = (num_views >= 2) & (W1 > 0) & (W2 > 0)
+    w1 = np.where(ok, W1, 1.0)
+    sigma = np.sqrt(np.clip(np.asarray(M2, np.float64), 0.0, None) / w1[:, None])
+    m_eff = np.where(ok, W1 * W1 / np.where(ok, W2, 1.0), 1.0)
+    se = sigma.mean(axis=1) / np.sqrt(m_eff) if sigma.shape[1] else np.zeros(len(W1))
+    return np.where(ok, se, np.inf)
+
+
+def pwkl_comoment(C: np.ndarray, num_views: np.ndarray) -> np.ndarray:
+    """(N,) mean pairwise symmetric KL from the co-moment ``C``; ``+inf`` below two views.
+
+    ``C = sum_j sum_y (P_j[y] - Pbar[y]) (a_j[y] - abar[y])`` over a candidate's m views is
+    the linear identity's ``sum_y [m S_y - Q_y A_y]`` divided by m (expand the product), so
+    ``D = C / (m - 1)``. Streamed by Welford's update it subtracts no large sums.
+    """
+    m = np.asarray(num_views, dtype=np.float64)
+    ok = m >= 2
+    D = np.asarray(C, np.float64) / np.where(ok, m - 1.0, 1.0)
+    return np.where(ok, np.clip(D, 0.0, None), np.inf)
 
 
 def pwkl_terms(P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -201,12 +257,16 @@ def candidate_columns(
     stderr: np.ndarray,
     pwkl: np.ndarray,
     top: int = MAX_TOP_CLASSES,
+    first_id: int = 0,
+    with_log_confidence: bool = False,
 ) -> pa.Table:
     """The columns every map table shares, for N candidates, in row order.
 
     ``fused`` is the (N, d) weighted mean of each candidate's per-view features (it is
     re-normalised here); ``stderr`` and ``pwkl`` come from :func:`weighted_stderr` and
-    :func:`pwkl_linear`. Confidence of class y is ``exp(s * feature . t_y - log_norm)``;
+    :func:`pwkl_linear` (or their streaming forms). ``first_id``: candidate id of the first
+    row, for a map written in chunks. ``with_log_confidence`` adds ``log_confidence``, a
+    fixed-size list of :func:`log_confidence` per class (float32), for the query sidecar. Confidence of class y is ``exp(s * feature . t_y - log_norm)``;
     ``top_classes`` / ``top_probs`` summarise P_c for the top-k category criterion.
     """
     # Measures are computed from the float16 feature as stored, so a reader's
@@ -218,9 +278,15 @@ def candidate_columns(
     lnorm = logsumexp(logits, axis=1) if logits.shape[1] else np.zeros(n_cand)
     P = np.exp(logits - lnorm[:, None])
     classes, probs = top_classes(P, top)
+    extra = {}
+    if with_log_confidence and logits.shape[1]:
+        logp = log_confidence(logits, lnorm).astype(np.float32)
+        extra["log_confidence"] = pa.FixedSizeListArray.from_arrays(
+            pa.array(logp.ravel()), logits.shape[1]
+        )
     return pa.table(
         {
-            "candidate_id": pa.array(np.arange(n_cand, dtype=np.int32)),
+            "candidate_id": pa.array(np.arange(first_id, first_id + n_cand, dtype=np.int32)),
             "num_views": pa.array(np.asarray(num_views, dtype=np.int32)),
             "feature": list_column(fused16, pa.float16()),
             "log_norm": pa.array(lnorm.astype(np.float32)),
@@ -229,6 +295,7 @@ def candidate_columns(
             "entropy": pa.array(entropy(P).astype(np.float32)),
             "stderr": pa.array(np.asarray(stderr, dtype=np.float32)),
             "pwkl": pa.array(np.asarray(pwkl, dtype=np.float32)),
+            **extra,
         }
     )
 

@@ -9,17 +9,18 @@ record batch at a time.
 from __future__ import annotations
 
 import json
+import shutil
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.parquet as pq
 
 from care.errors import FuseError
-from care.store import Store, read_table, write_table_atomic
+from care.store import Store, iter_batches, read_table, write_table_atomic
 from fuse.accumulate import CandidateSums
 from fuse.measures import candidate_metadata
+from fuse.sidecar import sidecar_path
 from fuse.vocabulary import vocabulary_text
 
 __all__ = ["recompute_candidates", "recompute_grid", "sums_from_views"]
@@ -43,7 +44,7 @@ def sums_from_views(
     sums = CandidateSums(dim, text, scale, capacity=max(num_candidates, 1))
     sums.ensure(num_candidates)
     columns = [id_column, "feature", *([weight_column] if weight_column else [])]
-    for batch in pq.ParquetFile(path).iter_batches(batch_size=65536, columns=columns):
+    for batch in iter_batches(path, 65536, columns):
         ids = batch.column(id_column).to_numpy()
         flat = batch.column("feature").values.to_numpy(zero_copy_only=False)
         if flat.size != ids.size * dim:
@@ -113,5 +114,6 @@ def recompute_candidates(
     config = json.loads(md.get(key, b"{}"))
     config.update(vocabulary=None if vocabulary is None else list(names), logit_scale=scale)
     md[key] = json.dumps(config, sort_keys=True).encode()
+    shutil.rmtree(sidecar_path(path), ignore_errors=True)  # it described the map before
     write_table_atomic(new, path, md)
     return path

@@ -24,6 +24,7 @@ from care.encoders.record import RECORD_KEY, EncoderRecord
 from care.errors import IngestError
 from care.frames import Frame
 from care.store import SCHEMA_VERSION, StoreWriter
+from care.threads import Work, threads_for
 from ingest.select import FrameSelection, FrameSelector
 from ingest.source import ReadOptions, RecordingFrames
 
@@ -246,7 +247,8 @@ def _stream(
     batch: list[Frame] = []
 
     def flush() -> None:
-        features = encoder.encode_views(batch) if encoder is not None else None
+        with threads_for(Work.ENCODE):  # the model's products scale with cores
+            features = encoder.encode_views(batch) if encoder is not None else None
         if features is not None and len(features) != len(batch):
             msg = f"encoder {encoder.name!r} returned {len(features)} feature maps for {len(batch)} views"
             raise IngestError(msg)

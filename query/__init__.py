@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from query.confidence import confidence, rank_by_confidence
+from query.confidence import confidence, log_confidence, rank_by_confidence
 from query.map import MEASURES, CandidateMap, MapKind, load_map, map_from_table
 from query.text import TextMatch, resolve_text
 
@@ -13,6 +13,7 @@ __all__ = [
     "TextMatch",
     "confidence",
     "load_map",
+    "log_confidence",
     "map_from_table",
     "rank_by_confidence",
     "resolve_text",

@@ -14,15 +14,35 @@ import numpy as np
 from care.errors import QueryError
 from query.map import CandidateMap
 
-__all__ = ["confidence", "rank_by_confidence"]
+__all__ = ["confidence", "log_confidence", "rank_by_confidence"]
 
 
-def confidence(cmap: CandidateMap, class_ids: np.ndarray | int) -> np.ndarray:
-    """(Q, N) float32 confidence P_c[y] of every candidate for each query class ``y``."""
+def _class_ids(cmap: CandidateMap, class_ids: np.ndarray | int) -> np.ndarray:
     ids = np.atleast_1d(np.asarray(class_ids, dtype=np.int64))
     if ids.size and (ids.min() < 0 or ids.max() >= len(cmap.vocabulary)):
         msg = f"class id out of range 0..{len(cmap.vocabulary) - 1}: {ids.min()}..{ids.max()}"
         raise QueryError(msg)
+    return ids
+
+
+def log_confidence(cmap: CandidateMap, class_ids: np.ndarray | int) -> np.ndarray:
+    """(Q, N) float32 ``log P_c[y]``: ranks like :func:`confidence` but keeps near-certain
+    candidates apart (P = 1 - 1e-9 and 1 - 1e-12 are both 1.0 in float32, their logs are
+    not). A map with a query sidecar reads one row per class: no (N, d) product."""
+    ids = _class_ids(cmap, class_ids)
+    if cmap.log_confidence_rows is not None:
+        return cmap.log_confidence_of(ids)
+    table = cmap.log_confidence_table
+    if table is not None:
+        return table[ids]
+    uniq, inverse = np.unique(ids, return_inverse=True)
+    out = cmap.log_confidence_of(uniq)
+    return out[inverse] if len(uniq) < len(ids) or not np.array_equal(uniq, ids) else out
+
+
+def confidence(cmap: CandidateMap, class_ids: np.ndarray | int) -> np.ndarray:
+    """(Q, N) float32 confidence P_c[y] of every candidate for each query class ``y``."""
+    ids = _class_ids(cmap, class_ids)
     table = cmap.log_confidence_table
     if table is not None:
         out = table[ids]

@@ -21,7 +21,8 @@ import numpy as np
 import pyarrow as pa
 
 from care.errors import QueryError
-from care.store import read_table
+from care.store import read_schema, read_table
+from fuse.sidecar import read_sidecar
 
 __all__ = [
     "LOG_CONFIDENCE_CACHE",
@@ -104,6 +105,9 @@ class CandidateMap:
     text_encoder: Callable[[Sequence[str]], np.ndarray] | None = None
     """The store's own text side for free text (:class:`query.openvocab.StoreText`, set by
     :func:`load_map`); None for maps built in memory."""
+    log_confidence_rows: np.ndarray | None = None
+    """(n, N) float32 ``log P_c[y]`` per class, class-major (memory-mapped from the map's
+    query sidecar, :mod:`fuse.sidecar`); None: computed from the features when needed."""
 
     def __post_init__(self) -> None:
         n_cand = len(self.features)
@@ -178,6 +182,9 @@ class CandidateMap:
             point_indices=self.point_indices[pos.astype(np.int64)],
             encoder_name=self.encoder_name,
             cell_size=self.cell_size,
+            log_confidence_rows=None
+            if self.log_confidence_rows is None
+            else self.log_confidence_rows[:, ids],
         )
         return sub, ids
 
@@ -189,19 +196,65 @@ class CandidateMap:
         Built at first use: a fixed vocabulary makes every query a row gather afterwards.
         """
         n_cls, n_cand = len(self.vocabulary), self.num_candidates
+        if self.log_confidence_rows is not None:
+            return self.log_confidence_rows
         if n_cls * n_cand > LOG_CONFIDENCE_CACHE or n_cand == 0:
             return None
         return self.log_confidence_of(np.arange(n_cls))
 
     def log_confidence_of(self, class_ids: np.ndarray) -> np.ndarray:
-        """(U, N) float32 ``log P_c[y]`` for the given classes, computed from the columns.
+        """(U, N) float32 ``log P_c[y]`` for the given classes.
 
-        Capped at 0: float32 logits at CLIP's scale of 100 carry ~1e-5 of rounding, so a sure
-        candidate would read 1.00002 (the cap never changes a ranking but the tie at 1).
+        From the sidecar when the map has one (a row read; exact near 1, see
+        :func:`fuse.measures.log_confidence`), else computed from the columns, capped at 0:
+        float32 logits at CLIP's scale of 100 carry ~1e-5 of rounding, so a sure candidate
+        would read 1.00002 (the cap never changes a ranking but the tie at 1).
         """
-        out = (self.text[class_ids] * np.float32(self.logit_scale)) @ self.features.T
+        class_ids = np.asarray(class_ids, dtype=np.int64)
+        if self.log_confidence_rows is not None:
+            return np.array(self.log_confidence_rows[class_ids], dtype=np.float32)
+        weights = self.text[class_ids] * np.float32(self.logit_scale)
+        out = np.empty((len(class_ids), self.num_candidates), np.float32)
+        step = 1 << 16  # features may be float16 (memory-mapped): converted a block at a time
+        for lo in range(0, self.num_candidates, step):
+            block = np.asarray(self.features[lo : lo + step], dtype=np.float32)
+            out[:, lo : lo + step] = weights @ block.T
         out -= self.log_norm[None, :]
         return np.minimum(out, 0.0, out=out)
+
+    @cached_property
+    def _cell_raster(self) -> tuple[np.ndarray, np.ndarray]:
+        """Grid maps: (nx, ny) int32 candidate id of every cell (-1 empty) and the (ix, iy)
+        of every candidate, from the cell centres: the spatial index of :meth:`near`."""
+        cs = float(self.cell_size or 1.0)
+        cells = np.rint(self.positions[:, :2].astype(np.float64) / cs - 0.5).astype(np.int64)
+        cells -= cells.min(axis=0) if len(cells) else 0
+        shape = tuple(int(v) + 1 for v in cells.max(axis=0)) if len(cells) else (0, 0)
+        raster = np.full(shape, -1, np.int32)
+        raster[cells[:, 0], cells[:, 1]] = np.arange(len(cells), dtype=np.int32)
+        return raster, cells
+
+    def near(self, candidate: int, radius: float) -> np.ndarray:
+        """Ids of the candidates whose floor-plane centre lies within ``radius`` of
+        ``candidate``'s (itself included).
+
+        A grid map looks in the window of cells around it (its spatial index, built once),
+        so excluding a failed attempt's surroundings costs the window, not a pass over every
+        cell; other maps compare every centre.
+        """
+        xy = self.positions[:, :2]
+        if self.kind != "grid" or not self.cell_size:
+            d2 = ((xy - xy[candidate]) ** 2).sum(-1)
+            return np.flatnonzero(d2 <= radius**2)
+        raster, cells = self._cell_raster
+        reach = int(np.ceil(radius / self.cell_size)) + 1
+        cx, cy = cells[candidate]
+        window = raster[
+            max(cx - reach, 0) : cx + reach + 1, max(cy - reach, 0) : cy + reach + 1
+        ].ravel()
+        ids = window[window >= 0]
+        d2 = ((xy[ids] - xy[candidate]) ** 2).sum(-1)
+        return np.sort(ids[d2 <= radius**2])
 
     @cached_property
     def _rank_index(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
@@ -250,16 +303,29 @@ def _meta(table: pa.Table, key: str, path: Path) -> str:
 
 
 def map_from_table(
-    table: pa.Table, text: np.ndarray, kind: MapKind, *, path: Path | None = None
+    table: pa.Table,
+    text: np.ndarray,
+    kind: MapKind,
+    *,
+    path: Path | None = None,
+    sidecar: dict[str, np.ndarray] | None = None,
 ) -> CandidateMap:
     """Build a :class:`CandidateMap` from a map table (with its schema metadata) and the
-    (n, d) text embeddings of its vocabulary."""
+    (n, d) text embeddings of its vocabulary.
+
+    With a ``sidecar`` (:func:`fuse.sidecar.read_sidecar`) the features, top classes and
+    per-class log-confidence are its memory-mapped arrays and the table needs only the
+    other columns."""
     where = path or Path(f"<{kind} table>")
     vocabulary = tuple(json.loads(_meta(table, "care.vocabulary", where)))
     scale = float(_meta(table, "care.logit_scale", where))
     md = table.schema.metadata or {}
     n_cand = table.num_rows
-    features = list_column(table, "feature", np.float32)
+    if sidecar is None:
+        features = list_column(table, "feature", np.float32)
+        top = list_column(table, "top_classes", np.int16).reshape(n_cand, -1)
+    else:
+        features, top = sidecar["feature"], sidecar["top_classes"]
     if kind == "grid":
         positions = np.stack(
             [table.column(c).to_numpy().astype(np.float32) for c in ("x", "y", "z_max")], axis=1
@@ -282,7 +348,7 @@ def map_from_table(
         logit_scale=scale,
         features=features.reshape(n_cand, -1),
         log_norm=table.column("log_norm").to_numpy().astype(np.float32),
-        top_classes=list_column(table, "top_classes", np.int16).reshape(n_cand, -1),
+        top_classes=top,
         entropy=table.column("entropy").to_numpy().astype(np.float32),
         stderr=table.column("stderr").to_numpy().astype(np.float32),
         pwkl=table.column("pwkl").to_numpy().astype(np.float32),
@@ -292,6 +358,7 @@ def map_from_table(
         point_indices=indices,
         encoder_name=(md.get(b"care.encoder.name") or b"").decode(),
         cell_size=cell_size,
+        log_confidence_rows=None if sidecar is None else sidecar["log_confidence"],
     )
 
 
@@ -316,17 +383,25 @@ def load_map(
 ) -> CandidateMap:
     """Read a store's ``instances.parquet`` or ``cells.parquet`` (and ``text.parquet``).
 
-    Free text is embedded by the store's own model (``weights`` if its weights directory
-    moved), loaded at the first free-text query.
+    A map with a current query sidecar (:mod:`fuse.sidecar`) opens in milliseconds at a
+    million cells: only the narrow columns are decoded, the rest is memory-mapped. Free text
+    is embedded by the store's own model (``weights`` if its weights directory moved), loaded
+    at the first free-text query.
     """
     store = Path(store)
     if kind not in MAP_TABLES:
         msg = f"unknown map kind {kind!r}; choose one of {', '.join(MAP_TABLES)}"
         raise QueryError(msg)
     path = store / f"{MAP_TABLES[kind]}.parquet"
-    table = read_table(path)
+    schema = read_schema(path)
+    sidecar = read_sidecar(path, schema.metadata or {})
+    # with a sidecar the wide columns stay on disk, memory-mapped (fuse.sidecar)
+    wide = ("feature", "top_classes", "top_probs")
+    columns = None if sidecar is None else [n for n in schema.names if n not in wide]
+    table = read_table(path, columns)
     vocabulary = tuple(json.loads(_meta(table, "care.vocabulary", path)))
     from query.openvocab import StoreText
 
-    cmap = map_from_table(table, _vocabulary_text(store, vocabulary), kind, path=path)
+    text = _vocabulary_text(store, vocabulary)
+    cmap = map_from_table(table, text, kind, path=path, sidecar=sidecar)
     return dataclasses.replace(cmap, text_encoder=StoreText(store, weights))

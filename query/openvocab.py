@@ -24,6 +24,7 @@ import numpy as np
 
 from care.errors import CareError, QueryError
 from query.confidence import confidence as class_confidence
+from query.confidence import log_confidence as class_log_confidence
 from query.map import LOG_CONFIDENCE_CACHE, NOT_IN_TOP, CandidateMap
 from query.text import TextMatch, resolve_text
 
@@ -139,11 +140,17 @@ class QueryTarget:
     def free_text(self) -> bool:
         return self.q_logit is not None
 
+    def log_confidence(self) -> np.ndarray:
+        """(N,) float32 log P_c of the target (what rankings use: no ties at P = 1.0)."""
+        if self.q_logit is None:
+            return class_log_confidence(self.cmap, np.array([self.match.class_id]))[0]
+        return np.minimum(self.q_logit - self.log_norm, 0.0)
+
     def confidence(self) -> np.ndarray:
         """(N,) float32 P_c of the target: softmax over the vocabulary (plus the free text)."""
         if self.q_logit is None:
             return class_confidence(self.cmap, np.array([self.match.class_id]))[0]
-        return np.exp(np.minimum(self.q_logit - self.log_norm, 0.0))
+        return np.exp(self.log_confidence())
 
     def class_rank(self, limit: int | None = None) -> np.ndarray:
         """(N,) int16 place of the target in each candidate's class order (0 = top), as

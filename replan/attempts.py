@@ -234,7 +234,8 @@ def next_goal(
     from query.openvocab import QueryTarget, open_query
 
     target = query if isinstance(query, QueryTarget) else open_query(cmap, query)
-    conf = target.confidence()[None]
+    # ranked by log-confidence: the same order as confidence, without float32's ties at 1.0
+    conf = target.log_confidence()[None]
     visited_ids = np.asarray(visited, dtype=np.int64).reshape(-1)
     if visited_ids.size and (visited_ids.min() < 0 or visited_ids.max() >= cmap.num_candidates):
         msg = f"visited candidate ids must lie in 0..{cmap.num_candidates - 1}"
@@ -244,15 +245,18 @@ def next_goal(
     available = np.ones_like(conf, dtype=bool)
     available[0, candidates_near(cmap, places, default_radius)] = False
     radius = default_radius if cmap.kind == "grid" else 0.0
-    positions = cmap.positions if cmap.kind == "grid" else None
-    for v in visited_ids:
-        available = available_after(available, np.array([v]), positions, radius)
+    available[0, visited_ids] = False
+    if radius > 0:  # the map's spatial index: each exclusion costs its window, not N
+        for v in np.unique(visited_ids):
+            available[0, cmap.near(int(v), radius)] = False
     chosen = get_strategy(strategy)
     # no_replan after a visit: _step says it makes no attempt
     first = visited_ids.size == 0 and not len(places)
     if first:
         cand, found = best_of(conf, available, conf, maximise=True)
-        pick = Pick(np.where(found, cand, -1), conf[0, cand].astype(np.float64), np.zeros(1, bool))
+        pick = Pick(
+            np.where(found, cand, -1), np.exp(conf[0, cand].astype(np.float64)), np.zeros(1, bool)
+        )
         size = np.zeros(1, np.int64)
     else:
         rank = target.class_rank(limit=k)[None] if criterion == "category" else None
@@ -264,12 +268,16 @@ def next_goal(
     c = int(pick.candidate[0])
     fell = bool(pick.fell_back[0])
     used = "max_confidence" if first or fell else chosen.name
+    measure = "confidence" if first or fell else chosen.measure
+    value = float(pick.value[0]) if c >= 0 else float("nan")
+    if measure == "confidence" and not first:  # chosen by log-confidence: report P
+        value = float(np.exp(value))
     return Choice(
         candidate=c,
         strategy=used,
-        measure="confidence" if first or fell else chosen.measure,
-        value=float(pick.value[0]) if c >= 0 else float("nan"),
-        confidence=float(conf[0, c]) if c >= 0 else float("nan"),
+        measure=measure,
+        value=value,
+        confidence=float(np.exp(np.float64(conf[0, c]))) if c >= 0 else float("nan"),
         fell_back=fell,
         set_size=int(size[0]),
     )

@@ -159,11 +159,12 @@ def read_queries(path: Path) -> list[BatchQuery]:
 
 @dataclass(frozen=True)
 class _Resolved:
-    """The queries of one chunk as arrays: confidence, category ranks and searched places."""
+    """The queries of one chunk as arrays: log-confidence, category ranks, searched places."""
 
     target: list[str]
     method: list[str]
     conf: np.ndarray
+    """(Q, N) float32 log P_c of each query's target."""
     rank: np.ndarray | None
     searched: np.ndarray
 
@@ -178,7 +179,7 @@ def _resolve(cmap: CandidateMap, queries: Sequence[BatchQuery], config: BatchCon
         searched[i, candidates_near(cmap, np.array(q.visited_at), config.exclude_radius)] = True
     for text, target in targets.items():
         rows = [i for i, q in enumerate(queries) if q.text == text]
-        conf[rows] = target.confidence()
+        conf[rows] = target.log_confidence()  # ranked as next_goal ranks: no ties at 1.0
         if rank is not None:
             rank[rows] = target.class_rank(limit=config.k)
     return _Resolved(
@@ -202,7 +203,7 @@ def _rows(
     has = candidate >= 0
     cols: dict[str, np.ndarray] = {
         "candidate": candidate,
-        "confidence": np.where(has, conf, np.nan).astype(np.float32),
+        "confidence": np.where(has, np.exp(conf), np.nan).astype(np.float32),
         **{m: np.where(has, cmap.column(m)[c], np.nan).astype(np.float32) for m in MEASURES},
         "num_views": np.where(has, cmap.num_views[c], 0).astype(np.int32),
         **{

@@ -10,6 +10,7 @@ from pathlib import Path
 import duckdb
 import numpy as np
 import polars as pl
+import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 from PIL import Image
@@ -200,6 +201,68 @@ def test_grid_layers_and_readers(tmp_path: Path) -> None:
     )
 
 
+def test_cell_views_read_as_numbers_by_polars_and_duckdb(tmp_path: Path) -> None:
+    """The per-view features are a fixed-size float16 list: polars and duckdb, which no one
+    here wrote, read the same numbers as pyarrow."""
+    store = _store(tmp_path / "s")
+    build_grid(store, GridConfig(cell_size=0.1))
+    path = store / "cell_views.parquet"
+    table = pq.read_table(path)
+    dim = _text().shape[1]
+    assert table.schema.field("feature").type == pa.list_(pa.float16(), dim)
+    want = table.column("feature").combine_chunks().flatten().to_numpy().astype(np.float64)
+    want = want.reshape(table.num_rows, dim)
+    df = pl.read_parquet(path)
+    assert df.schema["feature"] == pl.Array(pl.Float16, dim)
+    np.testing.assert_array_equal(df["feature"].to_numpy().astype(np.float64), want)
+    rows = duckdb.sql(
+        f"select feature[1], feature[{dim}], list_sum(feature) from '{path}'"
+    ).fetchall()
+    got = np.array(rows, dtype=np.float64)
+    np.testing.assert_array_equal(got[:, 0], want[:, 0])
+    np.testing.assert_array_equal(got[:, 1], want[:, -1])
+    np.testing.assert_allclose(got[:, 2], want.sum(1), rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize("cells_per_pass", [7, 50])
+def test_bounded_memory_passes_give_the_same_map(tmp_path: Path, cells_per_pass: int) -> None:
+    """Fused a few cells per pass (views read again for each later pass), the map equals the
+    one-pass map: same rows, same values up to float32 rounding, same cell_views bytes."""
+    whole = _store(tmp_path / "whole", n=5)
+    one = pq.read_table(build_grid(whole, GridConfig(cell_size=0.1)))
+    part = _store(tmp_path / "part", n=5)
+    config = GridConfig(cell_size=0.1, cells_per_pass=cells_per_pass)
+    passes = pq.read_table(build_grid(part, config))
+    assert one.num_rows > 3 * cells_per_pass  # really several passes
+    assert passes.schema.equals(one.schema)
+    md_one, md_passes = dict(one.schema.metadata), dict(passes.schema.metadata)
+    for md in (md_one, md_passes):
+        md.pop(b"care.store.created")  # two stores, two creation times
+    assert md_passes == md_one
+    for name in one.column_names:
+        a, b = one.column(name).to_pylist(), passes.column(name).to_pylist()
+        if name in ("log_norm", "entropy", "stderr", "pwkl", "top_probs"):
+            np.testing.assert_allclose(
+                np.asarray(b, np.float64), np.asarray(a, np.float64), rtol=1e-6, err_msg=name
+            )
+        else:
+            assert a == b, name
+    views = (whole / "cell_views.parquet").read_bytes()
+    assert (part / "cell_views.parquet").read_bytes() == views
+
+
+def test_memory_budget_too_small_is_one_clear_error(tmp_path: Path) -> None:
+    store = _store(tmp_path / "s")
+    with pytest.raises(FuseError, match="memory-budget"):
+        build_grid(store, GridConfig(cell_size=0.1, memory_budget=1 << 20))
+    assert not (store / "cells.parquet").exists()
+    # how memory is used is not what the map is: a budget does not force a rebuild
+    path = build_grid(store, GridConfig(cell_size=0.1))
+    mtime = path.stat().st_mtime_ns
+    build_grid(store, GridConfig(cell_size=0.1, memory_budget=4 << 30))
+    assert path.stat().st_mtime_ns == mtime
+
+
 def test_rerun_is_skipped_and_overwrite_rebuilds(tmp_path: Path) -> None:
     store = _store(tmp_path / "s")
     path = build_grid(store, GridConfig(cell_size=0.1))
@@ -324,6 +387,11 @@ def test_cli_grid_and_recompute(tmp_path: Path) -> None:
     bad = runner.invoke(app, ["fuse", "instances", str(store), "--set", "no_such_field=1"])
     assert isinstance(bad.exception, FuseError)
     assert "no_such_field" in str(bad.exception)
+    args = ["fuse", "grid", str(store), "--cell-size", "0.1", "--memory-budget"]
+    assert runner.invoke(app, [*args, "6G"]).exit_code == 0
+    bad = runner.invoke(app, [*args, "lots"])
+    assert isinstance(bad.exception, FuseError)
+    assert "--memory-budget" in str(bad.exception)
 
 
 @pytest.mark.slow

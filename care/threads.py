@@ -1,0 +1,118 @@
+"""The one place that sizes thread pools: torch's and the BLAS libraries' (via threadpoolctl).
+
+Left alone, torch and OpenBLAS each start one thread per core, and on a busy 2-core machine
+they fight each other and every other process: ``torch.index_add_`` of the grid's sums
+averaged ~95 ms a call with two threads under load, 0.5-1.6 ms with one, and the sample's
+grid took 34 s instead of 6 s. Most of our work is many small array operations per view or
+per query, which gain nothing from a second thread; parallelism comes from running scenes or
+views in separate processes. So every kind of work (:class:`Work`) has a thread count
+(:data:`THREADS`), and every entry point sets it:
+
+- the ``care`` program: :func:`use_threads` for each command's kind of work (``main``
+  sets :attr:`Work.DEFAULT` before any command runs; ``care ingest``'s encoder runs under
+  :attr:`Work.ENCODE`);
+- Ray and process-pool workers: :func:`threads_for` around the task (``evaluate.job``);
+- benchmarks: :func:`use_threads` in ``main``, so their "one core" is true for BLAS too.
+
+``CARE_THREADS=<n>`` overrides every count (for a machine of your own; 0 = all cores).
+BLAS also decides the last bits of a float32 product by its thread count, so a fixed count
+keeps near-ties deterministic across workers (``evaluate.job``).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+from enum import Enum
+
+__all__ = ["ENV_VAR", "THREADS", "Work", "thread_count", "threads_for", "use_threads"]
+
+ENV_VAR = "CARE_THREADS"
+"""Environment variable that overrides every thread count (0 = all cores)."""
+
+
+class Work(Enum):
+    """Kinds of work, each with its own thread count in :data:`THREADS`."""
+
+    DEFAULT = "default"
+    """Anything not listed: small array operations."""
+    FUSE = "fuse"
+    """Streaming fusion of views into candidate sums: many small operations per view."""
+    QUERY = "query"
+    """Queries and replanning: a few passes over the map's columns per attempt."""
+    EVAL = "eval"
+    """One scene's evaluation in a worker; scenes run in parallel processes."""
+    ENCODE = "encode"
+    """A vision-language model's forward pass: large matrix products that scale with cores."""
+
+
+THREADS: dict[Work, int | None] = {
+    Work.DEFAULT: 1,
+    Work.FUSE: 1,
+    Work.QUERY: 1,
+    Work.EVAL: 1,
+    Work.ENCODE: None,
+}
+"""Threads per kind of work; ``None`` = every core this process may use."""
+
+
+def _cores() -> int:
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def thread_count(work: Work) -> int:
+    """Threads for ``work``: :data:`THREADS`, or ``CARE_THREADS`` when set."""
+    override = os.environ.get(ENV_VAR, "").strip()
+    if override:
+        try:
+            n = int(override)
+        except ValueError:
+            n = -1
+        if n < 0:
+            from care.errors import CareError
+
+            msg = f"{ENV_VAR}={override!r}: give a number of threads (0 = all cores)"
+            raise CareError(msg)
+        return n or _cores()
+    n = THREADS[work]
+    return _cores() if n is None else n
+
+
+def _set(n: int) -> None:
+    import torch
+    from threadpoolctl import threadpool_limits
+
+    torch.set_num_threads(n)
+    # BLAS libraries loaded later (a lazily imported module) start at their own default, so
+    # numpy and scipy are imported first: their BLAS is what the array work here calls
+    import numpy  # noqa: F401
+    import scipy.linalg  # noqa: F401
+
+    threadpool_limits(limits=n)  # not used as a context: stays in effect for the process
+
+
+def use_threads(work: Work) -> int:
+    """Set this process's torch and BLAS pools for ``work``; returns the thread count."""
+    n = thread_count(work)
+    _set(n)
+    return n
+
+
+@contextmanager
+def threads_for(work: Work) -> Iterator[int]:
+    """Run a block with the pools of ``work``, restoring the previous ones afterwards."""
+    import torch
+    from threadpoolctl import threadpool_limits
+
+    n = thread_count(work)
+    before = torch.get_num_threads()
+    torch.set_num_threads(n)
+    try:
+        with threadpool_limits(limits=n):
+            yield n
+    finally:
+        torch.set_num_threads(before)

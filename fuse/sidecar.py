@@ -1,0 +1,148 @@
+"""The query sidecar of a map table: ``<table>.query/``, raw arrays a query memory-maps.
+
+``cells.parquet`` stays the map's one table (compressed, readable by any Parquet reader).
+Next to it the fusion writes what a whole-building query needs without decoding it, as
+``.npy`` files that :func:`numpy.load` memory-maps (opening costs a header; pages are read
+when a query touches them):
+
+- ``log_confidence.npy``: (n, N) float32, class-major: row y is ``log P_c[y]`` of every
+  candidate by :func:`fuse.measures.log_confidence` (near-certain candidates keep distinct
+  values), so a vocabulary query reads one contiguous 4N-byte row instead of multiplying
+  every (N, d) feature;
+- ``feature.npy`` (N, d) float16 and ``top_classes.npy`` (N, K) int16: the table's values,
+  for queries that need features and for the top-k category criterion.
+
+``index.json``, written last, names the map table metadata it belongs to
+(:func:`fingerprint`), so a sidecar left over from an older map (a ``--recompute``) or an
+unfinished one is never used.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+from typing import BinaryIO
+
+import numpy as np
+import pyarrow as pa
+
+__all__ = ["FINGERPRINT_KEYS", "SidecarWriter", "fingerprint", "read_sidecar", "sidecar_path"]
+
+FINGERPRINT_KEYS = (
+    b"care.vocabulary",
+    b"care.logit_scale",
+    b"care.grid.config",
+    b"care.instances.config",
+    b"care.store.created",
+)
+"""Metadata of the map table that a sidecar must share to describe the same map."""
+
+_INDEX = "index.json"
+
+
+def sidecar_path(table_path: Path) -> Path:
+    """``cells.parquet`` -> ``cells.query/``."""
+    table_path = Path(table_path)
+    return table_path.with_name(f"{table_path.stem}.query")
+
+
+def fingerprint(metadata: dict[bytes, bytes]) -> str:
+    """The map table metadata a sidecar must match, as one string."""
+    return "\n".join(
+        f"{k.decode()}={metadata.get(k, b'').decode(errors='replace')}" for k in FINGERPRINT_KEYS
+    )
+
+
+def _npy(path: Path, dtype: str, shape: tuple[int, ...]) -> BinaryIO:
+    out = path.open("wb")
+    header = {"descr": np.dtype(dtype).str, "fortran_order": False, "shape": shape}
+    np.lib.format.write_array_header_2_0(out, header)
+    return out
+
+
+class SidecarWriter:
+    """Writes a sidecar chunk by chunk (rows in candidate order) into a temporary folder,
+    renamed into place by :meth:`commit`; :meth:`abort` removes an unfinished one."""
+
+    def __init__(
+        self,
+        path: Path,
+        num_candidates: int,
+        dim: int,
+        num_top: int,
+        num_classes: int,
+        metadata: dict[bytes, bytes],
+    ) -> None:
+        self.path = Path(path)
+        self.tmp = self.path.with_name(f".{self.path.name}.tmp-{os.getpid()}")
+        shutil.rmtree(self.tmp, ignore_errors=True)
+        self.tmp.mkdir(parents=True)
+        self.n, self.dim, self.num_top, self.num_classes = num_candidates, dim, num_top, num_classes
+        self.fingerprint = fingerprint(metadata)
+        self._feature = _npy(self.tmp / "feature.npy", "<f2", (num_candidates, dim))
+        self._top = _npy(self.tmp / "top_classes.npy", "<i2", (num_candidates, num_top))
+        self._logp = _npy(self.tmp / "log_confidence.npy", "<f4", (num_classes, num_candidates))
+        self._logp_start = self._logp.tell()
+        self._rows = 0
+
+    def write(self, chunk: pa.Table) -> None:
+        """Take ``feature``, ``top_classes`` and ``log_confidence`` from the next chunk of
+        :func:`fuse.measures.candidate_columns` (``with_log_confidence=True``)."""
+        n = chunk.num_rows
+        for name, out, dtype in (
+            ("feature", self._feature, "<f2"),
+            ("top_classes", self._top, "<i2"),
+        ):
+            values = chunk.column(name).combine_chunks().flatten().to_numpy(zero_copy_only=False)
+            out.write(np.ascontiguousarray(values, dtype=dtype).tobytes())
+        if self.num_classes == 0:
+            self._rows += n
+            return
+        logp = chunk.column("log_confidence").combine_chunks().flatten().to_numpy()
+        logp = logp.reshape(n, self.num_classes).astype("<f4")
+        for y in range(self.num_classes):  # class-major: one seek per class and chunk
+            self._logp.seek(self._logp_start + 4 * (y * self.n + self._rows))
+            self._logp.write(np.ascontiguousarray(logp[:, y]).tobytes())
+        self._rows += n
+
+    def _close(self) -> None:
+        for f in (self._feature, self._top, self._logp):
+            f.close()
+
+    def commit(self) -> None:
+        """Finish the files and rename the folder into place (replacing an older one)."""
+        self._close()
+        if self._rows != self.n:
+            msg = f"sidecar got {self._rows} rows of {self.n}"
+            raise RuntimeError(msg)
+        index = {"fingerprint": self.fingerprint, "num_candidates": self.n}
+        (self.tmp / _INDEX).write_text(json.dumps(index, sort_keys=True))
+        shutil.rmtree(self.path, ignore_errors=True)
+        self.tmp.replace(self.path)
+
+    def abort(self) -> None:
+        """Drop an unfinished sidecar (a no-op after :meth:`commit`)."""
+        self._close()
+        shutil.rmtree(self.tmp, ignore_errors=True)
+
+
+def read_sidecar(table_path: Path, metadata: dict[bytes, bytes]) -> dict[str, np.ndarray] | None:
+    """The memory-mapped arrays of ``table_path``'s sidecar, or None when there is none or
+    it belongs to another version of the map."""
+    folder = sidecar_path(table_path)
+    try:
+        index = json.loads((folder / _INDEX).read_text())
+        if index.get("fingerprint") != fingerprint(metadata):
+            return None
+        out = {
+            name: np.load(folder / f"{name}.npy", mmap_mode="r")
+            for name in ("feature", "top_classes", "log_confidence")
+        }
+    except (OSError, ValueError):
+        return None
+    n = int(index.get("num_candidates", -1))
+    if len(out["feature"]) != n or out["log_confidence"].shape[1:] != (n,):
+        return None
+    return out
