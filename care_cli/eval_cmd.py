@@ -407,7 +407,24 @@ def run(
     recording: Annotated[
         Path | None,
         typer.Argument(
-            help="Recording or dataset directory with ground truth; default the bundled sample."
+            help="A recording, a folder of recordings (any mix of formats) or a dataset "
+            "directory (index.json); default the bundled sample."
+        ),
+    ] = None,
+    encoder: Annotated[
+        str, typer.Option(help="Encoder of the ingest: clip, labels (sample world) or precomputed.")
+    ] = "labels",
+    weights: Annotated[
+        str | None, typer.Option(help="clip: weights directory (save_pretrained) or checkpoint id.")
+    ] = None,
+    precomputed: Annotated[
+        Path | None, typer.Option(help="precomputed: Parquet of per-view features.")
+    ] = None,
+    vocabulary: Annotated[
+        str | None,
+        typer.Option(
+            help="Class names to embed: a bundled vocabulary name, a file, or comma-separated "
+            "names (default: the recording's own class names)."
         ),
     ] = None,
     out: Annotated[Path, typer.Option(help="Output directory: stores, .rrd files, tables.")] = Path(
@@ -429,11 +446,16 @@ def run(
     """The main job: ingest, fuse both maps, evaluate every strategy; print the table.
 
     Ground truth: beside each recording by name, named in index.json, or --gt (formats:
-    native, annotations, ply, scannet, matterport, replica; see `care eval --help`)."""
+    native, annotations, ply, scannet, matterport, replica; see `care eval --help`). A
+    recording without any gets its maps and Rerun files, and is not evaluated."""
+    from care.encoders import EncoderOptions
     from evaluate.job import EvalConfig
     from evaluate.pipeline import RunConfig, run_all
 
     config = RunConfig(
+        encoder=encoder,
+        encoder_options=EncoderOptions(weights=weights, precomputed=precomputed),
+        vocabulary=vocabulary,
         evaluation=EvalConfig(attempts=attempts, seeds=seeds, unknown_classes=gt_unknown_classes),  # type: ignore[arg-type]
         workers=workers or None,
         ray_address=_ray_target(ray, ray_address),
@@ -441,7 +463,14 @@ def run(
         gt_defaults=_gt_defaults(gt_format, gt_transform, gt_class_map),
     )
     result = run_all(recording, out, config)
-    md = result.report.markdown
-    typer.echo(md.split("## 95% bootstrap")[0].rstrip())
-    typer.echo(f"\nfull report: {out / 'eval' / 'results.md'}")
+    if result.unevaluated:
+        typer.echo(
+            f"no ground truth for {', '.join(result.unevaluated)}: maps and Rerun files made, "
+            "not evaluated (README: Evaluate on your own data)"
+        )
+    if result.report is not None:
+        md = result.report.markdown
+        typer.echo(md.split("## 95% bootstrap")[0].rstrip())
+        typer.echo(f"\nfull report: {out / 'eval' / 'results.md'}")
+    typer.echo(f"stores: {', '.join(str(p) for p in result.stores)}")
     typer.echo(f"open the maps and every decision in Rerun:\n  {result.rerun_command()}")

@@ -102,6 +102,10 @@ class GtSource:
             raise GroundTruthError(msg)
         return found[0], self.fmt or found[1]
 
+    def available(self, recording: Path) -> bool:
+        """Ground truth is named, or found beside ``recording`` by name."""
+        return self.path is not None or find_beside(recording) is not None
+
     def load(self, recording: Path) -> GroundTruth:
         path, fmt = self.resolve(recording)
         transform = np.asarray(self.transform).reshape(4, 4) if self.transform else None

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pyarrow.parquet as pq
 
+from care.encoders import EncoderOptions
 from care.errors import EvalError
 from evaluate.groundtruth import GtSource
 from evaluate.job import EvalConfig, Scene, run_eval, with_ground_truth
@@ -22,6 +23,7 @@ from evaluate.viz import write_evaluation_rrd
 from fuse.grid import GridConfig, build_grid
 from fuse.instances import InstanceConfig, build_instances
 from ingest.pipeline import IngestConfig, run_ingest
+from ingest.readers import is_recording, recordings_in
 from query.map import load_map
 from world.dataset_index import INDEX_NAME, read_index
 
@@ -37,6 +39,10 @@ class RunConfig:
 
     encoder: str = "labels"
     """Encoder of ``care ingest`` (``labels``: the sample world's perception model)."""
+    encoder_options: EncoderOptions = field(default_factory=EncoderOptions)
+    """Its options (``--weights`` for ``clip``, ...)."""
+    vocabulary: str | None = None
+    """Class names to cache at ingest (default: the recording's own class names)."""
     grid: GridConfig = field(default_factory=lambda: GridConfig(stride=2))
     """Grid map settings (every second depth pixel: the same map at a quarter of the work)."""
     instances: InstanceConfig = field(default_factory=InstanceConfig)
@@ -59,23 +65,43 @@ class RunConfig:
 class RunResult:
     """What :func:`run_all` made."""
 
-    report: Report
+    report: Report | None
+    """The evaluation's report; None when no recording had ground truth."""
     stores: tuple[Path, ...]
     rrds: tuple[Path, ...]
+    unevaluated: tuple[str, ...] = ()
+    """Recordings mapped but not evaluated: no ground truth named or beside them."""
 
     def rerun_command(self) -> str:
         return "rerun " + " ".join(str(p) for p in self.rrds)
 
 
 def recordings_of(source: Path) -> list[tuple[str, Path]]:
-    """``(name, recording)`` pairs of a dataset directory (``index.json``) or one recording."""
+    """``(name, recording)`` pairs of a dataset directory (``index.json``), one recording, or
+    a plain folder of recordings (any mix of MCAP, rosbag2 and ROS 1; named by file stem)."""
     source = Path(source)
     if source.is_dir() and (source / INDEX_NAME).is_file():
         return [(entry.name, entry.recording) for entry in read_index(source)]
     if not source.exists():
         msg = f"{source}: no such recording or dataset directory"
         raise EvalError(msg)
-    return [(source.stem if source.suffix else source.name, source)]
+    if is_recording(source):
+        return [(source.stem if source.suffix else source.name, source)]
+    if source.is_dir():
+        found = recordings_in(source)
+        if not found:
+            msg = (
+                f"{source}: no recordings in it (.mcap, .bag or rosbag2 folders) and no "
+                f"{INDEX_NAME}; pass a recording, a folder of them, or a dataset"
+            )
+            raise EvalError(msg)
+        names = [p.stem if p.is_file() else p.name for p in found]
+        twins = sorted({n for n in names if names.count(n) > 1})
+        if twins:
+            msg = f"{source}: recordings {', '.join(twins)} share a name; rename one"
+            raise EvalError(msg)
+        return list(zip(names, found, strict=True))
+    return [(source.stem, source)]  # not a known format: ingest says which
 
 
 def gt_sources_of(source: Path) -> list[GtSource]:
@@ -86,7 +112,7 @@ def gt_sources_of(source: Path) -> list[GtSource]:
             GtSource.of(e.gt, e.gt_format, e.gt_transform, e.gt_class_map)
             for e in read_index(source)
         ]
-    return [GtSource()]
+    return [GtSource() for _ in recordings_of(source)]
 
 
 def _scenes_with_gt(
@@ -94,42 +120,56 @@ def _scenes_with_gt(
     sources: Sequence[GtSource],
     config: RunConfig,
     out: Path,
-) -> list[Scene]:
-    """Each recording's scene with its ground truth resolved before any work is done: a
-    recording without ground truth stops the run at once."""
+) -> list[tuple[Scene, bool]]:
+    """Each recording's scene and whether it has ground truth, resolved before any work is
+    done: ground truth that is named (``--gt``, ``index.json``) must load, else the run
+    stops at once; a recording with none named or beside it is mapped but not evaluated."""
     scenes = [
         Scene(name, out / "stores" / name, Path(rec).resolve(), gt=src)
         for (name, rec), src in zip(recordings, sources, strict=True)
     ]
     scenes = with_ground_truth(scenes, config.gt, config.gt_defaults)
+    out_scenes = []
     for scene in scenes:
-        scene.gt.load(scene.recording)  # a corrupt file stops the run before the ingest
-    return scenes
+        has = scene.gt.path is not None or scene.gt.available(scene.recording)
+        if has:
+            scene.gt.load(scene.recording)  # a corrupt file stops the run before the ingest
+        out_scenes.append((scene, has))
+    return out_scenes
 
 
 def run_all(source: Path | None, out: Path, config: RunConfig | None = None) -> RunResult:
     """Ingest, fuse and evaluate every recording of ``source`` (default the bundled sample)
     into ``out``: ``out/stores/<name>``, ``out/<name>.{grid,instances,eval}.rrd`` and the
-    evaluation outputs (``results.md``, Parquet, plots) in ``out/eval``."""
+    evaluation outputs (``results.md``, Parquet, plots) in ``out/eval``. Recordings without
+    ground truth get their maps and Rerun files and are listed in ``unevaluated``."""
     config = config or RunConfig()
     out = Path(out)
     recordings = recordings_of(source or SAMPLE)
     planned = _scenes_with_gt(recordings, gt_sources_of(source or SAMPLE), config, out)
-    scenes, rrds = [], []
-    for (name, recording), plan in zip(recordings, planned, strict=True):
+    scenes, rrds, unevaluated = [], [], []
+    for (name, recording), (plan, has_gt) in zip(recordings, planned, strict=True):
         store = out / "stores" / name
         run_ingest(
             IngestConfig(
-                recording=recording, out=store, encoder=config.encoder, progress=config.progress
+                recording=recording, out=store, encoder=config.encoder,
+                encoder_options=config.encoder_options, vocabulary=config.vocabulary,
+                progress=config.progress,
             )
-        )
+        )  # fmt: skip
         grid_rrd, inst_rrd = out / f"{name}.grid.rrd", out / f"{name}.instances.rrd"
         fresh = not (store / "cells.parquet").is_file() or not grid_rrd.is_file()
         build_grid(store, config.grid, rrd=grid_rrd if fresh else None)
         fresh = not (store / "instances.parquet").is_file() or not inst_rrd.is_file()
         build_instances(store, config.instances, rrd=inst_rrd if fresh else None)
-        scenes.append(plan)
+        if has_gt:
+            scenes.append(plan)
+        else:
+            unevaluated.append(name)
         rrds += [p for p in (grid_rrd, inst_rrd) if p.is_file()]
+    stores = tuple(out / "stores" / name for name, _ in recordings)
+    if not scenes:
+        return RunResult(None, stores, tuple(rrds), tuple(unevaluated))
     eval_dir = out / "eval"
     report = run_eval(
         scenes, config.evaluation, eval_dir,
@@ -141,4 +181,4 @@ def run_all(source: Path | None, out: Path, config: RunConfig | None = None) -> 
         path = out / f"{scene.name}.eval.rrd"
         write_evaluation_rrd(path, attempts, report.summary, maps, scene=scene.name)
         rrds.append(path)
-    return RunResult(report, tuple(s.store for s in scenes), tuple(rrds))
+    return RunResult(report, stores, tuple(rrds), tuple(unevaluated))

@@ -30,7 +30,9 @@ __all__ = [
     "Ros2Reader",
     "Rosbag1Reader",
     "TopicInfo",
+    "is_recording",
     "open_reader",
+    "recordings_in",
 ]
 
 
@@ -284,6 +286,22 @@ def _sniff(path: Path) -> str | None:
     with path.open("rb") as f:
         head = f.read(16)
     return next((what for magic, what in _MAGIC.items() if head.startswith(magic)), None)
+
+
+def is_recording(path: Path) -> bool:
+    """Whether ``path`` looks like a recording a reader is registered for: a ``.mcap`` or
+    ``.bag`` file, or a rosbag2 directory (its ``metadata.yaml``)."""
+    path = Path(path)
+    if path.is_dir():
+        return (path / "metadata.yaml").is_file()
+    return path.is_file() and path.suffix.lower() in READERS and path.suffix.lower() != "dir"
+
+
+def recordings_in(folder: Path) -> list[Path]:
+    """The recordings directly inside ``folder`` (any mix of formats), sorted by name."""
+    return sorted(
+        p for p in Path(folder).iterdir() if not p.name.startswith(".") and is_recording(p)
+    )
 
 
 def open_reader(path: Path) -> RecordingReader:
