@@ -13,6 +13,7 @@ __all__ = [
     "EvalError",
     "FuseError",
     "IngestError",
+    "OutputError",
     "QueryError",
     "ReplanError",
     "StoreError",
@@ -30,6 +31,10 @@ class IngestError(CareError):
 
 class EncoderError(CareError):
     """An encoder cannot be loaded or cannot encode its input."""
+
+
+class OutputError(CareError):
+    """An output path cannot be written safely (not ours, an input, locked, disk full)."""
 
 
 class StoreError(CareError):

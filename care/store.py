@@ -16,10 +16,10 @@ leaves a store that looks complete; single tables added later go through
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import os
-import shutil
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -35,6 +35,17 @@ from PIL import Image
 
 from care.errors import StoreError
 from care.frames import Frame
+from care.outputs import (
+    damaged,
+    disk_full,
+    file_digest,
+    is_disk_full,
+    rebuild_hint,
+    record_table,
+    remove_path,
+    staged,
+    write_marker,
+)
 
 __all__ = [
     "EXTRA_IMAGES",
@@ -46,6 +57,7 @@ __all__ = [
     "Store",
     "StoreWriter",
     "append_rows",
+    "damaged_table",
     "decode_png",
     "encode_png",
     "group_rows",
@@ -154,6 +166,30 @@ def _decode_jpeg(data: bytes) -> np.ndarray:
     return np.asarray(Image.open(io.BytesIO(data)).convert("RGB"))
 
 
+def damaged_table(path: Path, err: BaseException | None = None) -> StoreError:
+    """The one-line error of a table that cannot be read: what is wrong and what rebuilds it."""
+    path = Path(path)
+    why = f" ({str(err).splitlines()[0][:160]})" if err is not None and str(err) else ""
+    msg = (
+        f"{path}: damaged or truncated table{why}; rebuild it with "
+        f"{rebuild_hint(path.parent, path.name)}"
+    )
+    return StoreError(msg)
+
+
+@contextlib.contextmanager
+def reading(path: Path) -> Iterator[None]:
+    """Turn Arrow/Parquet read failures of ``path`` into :func:`damaged_table`'s one line."""
+    try:
+        yield
+    except (pa.ArrowException, OSError) as err:
+        if isinstance(err, PermissionError):
+            raise
+        if isinstance(err, FileNotFoundError) and not Path(path).parent.exists():
+            raise
+        raise damaged_table(path, err) from err
+
+
 def _check_version(schema: pa.Schema, path: Path) -> None:
     found = (schema.metadata or {}).get(_VERSION_KEY)
     if found is None or int(found) != SCHEMA_VERSION:
@@ -224,14 +260,12 @@ def write_table_atomic(
     md[_VERSION_KEY] = str(SCHEMA_VERSION).encode()
     table = table.replace_schema_metadata(md)
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
+    with staged(path) as tmp:
         pq.write_table(
             table, tmp, row_group_size=group_rows(table), **parquet_options(table.schema)
         )
         tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    record_table(path)
 
 
 def read_table(path: Path, columns: Sequence[str] | None = None) -> pa.Table:
@@ -240,8 +274,11 @@ def read_table(path: Path, columns: Sequence[str] | None = None) -> pa.Table:
     if not path.is_file():
         msg = f"{path}: no such table; build it first (see `care --help`)."
         raise StoreError(msg)
-    _check_version(pq.read_schema(path), path)
-    return pq.read_table(path, columns=list(columns) if columns else None)
+    if damaged(path.parent, [path.name], checksum=False):
+        raise damaged_table(path)
+    with reading(path):
+        _check_version(pq.read_schema(path), path)
+        return pq.read_table(path, columns=list(columns) if columns else None)
 
 
 _MAX_BUFFERED_VALUES = 1 << 26
@@ -271,13 +308,16 @@ class StoreWriter:
         self._text: pa.Table | None = None
 
     def __enter__(self) -> StoreWriter:
-        if self.tmp.exists():
-            shutil.rmtree(self.tmp)
+        remove_path(self.tmp)
         self.tmp.mkdir(parents=True)
-        self._views_writer = open_writer(self.tmp / "views.parquet", VIEWS_SCHEMA)
-        if self.encoder is not None:
-            schema = FEATURES_SCHEMA.with_metadata(self.encoder.metadata())
-            self._features_writer = open_writer(self.tmp / "features.parquet", schema)
+        try:
+            self._views_writer = open_writer(self.tmp / "views.parquet", VIEWS_SCHEMA)
+            if self.encoder is not None:
+                schema = FEATURES_SCHEMA.with_metadata(self.encoder.metadata())
+                self._features_writer = open_writer(self.tmp / "features.parquet", schema)
+        except BaseException:
+            self.__exit__(None, None, None)
+            raise
         return self
 
     def add(self, frame: Frame, features: np.ndarray | None = None) -> int:
@@ -379,13 +419,16 @@ class StoreWriter:
             "created_unix": time.time(),
             **meta,
         }
+        # the store's fingerprint on disk: every table's size and checksum, so a deleted,
+        # truncated or altered table is found (``care check``, the next ingest)
+        full["tables"] = {p.name: file_digest(p) for p in sorted(self.tmp.glob("*.parquet"))}
         (self.tmp / "meta.json").write_text(json.dumps(full, indent=2, default=str))
+        write_marker(self.tmp, "store")
         old = self.path.with_name(f".{self.path.name}.old-{os.getpid()}")
         if self.path.exists():
             self.path.rename(old)
         self.tmp.rename(self.path)
-        if old.exists():
-            shutil.rmtree(old)
+        remove_path(old)
 
     def __exit__(
         self,
@@ -393,11 +436,21 @@ class StoreWriter:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        for writer in (self._views_writer, self._features_writer):
-            if writer is not None:
-                writer.close()
-        if self.tmp.exists():
-            shutil.rmtree(self.tmp)
+        # on every path, a full disk included: closing a writer may fail then, and the
+        # temporary must go all the same (else it keeps the disk full for the next run)
+        written = 0
+        try:
+            for writer in (self._views_writer, self._features_writer):
+                if writer is not None:
+                    with contextlib.suppress(Exception):
+                        writer.close()
+            self._views_writer = self._features_writer = None
+        finally:
+            if self.tmp.exists():
+                written = sum(p.stat().st_size for p in self.tmp.iterdir() if p.is_file())
+            remove_path(self.tmp)
+        if exc is not None and is_disk_full(exc):
+            raise disk_full(self.path, written, exc) from exc  # type: ignore[arg-type]
 
 
 class Store:
@@ -409,7 +462,13 @@ class Store:
         if not meta_path.is_file():
             msg = f"{self.path}: not a complete feature store (no meta.json); run `care ingest` first."
             raise StoreError(msg)
-        self.meta: dict[str, Any] = json.loads(meta_path.read_text())
+        try:
+            self.meta: dict[str, Any] = json.loads(meta_path.read_text())
+            if not isinstance(self.meta, dict):
+                raise ValueError("not a JSON object")
+        except (ValueError, UnicodeDecodeError) as err:
+            msg = f"{meta_path}: not valid JSON ({err}); rebuild the store with {rebuild_hint(self.path, 'meta')}"
+            raise StoreError(msg) from err
         if self.meta.get("schema_version") != SCHEMA_VERSION:
             msg = (
                 f"{self.path}: store schema version {self.meta.get('schema_version')}, this "
@@ -417,9 +476,34 @@ class Store:
             )
             raise StoreError(msg)
 
+        bad = damaged(self.path, self.meta.get("tables") or {}, checksum=False)
+        if bad:
+            raise damaged_table(self.path / bad[0])
+
     @property
     def num_views(self) -> int:
         return int(self.meta["num_views"])
+
+    def verify(self) -> list[str]:
+        """Messages about every damaged table of the store and its maps (empty: all whole).
+
+        Compares each recorded table's size and checksum and reads every Parquet footer.
+        """
+        problems = [
+            f"{self.path / name}: missing, truncated or altered since it was written; rebuild "
+            f"it with {rebuild_hint(self.path, name)}"
+            for name in damaged(self.path)
+        ]
+        named = {p.split(":")[0] for p in problems}
+        for path in sorted(self.path.glob("*.parquet")):
+            if str(path) in named:
+                continue
+            try:
+                with reading(path):
+                    pq.ParquetFile(path).metadata  # noqa: B018 - reads the footer
+            except StoreError as err:
+                problems.append(str(err))
+        return problems
 
     def table_path(self, name: str) -> Path:
         return self.path / f"{name}.parquet"
@@ -443,9 +527,10 @@ class Store:
     ) -> Iterator[tuple[int, Frame]]:
         """Decoded ``(view_id, Frame)`` pairs, streamed a row group at a time."""
         path = self.table_path("views")
-        _check_version(pq.read_schema(path), path)
-        pf = pq.ParquetFile(path)
-        for batch in pf.iter_batches(batch_size=batch_size):
+        with reading(path):
+            _check_version(pq.read_schema(path), path)
+            pf = pq.ParquetFile(path)
+        for batch in _batches(pf, path, batch_size):
             for row in batch.to_pylist():
                 extra = {
                     name: decode_png(row[f"{name}_png"])
@@ -475,25 +560,55 @@ class Store:
         if not path.is_file():
             msg = f"{self.path}: the store has no features; re-run `care ingest` with --encoder."
             raise StoreError(msg)
-        return EncoderInfo.from_metadata(pq.read_schema(path).metadata or {})
+        with reading(path):
+            return EncoderInfo.from_metadata(pq.read_schema(path).metadata or {})
 
     def iter_features(self, *, batch_size: int = 8) -> Iterator[tuple[int, np.ndarray]]:
         """``(view_id, feature map (fh, fw, d) float16)`` pairs, streamed."""
         path = self.table_path("features")
         info = self.encoder
-        _check_version(pq.read_schema(path), path)
-        for batch in pq.ParquetFile(path).iter_batches(batch_size=batch_size):
+        with reading(path):
+            _check_version(pq.read_schema(path), path)
+            pf = pq.ParquetFile(path)
+        for batch in _batches(pf, path, batch_size):
             ids = batch.column("view_id").to_numpy()
             fh = batch.column("fh").to_numpy()
             fw = batch.column("fw").to_numpy()
             feats = batch.column("feature")
             for i in range(batch.num_rows):
                 flat = feats[i].values.to_numpy(zero_copy_only=False)
+                if flat.size != int(fh[i]) * int(fw[i]) * info.dim:
+                    msg = (
+                        f"{path}: view {int(ids[i])} holds {flat.size} feature values, not "
+                        f"{int(fh[i])}x{int(fw[i])}x{info.dim} (the encoder's dimension); rebuild it "
+                        f"with {rebuild_hint(self.path, 'features')}"
+                    )
+                    raise StoreError(msg)
                 yield int(ids[i]), flat.reshape(int(fh[i]), int(fw[i]), info.dim)
 
     def text_embeddings(self) -> tuple[list[str], np.ndarray]:
         """Cached class names and their (n, d) float32 text embeddings."""
-        table = read_table(self.table_path("text"))
+        path = self.table_path("text")
+        table = read_table(path)
         names = table.column("name").to_pylist()
         emb = table.column("embedding").combine_chunks().values.to_numpy()
-        return names, emb.reshape(len(names), -1).astype(np.float32)
+        emb = emb.reshape(len(names), -1).astype(np.float32)
+        dim = (self.meta.get("encoder") or {}).get("dim")
+        if dim is not None and names and emb.shape[1] != dim:
+            msg = (
+                f"{path}: text embeddings of dimension {emb.shape[1]}, but the store's features "
+                f"have {dim}; rebuild the store with {rebuild_hint(self.path, 'text')}"
+            )
+            raise StoreError(msg)
+        return names, emb
+
+
+def _batches(pf: pq.ParquetFile, path: Path, batch_size: int) -> Iterator[pa.RecordBatch]:
+    """``pf``'s record batches, a damaged row group becoming one line (not a traceback)."""
+    it = pf.iter_batches(batch_size=batch_size)
+    while True:
+        with reading(path):
+            batch = next(it, None)
+        if batch is None:
+            return
+        yield batch

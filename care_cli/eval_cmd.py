@@ -13,11 +13,13 @@ from typing import Annotated
 
 import typer
 
+from care_cli.choices import Criterion, MapKind, Strategy
+
 __all__ = ["register"]
 
 StoreArg = Annotated[Path, typer.Argument(help="Store directory with fused maps (`care fuse`).")]
 TextArg = Annotated[str, typer.Argument(help="What to look for: a class name or free text.")]
-MapOpt = Annotated[str, typer.Option("--map", help="Map to ask: instances or grid.")]
+MapOpt = Annotated[MapKind, typer.Option("--map", help="Map to ask.")]
 RayOpt = Annotated[
     bool,
     typer.Option("--ray", help="Evaluate scenes as Ray tasks (a local Ray unless --ray-address)."),
@@ -51,7 +53,7 @@ def _resolve(store: Path, kind: str, text: str) -> tuple:
     """The map and the class the text maps to (the mapping is printed unless exact)."""
     from query import load_map, resolve_text
 
-    cmap = load_map(store, kind)  # type: ignore[arg-type]
+    cmap = load_map(store, MapKind(kind).value)  # type: ignore[arg-type]
     match = resolve_text(cmap, text)
     if match.method != "vocabulary":
         typer.echo(f"query {match.describe()}")
@@ -61,8 +63,8 @@ def _resolve(store: Path, kind: str, text: str) -> tuple:
 def query(
     store: StoreArg,
     text: TextArg,
-    kind: MapOpt = "instances",
-    top: Annotated[int, typer.Option(help="How many candidates to list.")] = 10,
+    kind: MapOpt = "instances",  # type: ignore[assignment]
+    top: Annotated[int, typer.Option(help="How many candidates to list (>= 1).", min=1)] = 10,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
 ) -> None:
     """Rank a map's candidates by confidence for TEXT, with their uncertainty measures."""
@@ -89,7 +91,9 @@ def query(
     if as_json:
         typer.echo(json.dumps({"query": text, "class": match.names[0], "candidates": rows}))
         return
-    typer.echo(f"{kind} map, class {match.names[0]!r}: {cmap.num_candidates} candidates")
+    typer.echo(
+        f"{MapKind(kind).value} map, class {match.names[0]!r}: {cmap.num_candidates} candidates"
+    )
     typer.echo("rank  cand  confidence  entropy   stderr     pwkl  views  position")
     for r in rows:
         typer.echo(
@@ -104,14 +108,12 @@ def replan(
     visited: Annotated[
         str, typer.Option(help="Comma-separated candidate ids already tried (failed).")
     ] = "",
-    strategy: Annotated[
-        str, typer.Option(help="Replan strategy (see `care eval --help`).")
-    ] = "min_stderr",
-    criterion: Annotated[
-        str, typer.Option(help="Candidate set: confidence or category.")
-    ] = "confidence",
-    k: Annotated[int, typer.Option("-k", help="Size parameter of the candidate set.")] = 4,
-    kind: MapOpt = "instances",
+    strategy: Annotated[Strategy, typer.Option(help="Replan strategy.")] = "min_stderr",  # type: ignore[assignment]
+    criterion: Annotated[Criterion, typer.Option(help="Candidate set.")] = "confidence",  # type: ignore[assignment]
+    k: Annotated[
+        int, typer.Option("-k", help="Size parameter of the candidate set (>= 1).", min=1)
+    ] = 4,
+    kind: MapOpt = "instances",  # type: ignore[assignment]
     exclude_radius: Annotated[
         float, typer.Option(help="Grid: skip cells within this distance (m) of failed ones.")
     ] = 1.0,
@@ -124,7 +126,8 @@ def replan(
 
     cmap, match = _resolve(store, kind, text)
     choice = next_goal(
-        cmap, match.class_id, list(_ints(visited)), strategy=strategy, criterion=criterion,
+        cmap, match.class_id, list(_ints(visited)), strategy=Strategy(strategy).value,
+        criterion=Criterion(criterion).value,
         k=k, exclude_radius=exclude_radius, seed=seed,
     )  # fmt: skip
     out = dataclasses.asdict(choice)

@@ -24,7 +24,9 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 from tqdm import tqdm
 
+from care.checks import check_numbers
 from care.errors import CareError, EvalError
+from care.outputs import evaluation_output
 from care.store import read_table, write_table_atomic
 from evaluate.report import Report, write_report
 from evaluate.success import PROTOCOLS, QuerySet, grid_queries, instance_queries, scene_point_labels
@@ -117,6 +119,13 @@ class EvalConfig:
     """Bootstrap resamples of the queries for the 95% confidence intervals."""
 
     def __post_init__(self) -> None:
+        check_numbers(
+            EvalError,
+            "evaluation config",
+            positive={"iou_threshold": self.iou_threshold, "success_radius": self.success_radius,
+                      "label_distance": self.label_distance},
+            non_negative={"exclude_radius": self.exclude_radius, "bootstrap": self.bootstrap},
+        )  # fmt: skip
         for name in self.strategies:
             get_strategy(name)
         bad = [m for m in self.maps if m not in MAP_TABLES]
@@ -541,9 +550,11 @@ def run_eval(
 ) -> Report:
     """Evaluate a dataset (see :func:`scenes_of`) and write every output under ``out``."""
     scenes = scenes_of(dataset)
-    attempts = run_scenes(
-        scenes, config, out, workers=workers, ray_address=ray_address, progress=progress
-    )
-    ks = {kind: config.ks(kind) for kind in MAP_TABLES}
-    header = describe(config, scenes, attempts)
-    return write_report(attempts, out, ks, bootstrap=config.bootstrap, header=header)
+    out = Path(out)
+    with evaluation_output(out, [s.store for s in scenes]):
+        attempts = run_scenes(
+            scenes, config, out, workers=workers, ray_address=ray_address, progress=progress
+        )
+        ks = {kind: config.ks(kind) for kind in MAP_TABLES}
+        header = describe(config, scenes, attempts)
+        return write_report(attempts, out, ks, bootstrap=config.bootstrap, header=header)

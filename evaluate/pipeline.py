@@ -14,6 +14,7 @@ from pathlib import Path
 import pyarrow.parquet as pq
 
 from care.errors import EvalError
+from care.outputs import owned_output
 from evaluate.job import EvalConfig, Scene, run_eval
 from evaluate.report import Report
 from evaluate.viz import write_evaluation_rrd
@@ -88,30 +89,31 @@ def run_all(source: Path | None, out: Path, config: RunConfig | None = None) -> 
             "`care query` for others"
         )
         raise EvalError(msg)
-    scenes, rrds = [], []
-    for name, recording in recordings:
-        store = out / "stores" / name
-        run_ingest(
-            IngestConfig(
-                recording=recording, out=store, encoder=config.encoder, progress=config.progress
+    with owned_output(out, "run", [rec for _, rec in recordings]):
+        scenes, rrds = [], []
+        for name, recording in recordings:
+            store = out / "stores" / name
+            run_ingest(
+                IngestConfig(
+                    recording=recording, out=store, encoder=config.encoder, progress=config.progress
+                )
             )
-        )
-        grid_rrd, inst_rrd = out / f"{name}.grid.rrd", out / f"{name}.instances.rrd"
-        fresh = not (store / "cells.parquet").is_file() or not grid_rrd.is_file()
-        build_grid(store, config.grid, rrd=grid_rrd if fresh else None)
-        fresh = not (store / "instances.parquet").is_file() or not inst_rrd.is_file()
-        build_instances(store, config.instances, rrd=inst_rrd if fresh else None)
-        scenes.append(Scene(name, store, Path(recording).resolve()))
-        rrds += [p for p in (grid_rrd, inst_rrd) if p.is_file()]
-    eval_dir = out / "eval"
-    report = run_eval(
-        [s.store for s in scenes], config.evaluation, eval_dir,
-        workers=config.workers, ray_address=config.ray_address, progress=config.progress,
-    )  # fmt: skip
-    attempts = pq.read_table(eval_dir / "attempts.parquet")
-    for scene in scenes:
-        maps = {kind: load_map(scene.store, kind) for kind in config.evaluation.maps}  # type: ignore[misc]
-        path = out / f"{scene.name}.eval.rrd"
-        write_evaluation_rrd(path, attempts, report.summary, maps, scene=scene.name)
-        rrds.append(path)
-    return RunResult(report, tuple(s.store for s in scenes), tuple(rrds))
+            grid_rrd, inst_rrd = out / f"{name}.grid.rrd", out / f"{name}.instances.rrd"
+            fresh = not (store / "cells.parquet").is_file() or not grid_rrd.is_file()
+            build_grid(store, config.grid, rrd=grid_rrd if fresh else None)
+            fresh = not (store / "instances.parquet").is_file() or not inst_rrd.is_file()
+            build_instances(store, config.instances, rrd=inst_rrd if fresh else None)
+            scenes.append(Scene(name, store, Path(recording).resolve()))
+            rrds += [p for p in (grid_rrd, inst_rrd) if p.is_file()]
+        eval_dir = out / "eval"
+        report = run_eval(
+            [s.store for s in scenes], config.evaluation, eval_dir,
+            workers=config.workers, ray_address=config.ray_address, progress=config.progress,
+        )  # fmt: skip
+        attempts = pq.read_table(eval_dir / "attempts.parquet")
+        for scene in scenes:
+            maps = {kind: load_map(scene.store, kind) for kind in config.evaluation.maps}  # type: ignore[misc]
+            path = out / f"{scene.name}.eval.rrd"
+            write_evaluation_rrd(path, attempts, report.summary, maps, scene=scene.name)
+            rrds.append(path)
+        return RunResult(report, tuple(s.store for s in scenes), tuple(rrds))

@@ -38,7 +38,9 @@ import pyarrow.parquet as pq
 from PIL import Image
 from tqdm import tqdm
 
+from care.checks import check_numbers
 from care.errors import FuseError
+from care.outputs import damaged, record_table
 from care.store import (
     SCHEMA_VERSION,
     Store,
@@ -104,6 +106,15 @@ class GridConfig:
     """Rebuild even if a finished grid with the same config exists."""
 
     def __post_init__(self) -> None:
+        check_numbers(
+            FuseError,
+            "grid config",
+            positive={"cell_size": self.cell_size, "sigma_z": self.sigma_z,
+                      "logit_scale": self.logit_scale},
+            finite={"z_min": self.z_min, "z_max": self.z_max,
+                    "obstacle_height": self.obstacle_height},
+            at_least_one={"stride": self.stride},
+        )  # fmt: skip
         if self.cell_size <= 0 or self.stride < 1 or self.sigma_z <= 0 or self.z_min > self.z_max:
             msg = (
                 f"invalid grid config: cell_size={self.cell_size}, stride={self.stride}, "
@@ -198,6 +209,8 @@ def _view_rows(view_id: int, ids: np.ndarray, samples: ViewSamples) -> pa.Table:
 def _is_current(store: Store, config: GridConfig, vocabulary: tuple[str, ...]) -> bool:
     cells, views = store.table_path(CELLS_TABLE), store.table_path(CELL_VIEWS_TABLE)
     if config.overwrite or not (cells.is_file() and views.is_file()):
+        return False
+    if damaged(store.path, [cells.name, views.name]):  # a damaged map is rebuilt, not trusted
         return False
     md = pq.read_schema(cells).metadata or {}
     return (
@@ -333,6 +346,7 @@ def build_grid(store_path: Path, config: GridConfig | None = None, rrd: Path | N
                 b"care.store.created": str(store.meta.get("created_unix")).encode(),
             }
             tmp.replace(views_path)  # per-view table first: a current cells.parquet implies it
+            record_table(views_path)
             write_table_atomic(cells, cells_path, metadata)
         finally:
             tmp.unlink(missing_ok=True)

@@ -15,10 +15,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from care.checks import check_numbers
 from care.errors import ReplanError
 from query.confidence import confidence as class_confidence
 from query.map import MEASURES, CandidateMap
-from replan.strategies import Pick, Situation, Strategy, best_of, candidate_set, get_strategy
+from replan.strategies import (
+    CRITERIA,
+    Pick,
+    Situation,
+    Strategy,
+    best_of,
+    candidate_set,
+    get_strategy,
+)
 
 __all__ = [
     "DEFAULT_EXCLUDE_RADIUS",
@@ -195,6 +204,15 @@ def next_goal(
     over ``criterion``'s top-k set among unvisited candidates. ``exclude_radius`` (grid only,
     default 1 m) also skips cells near failed ones.
     """
+    if criterion not in CRITERIA:
+        msg = f"unknown selection criterion {criterion!r}; choose one of {', '.join(CRITERIA)}"
+        raise ReplanError(msg)
+    check_numbers(
+        ReplanError,
+        "replan settings",
+        non_negative={} if exclude_radius is None else {"exclude_radius": exclude_radius},
+        at_least_one={"k": k},
+    )
     y = cmap.class_id(query) if isinstance(query, str) else int(query)
     conf = class_confidence(cmap, np.array([y]))
     visited_ids = np.asarray(visited, dtype=np.int64).reshape(-1)
