@@ -384,21 +384,35 @@ def output_lock(out: Path, *, wait: bool = True) -> Iterator[None]:
 
     A second writer waits for the first (saying so on stderr), or with ``wait=False``
     fails in one line. The stale temporaries of dead writers are swept once it is held.
+    The lock file is removed on release; a waiter that then holds a removed file's lock
+    notices (its inode is gone) and locks the new one, so two writers never both hold it.
     """
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     lock_path = out.parent / f".{out.name}.lock"
-    fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
-    try:
+    while True:
+        fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
-            if not wait:
-                msg = f"{out}: being written by another care process (pid {holder}); wait for it to finish"
-                raise OutputError(msg) from None
-            print(f"{out}: waiting for care process {holder} writing it", file=sys.stderr)
-            fcntl.flock(fd, fcntl.LOCK_EX)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+                if not wait:
+                    msg = f"{out}: being written by another care process (pid {holder}); wait for it to finish"
+                    raise OutputError(msg) from None
+                print(f"{out}: waiting for care process {holder} writing it", file=sys.stderr)
+                fcntl.flock(fd, fcntl.LOCK_EX)
+            try:
+                same = lock_path.stat().st_ino == os.fstat(fd).st_ino
+            except FileNotFoundError:
+                same = False
+        except BaseException:
+            os.close(fd)
+            raise
+        if same:
+            break
+        os.close(fd)  # the holder removed that file: lock the current one
+    try:
         os.ftruncate(fd, 0)
         os.pwrite(fd, str(os.getpid()).encode(), 0)
         sweep_stale(out.parent)
@@ -407,8 +421,8 @@ def output_lock(out: Path, *, wait: bool = True) -> Iterator[None]:
         yield
     finally:
         with contextlib.suppress(OSError):
-            fcntl.flock(fd, fcntl.LOCK_UN)
-        os.close(fd)
+            lock_path.unlink()
+        os.close(fd)  # releases the lock
 
 
 @contextlib.contextmanager

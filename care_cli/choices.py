@@ -1,14 +1,16 @@
 """Typed choices of the CLI, made from the registries so ``--help`` lists them and typer
-refuses anything else before a command runs (one source: the registry)."""
+refuses anything else before a command runs (one source: the registry).
+
+The registries of proposals, instance features and perception presets live in modules that
+import torch or open3d; every ``care`` call would pay seconds for them, so their names are
+listed here and ``tests/faults/test_options.py`` checks they equal the registries.
+"""
 
 from __future__ import annotations
 
 from enum import Enum
 
 from care.encoders import ENCODERS
-from care.encoders.labels import PERCEPTION_PRESETS
-from fuse.instances import INSTANCE_FEATURES
-from fuse.proposals import PROPOSERS
 from query.map import MAP_TABLES
 from replan import CRITERIA, STRATEGIES
 
@@ -22,6 +24,14 @@ __all__ = [
     "Strategy",
     "registry_enum",
 ]
+
+
+PERCEPTION_PRESETS = ("default", "ideal")
+"""Names of ``care.encoders.labels.PERCEPTION_PRESETS``."""
+PROPOSERS = ("geometric", "labels")
+"""Names of ``fuse.proposals.PROPOSERS``."""
+INSTANCE_FEATURES = ("masked", "crops")
+"""``fuse.instances.INSTANCE_FEATURES``."""
 
 
 def registry_enum(name: str, keys: object) -> type[Enum]:

@@ -50,6 +50,7 @@ from care.store import (
     write_table_atomic,
 )
 from fuse.accumulate import CandidateSums
+from fuse.budget import check_cells, check_raster
 from fuse.cells import CellIndex, ViewSamples, unpack_cells, view_samples
 from fuse.measures import DEFAULT_LOGIT_SCALE, candidate_metadata, list_column, to_float16
 from fuse.vocabulary import vocabulary_text
@@ -167,6 +168,7 @@ def grid_image(
     """Raster (ny, nx[, c]) of per-cell values; row 0 = largest y, so north is up."""
     values = np.asarray(values)
     nx, ny = shape
+    check_raster((ny, nx, *values.shape[1:]), np.result_type(values, type(fill)).itemsize)
     image = np.full((ny, nx, *values.shape[1:]), fill, dtype=np.result_type(values, type(fill)))
     image[ny - 1 - np.asarray(iy), np.asarray(ix)] = values
     return image
@@ -204,6 +206,11 @@ def _view_rows(view_id: int, ids: np.ndarray, samples: ViewSamples) -> pa.Table:
         },
         schema=CELL_VIEWS_SCHEMA,
     )
+
+
+def _bytes_per_cell(sums: CandidateSums) -> int:
+    """Memory one cell takes in the running sums and layers (float64 tables, layers)."""
+    return sum(t.shape[1] * t.itemsize for t in sums._tables) + 24
 
 
 def _is_current(store: Store, config: GridConfig, vocabulary: tuple[str, ...]) -> bool:
@@ -250,6 +257,7 @@ def _fuse_views(
                 text=text,
             )
             ids = index.lookup(samples.keys)
+            check_cells(index.size, _bytes_per_cell(sums), config.cell_size)  # before growing
             sums.add(ids, samples.weight, samples.feature, samples.dots)
             layers.add(ids, samples)
             pending.append(_view_rows(view_id, ids, samples))
