@@ -159,10 +159,12 @@ def disk_full(target: Path, written: int, err: OSError) -> OutputError:
     except OSError:
         free = 0
     reason = "file-size limit reached" if err.errno == errno.EFBIG else "no space left on device"
+    need = (
+        f"after writing {_human(written)}; it needs more than {_human(written)} " if written else ""
+    )
     msg = (
-        f"{target}: {reason} after writing {_human(written)} ({_human(free)} free on "
-        f"{where}); it needs more than {_human(written)}: free space (or raise the limit) and "
-        "re-run; nothing was left behind"
+        f"{target}: {reason} {need}({_human(free)} free on {where}); free space (or raise "
+        "the limit) and re-run; nothing half-written was left behind"
     )
     return OutputError(msg)
 
@@ -230,11 +232,16 @@ def is_ours(directory: Path, kind: str | None = None) -> bool:
     return marker is not None and (kind is None or marker.get("kind") == kind)
 
 
-def write_marker(directory: Path, kind: str, tables: dict[str, Any] | None = None) -> None:
-    """Mark ``directory`` as a ``kind`` output of ours (keeping recorded tables)."""
+def write_marker(
+    directory: Path, kind: str, tables: dict[str, Any] | None = None, source: str | None = None
+) -> None:
+    """Mark ``directory`` as a ``kind`` output of ours (keeping recorded tables); ``source``:
+    the input it was made from (so the rebuild command is known even without meta.json)."""
     directory = Path(directory)
     old = read_marker(directory) or {}
     marker = {"kind": kind, "tables": {**old.get("tables", {}), **(tables or {})}}
+    if source or old.get("source"):
+        marker["source"] = source or old.get("source")
     atomic_write_text(directory / MARKER, json.dumps(marker, indent=1, sort_keys=True))
 
 
@@ -288,9 +295,9 @@ def damaged(
 def rebuild_hint(store: Path, table: str) -> str:
     """The command that rebuilds ``table`` (a file or table name) of the store ``store``."""
     name = Path(table).name.removesuffix(".parquet").removesuffix(".json")
-    recording = "RECORDING"
+    recording = (read_marker(store) or {}).get("source") or "RECORDING"
     meta = Path(store) / "meta.json"
-    with contextlib.suppress(OSError, ValueError, AttributeError):
+    with contextlib.suppress(OSError, ValueError, AttributeError, KeyError, TypeError):
         recording = json.loads(meta.read_text())["source"]["path"]
     template = REBUILD.get(name, "care ingest {recording} --out {store} --force")
     return "`" + template.format(store=store, recording=recording) + "`"
@@ -418,7 +425,12 @@ def output_lock(out: Path, *, wait: bool = True) -> Iterator[None]:
         sweep_stale(out.parent)
         if out.is_dir():
             sweep_stale(out)
-        yield
+        try:
+            yield
+        except OSError as err:
+            if is_disk_full(err) and not isinstance(err, OutputError):
+                raise disk_full(out, 0, err) from err
+            raise
     finally:
         with contextlib.suppress(OSError):
             lock_path.unlink()

@@ -423,7 +423,7 @@ class StoreWriter:
         # truncated or altered table is found (``care check``, the next ingest)
         full["tables"] = {p.name: file_digest(p) for p in sorted(self.tmp.glob("*.parquet"))}
         (self.tmp / "meta.json").write_text(json.dumps(full, indent=2, default=str))
-        write_marker(self.tmp, "store")
+        write_marker(self.tmp, "store", source=(meta.get("source") or {}).get("path"))
         old = self.path.with_name(f".{self.path.name}.old-{os.getpid()}")
         if self.path.exists():
             self.path.rename(old)

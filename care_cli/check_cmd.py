@@ -30,7 +30,7 @@ def check(
         if problems:
             bad += 1
             for line in problems:
-                typer.echo(f"damaged: {line}", err=True)
+                typer.echo(f"error: {line}", err=True)
         else:
             tables = sorted(p.name for p in Path(path).glob("*.parquet"))
             typer.echo(f"{path}: ok ({len(tables)} tables verified)")

@@ -347,6 +347,7 @@ def build_grid(store_path: Path, config: GridConfig | None = None, rrd: Path | N
                 )
                 raise FuseError(msg)
             cells, layout = _cells_table(sums.columns(), index, layers, config, sums.weight)
+            check_raster((layout.shape[1], layout.shape[0], 3), 1, config.cell_size)  # the images
             metadata = {
                 **candidate_metadata(vocabulary, config.logit_scale, store.encoder.name),
                 **layout.metadata(),

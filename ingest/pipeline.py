@@ -199,6 +199,7 @@ def _build(
                     writer.set_text(vocab, encoder.encode_text(vocab))
                 writer.commit(_meta(config, frames, source, fp, vocab))
         except BaseException:
+            bar.leave = False  # the error is the one line left on the terminal
             if logger is not None:
                 logger.close()
                 logger.discard()
