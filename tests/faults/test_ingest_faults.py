@@ -277,7 +277,9 @@ def test_damaged_store_is_rebuilt(care, fx, copy_good, recording: Path, damage: 
         (store / "meta.json").write_text('{"schema_version": 1, "num_views": ')
     code, _, err = care("check", store)
     fx.assert_fault(
-        code, err, r"(features\.parquet|meta\.json).*rebuild (it|the store) with `care ingest .*scene_000\.mcap --out .* --force`"
+        code,
+        err,
+        r"(features\.parquet|meta\.json).*rebuild (it|the store) with `care ingest .*scene_000\.mcap --out .* --force`",
     )
     code, _, err = care("fuse", "grid", store, "--cell-size", "0.1", "--overwrite")
     if damage != "flip-byte":  # a same-size alteration needs the checksum: `care check`
