@@ -34,6 +34,10 @@ app = typer.Typer(
 )
 
 
+_INTERRUPTED = 130
+"""Exit code of a run stopped by Ctrl-C (128 + SIGINT), as shells report it."""
+
+
 def _register() -> None:
     from care_cli import check_cmd, eval_cmd, fuse_cmd, ingest_cmd, sample_cmd
 
@@ -108,6 +112,8 @@ def main() -> None:
     try:
         _register()
         code = app(standalone_mode=False)
+        if code == _INTERRUPTED:  # typer turns Ctrl-C into exit code 130, silently
+            raise KeyboardInterrupt
         sys.exit(code if isinstance(code, int) else 0)
     except click_errors.ClickException as err:  # usage: a bad option value, a missing argument
         if not err.format_message().strip():  # no arguments: the help was shown
@@ -117,8 +123,8 @@ def main() -> None:
         typer.echo(f"error: {_first_line(err.format_message())} (see `{command} --help`)", err=True)
         sys.exit(err.exit_code)
     except (KeyboardInterrupt, typer.Abort):
-        typer.echo("interrupted; nothing half-written was left behind", err=True)
-        sys.exit(130)
+        typer.echo("error: interrupted; nothing half-written was left behind", err=True)
+        sys.exit(_INTERRUPTED)
     except Exception as err:
         if debug:
             raise

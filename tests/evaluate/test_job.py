@@ -221,8 +221,9 @@ def test_cli_eval_query_replan(dataset, tmp_path) -> None:
         capture_output=True,
         text=True,
     )
-    assert bad.returncode == 1
-    assert bad.stderr.startswith("error: unknown replan strategy")
+    assert bad.returncode == 2  # a usage error: the choices come from the registry
+    assert bad.stderr.startswith("error: Invalid value for '--strategy'")
+    assert "'best' is not one of" in bad.stderr
     e = subprocess.run(
         [
             *run,

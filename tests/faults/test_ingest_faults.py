@@ -337,6 +337,24 @@ def test_killed_ingest_leaves_nothing_after_rerun(
     assert set(fx.tables(out)) == {"views.parquet", "features.parquet", "text.parquet"}
 
 
+def test_interrupted_ingest_leaves_nothing(fx, copy_good, recording: Path) -> None:
+    """Ctrl-C (SIGINT) mid-ingest: one line, exit 130, the temporary removed, the previous
+    store whole."""
+    store = copy_good("store")
+    before = fx.snapshot(store)
+    proc = fx.care_popen("ingest", recording, "--out", store, "--encoder", "labels", "--seed", "2")
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and not list(store.parent.glob(".store.tmp-*/views.parquet")):
+        time.sleep(0.005)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    fx.assert_fault(
+        proc.returncode, err, r"interrupted", exit_code=130, clean=(store.parent,), intact=before
+    )
+    r = fx.care_process("ingest", recording, "--out", store, "--encoder", "labels", "--seed", "2")
+    assert r.returncode == 0, r.stderr
+
+
 def test_concurrent_ingests_into_one_out(fx, recording: Path, tmp_path: Path) -> None:
     out = tmp_path / "store"
     procs = [
