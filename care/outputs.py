@@ -103,8 +103,10 @@ def remove_path(path: Path) -> None:
             path.unlink()
 
 
-def sweep_stale(directory: Path) -> list[Path]:
-    """Remove staged temporaries in ``directory`` whose process no longer runs."""
+def sweep_stale(directory: Path, name: str | None = None) -> list[Path]:
+    """Remove staged temporaries in ``directory`` whose process no longer runs; with
+    ``name``, only those of that output (``.<name>.tmp-<pid>``, ...): a directory that is not
+    ours may hold the user's own files of a similar pattern."""
     directory = Path(directory)
     removed: list[Path] = []
     if not directory.is_dir():
@@ -115,7 +117,7 @@ def sweep_stale(directory: Path) -> list[Path]:
         return removed
     for entry in entries:
         m = _STALE.match(entry.name)
-        if m is None:
+        if m is None or (name is not None and not entry.name.startswith(f".{name}.")):
             continue
         pid = int(m.group(1))
         if pid == os.getpid() or pid_alive(pid):
@@ -422,8 +424,8 @@ def output_lock(out: Path, *, wait: bool = True) -> Iterator[None]:
     try:
         os.ftruncate(fd, 0)
         os.pwrite(fd, str(os.getpid()).encode(), 0)
-        sweep_stale(out.parent)
-        if out.is_dir():
+        sweep_stale(out.parent, out.name)
+        if out.is_dir() and is_ours(out):
             sweep_stale(out)
         try:
             yield

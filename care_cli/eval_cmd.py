@@ -165,7 +165,7 @@ def eval_(
         float, typer.Option(help="Grid: radius (m) skipped around a failure.")
     ] = 1.0,
     bootstrap: Annotated[int, typer.Option(help="Bootstrap resamples for the 95% CIs.")] = 1000,
-    workers: Annotated[int, typer.Option(help="Local processes (0: one per CPU).")] = 0,
+    workers: Annotated[int, typer.Option(help="Local processes (0: one per CPU).", min=0)] = 0,
     ray: RayOpt = False,
     ray_address: RayAddressOpt = None,
 ) -> None:
@@ -214,7 +214,7 @@ def run(
     attempts: Annotated[int, typer.Option(help="Attempts per query (first + replans).")] = 2,
     seeds: Annotated[int, typer.Option(help="Seeds of the random strategies.")] = 10,
     workers: Annotated[
-        int, typer.Option(help="Local processes of the evaluation (0: one per CPU).")
+        int, typer.Option(help="Local processes of the evaluation (0: one per CPU).", min=0)
     ] = 0,
     ray: RayOpt = False,
     ray_address: RayAddressOpt = None,

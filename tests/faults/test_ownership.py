@@ -75,3 +75,16 @@ def test_the_input_rosbag2_directory_is_never_an_output(
     assert not (tmp_path / "s").exists()
     code, _, err = care("ingest", bag, "--out", tmp_path / "store")  # and it is still readable
     assert code == 0, err
+
+
+def test_sweeping_spares_the_users_files(care, fx, recording: Path, tmp_path: Path) -> None:
+    """Stale temporaries are swept only for the output at hand: a user's file of a similar
+    name beside it, from a 'process' long gone, stays."""
+    mine = tmp_path / ".notes.old-999999"
+    mine.write_text("keep me")
+    stale = tmp_path / ".store.tmp-999999"  # a killed ingest's, of this very output
+    stale.mkdir()
+    (stale / "views.parquet").write_bytes(b"PAR1")
+    assert care("ingest", recording, "--out", tmp_path / "store")[0] == 0
+    assert mine.read_text() == "keep me"
+    assert not stale.exists()
