@@ -58,7 +58,7 @@ __all__ = [
     "write_marker",
 ]
 
-MARKER = ".care-output.json"
+MARKER = "care-output.json"
 """File whose presence marks a directory as written by ``care`` (and of which kind)."""
 
 _STALE = re.compile(r"^\..+\.(?:tmp|old|building)-(\d+)(?:\.[A-Za-z0-9]+)?$")
@@ -327,7 +327,7 @@ def check_output(out: Path, *, kind: str, inputs: Iterable[Path] = (), flag: str
         if _same_or_under(resolved, r):
             msg = f"{flag} {out}: is the input {inp} or inside it; refusing to write there (choose another {flag})"
             raise OutputError(msg)
-        if r in resolved.parents or _same_or_under(r, resolved):
+        if _same_or_under(r, resolved):
             msg = f"{flag} {out}: contains the input {inp}; refusing to replace it (choose another {flag})"
             raise OutputError(msg)
     for parent in [resolved, *resolved.parents]:
@@ -429,8 +429,8 @@ def output_lock(out: Path, *, wait: bool = True) -> Iterator[None]:
             sweep_stale(out)
         try:
             yield
-        except OSError as err:
-            if is_disk_full(err) and not isinstance(err, OutputError):
+        except OSError as err:  # a full disk the staged writers did not already report
+            if is_disk_full(err):
                 raise disk_full(out, 0, err) from err
             raise
     finally:

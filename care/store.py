@@ -423,7 +423,10 @@ class StoreWriter:
         # truncated or altered table is found (``care check``, the next ingest)
         full["tables"] = {p.name: file_digest(p) for p in sorted(self.tmp.glob("*.parquet"))}
         (self.tmp / "meta.json").write_text(json.dumps(full, indent=2, default=str))
-        write_marker(self.tmp, "store", source=(meta.get("source") or {}).get("path"))
+        source = meta.get("source")
+        write_marker(
+            self.tmp, "store", source=source.get("path") if isinstance(source, dict) else None
+        )
         old = self.path.with_name(f".{self.path.name}.old-{os.getpid()}")
         if self.path.exists():
             self.path.rename(old)

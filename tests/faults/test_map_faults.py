@@ -144,7 +144,9 @@ def test_text_embeddings_of_another_dimension(care, fx, copy_good) -> None:
         ("instance_views.parquet", "instances", "care fuse instances"),
     ],
 )
-def test_damaged_map_is_found_and_rebuilt(care, fx, copy_good, table, kind, rebuild) -> None:
+def test_damaged_map_is_found_and_rebuilt(
+    care, fx, copy_good, good: Path, table, kind, rebuild
+) -> None:
     store = copy_good("store")
     _truncate(store / table)
     code, _, err = care("check", store)
@@ -159,6 +161,7 @@ def test_damaged_map_is_found_and_rebuilt(care, fx, copy_good, table, kind, rebu
     assert code == 0, err
     assert care("check", store)[0] == 0
     assert care("query", store, "chair", "--map", kind)[0] == 0
+    assert fx.tables(store) == fx.tables(good / "store")  # rebuilt byte for byte
 
 
 def test_fuse_rrd_is_a_user_file(care, fx, copy_good, tmp_path: Path) -> None:
