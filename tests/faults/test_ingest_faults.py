@@ -83,15 +83,15 @@ def test_out_under_a_regular_file(care, fx, recording: Path, tmp_path: Path) -> 
     assert care("ingest", recording, "--out", tmp_path / "store")[0] == 0
 
 
-def test_out_parent_not_writable(fx, recording: Path, tmp_path: Path) -> None:
+def test_out_parent_not_writable(care, fx, recording: Path, tmp_path: Path) -> None:
     locked = tmp_path / "locked"
     locked.mkdir()
     with fx.chmod(locked, 0o555):
         r = fx.care_process("ingest", recording, "--out", locked / "store")
     fx.assert_fault(r.returncode, r.stderr, r"permission denied", clean=(tmp_path,))
     assert not (locked / "store").exists()
-    r = fx.care_process("ingest", recording, "--out", locked / "store")
-    assert r.returncode == 0, r.stderr
+    code, _, err = care("ingest", recording, "--out", locked / "store")
+    assert code == 0, err
 
 
 def test_rrd_is_a_user_file(care, fx, recording: Path, tmp_path: Path) -> None:
@@ -295,7 +295,9 @@ def test_damaged_store_is_rebuilt(care, fx, copy_good, recording: Path, damage: 
 # -- a full disk and a kill -----------------------------------------------------------------
 
 
-def test_disk_full_keeps_previous_store(fx, copy_good, recording: Path, tmp_path: Path) -> None:
+def test_disk_full_keeps_previous_store(
+    care, fx, copy_good, recording: Path, tmp_path: Path
+) -> None:
     store = copy_good("store")
     before = fx.snapshot(store)
     # another encoder setting: the store must be rebuilt, and the disk fills on the way
@@ -310,13 +312,13 @@ def test_disk_full_keeps_previous_store(fx, copy_good, recording: Path, tmp_path
         intact=before,
     )
     assert "free on" in line
-    r = fx.care_process("ingest", recording, "--out", store, "--encoder", "labels", "--seed", "1")
-    assert r.returncode == 0, r.stderr
-    assert fx.care_process("check", store).returncode == 0
+    code, _, err = care("ingest", recording, "--out", store, "--encoder", "labels", "--seed", "1")
+    assert code == 0, err
+    assert care("check", store)[0] == 0
 
 
 def test_killed_ingest_leaves_nothing_after_rerun(
-    fx, good: Path, recording: Path, tmp_path: Path
+    care, fx, good: Path, recording: Path, tmp_path: Path
 ) -> None:
     out = tmp_path / "store"
     proc = fx.care_popen("ingest", recording, "--out", out, "--encoder", "labels")
@@ -327,17 +329,17 @@ def test_killed_ingest_leaves_nothing_after_rerun(
     proc.communicate()
     assert not out.exists() or not (out / "meta.json").exists()
     stale = list(tmp_path.glob(".store.tmp-*"))
-    r = fx.care_process("ingest", recording, "--out", out, "--encoder", "labels")
-    assert r.returncode == 0, r.stderr
+    code, _, err = care("ingest", recording, "--out", out, "--encoder", "labels")
+    assert code == 0, err
     assert not fx.leftovers(tmp_path), fx.leftovers(tmp_path)
     assert not any(p.exists() for p in stale)
-    assert fx.care_process("check", out).returncode == 0
+    assert care("check", out)[0] == 0
     reference = fx.tables(good / "store")  # same bytes after a kill and a re-run
     assert fx.tables(out) == {name: reference[name] for name in fx.tables(out)}
     assert set(fx.tables(out)) == {"views.parquet", "features.parquet", "text.parquet"}
 
 
-def test_interrupted_ingest_leaves_nothing(fx, copy_good, recording: Path) -> None:
+def test_interrupted_ingest_leaves_nothing(care, fx, copy_good, recording: Path) -> None:
     """Ctrl-C (SIGINT) mid-ingest: one line, exit 130, the temporary removed, the previous
     store whole."""
     store = copy_good("store")
@@ -351,18 +353,18 @@ def test_interrupted_ingest_leaves_nothing(fx, copy_good, recording: Path) -> No
     fx.assert_fault(
         proc.returncode, err, r"interrupted", exit_code=130, clean=(store.parent,), intact=before
     )
-    r = fx.care_process("ingest", recording, "--out", store, "--encoder", "labels", "--seed", "2")
-    assert r.returncode == 0, r.stderr
+    code, _, err = care("ingest", recording, "--out", store, "--encoder", "labels", "--seed", "2")
+    assert code == 0, err
 
 
-def test_concurrent_ingests_into_one_out(fx, recording: Path, tmp_path: Path) -> None:
+def test_concurrent_ingests_into_one_out(care, fx, recording: Path, tmp_path: Path) -> None:
     out = tmp_path / "store"
     procs = [
         fx.care_popen("ingest", recording, "--out", out, "--encoder", "labels") for _ in range(2)
     ]
     results = [p.communicate(timeout=300) for p in procs]
     assert [p.returncode for p in procs] == [0, 0], results
-    assert fx.care_process("check", out).returncode == 0
+    assert care("check", out)[0] == 0
     assert not fx.leftovers(tmp_path)
 
 

@@ -181,7 +181,7 @@ def test_fuse_rrd_is_a_user_file(care, fx, copy_good, tmp_path: Path) -> None:
     assert fx.snapshot(rrd) == {str(rrd): before[str(rrd)]}
 
 
-def test_fuse_disk_full_keeps_previous_map(fx, copy_good) -> None:
+def test_fuse_disk_full_keeps_previous_map(care, fx, copy_good) -> None:
     store = copy_good("store")
     before = fx.snapshot(store)
     r = fx.care_process("fuse", "grid", store, "--cell-size", "0.07", fsize=40_000)
@@ -192,12 +192,12 @@ def test_fuse_disk_full_keeps_previous_map(fx, copy_good) -> None:
         clean=(store.parent,),
         intact=before,
     )
-    r = fx.care_process("fuse", "grid", store, "--cell-size", "0.07")
-    assert r.returncode == 0, r.stderr
-    assert fx.care_process("check", store).returncode == 0
+    code, _, err = care("fuse", "grid", store, "--cell-size", "0.07")
+    assert code == 0, err
+    assert care("check", store)[0] == 0
 
 
-def test_killed_fuse_is_swept_by_the_next_run(fx, copy_good) -> None:
+def test_killed_fuse_is_swept_by_the_next_run(care, fx, copy_good) -> None:
     store = copy_good("store")
     proc = fx.care_popen("fuse", "grid", store, "--cell-size", "0.05")
     deadline = time.monotonic() + 120
@@ -206,14 +206,14 @@ def test_killed_fuse_is_swept_by_the_next_run(fx, copy_good) -> None:
     proc.send_signal(signal.SIGKILL)
     proc.communicate()
     stale = list(store.glob(".cell_views.parquet.tmp-*"))
-    assert fx.care_process("check", store).returncode == 0  # the old map still whole
-    r = fx.care_process("fuse", "grid", store, "--cell-size", "0.05")
-    assert r.returncode == 0, r.stderr
+    assert care("check", store)[0] == 0  # the old map still whole
+    code, _, err = care("fuse", "grid", store, "--cell-size", "0.05")
+    assert code == 0, err
     assert not any(p.exists() for p in stale)
     assert not fx.leftovers(store.parent)
 
 
-def test_fuse_store_directory_not_writable(fx, copy_good) -> None:
+def test_fuse_store_directory_not_writable(care, fx, copy_good) -> None:
     store = copy_good("store")
     before = fx.snapshot(store)
     with fx.chmod(store, 0o555):
@@ -221,7 +221,7 @@ def test_fuse_store_directory_not_writable(fx, copy_good) -> None:
     fx.assert_fault(
         r.returncode, r.stderr, r"permission denied", clean=(store.parent,), intact=before
     )
-    assert fx.care_process("fuse", "grid", store, "--cell-size", "0.07").returncode == 0
+    assert care("fuse", "grid", store, "--cell-size", "0.07")[0] == 0
 
 
 # -- query / replan -----------------------------------------------------------------------
@@ -395,7 +395,7 @@ def test_eval_bad_index_json(care, fx, world: Path, tmp_path: Path) -> None:
     fx.assert_fault(code, err, r"index\.json", clean=(tmp_path,))
 
 
-def test_eval_disk_full_keeps_previous_results(fx, copy_good, good: Path) -> None:
+def test_eval_disk_full_keeps_previous_results(care, fx, copy_good, good: Path) -> None:
     out = copy_good("eval")
     before = fx.snapshot(out)
     r = fx.care_process(
@@ -408,8 +408,8 @@ def test_eval_disk_full_keeps_previous_results(fx, copy_good, good: Path) -> Non
     assert fx.snapshot(out / "results.md") == {
         str(out / "results.md"): before[str(out / "results.md")]
     }
-    r = fx.care_process("eval", good / "store", "--out", out, *fx.EVAL_FLAGS, "--seeds", "3")
-    assert r.returncode == 0, r.stderr
+    code, _, err = care("eval", good / "store", "--out", out, *fx.EVAL_FLAGS, "--seeds", "3")
+    assert code == 0, err
 
 
 def test_eval_twice_same_bytes(care, fx, good: Path, tmp_path: Path) -> None:
