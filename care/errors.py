@@ -14,6 +14,7 @@ __all__ = [
     "FuseError",
     "GroundTruthError",
     "IngestError",
+    "OutputError",
     "QueryError",
     "ReplanError",
     "StoreError",
@@ -31,6 +32,10 @@ class IngestError(CareError):
 
 class EncoderError(CareError):
     """An encoder cannot be loaded or cannot encode its input."""
+
+
+class OutputError(CareError):
+    """An output path cannot be written safely (not ours, an input, locked, disk full)."""
 
 
 class StoreError(CareError):

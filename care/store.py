@@ -16,10 +16,10 @@ leaves a store that looks complete; single tables added later go through
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import os
-import shutil
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -36,6 +36,17 @@ from PIL import Image
 from care.errors import StoreError
 from care.frames import Frame
 from care.mapframe import MapFrame
+from care.outputs import (
+    damaged,
+    disk_full,
+    file_digest,
+    is_disk_full,
+    rebuild_hint,
+    record_table,
+    remove_path,
+    staged,
+    write_marker,
+)
 
 __all__ = [
     "EXTRA_IMAGES",
@@ -48,6 +59,7 @@ __all__ = [
     "Store",
     "StoreWriter",
     "append_rows",
+    "damaged_table",
     "decode_png",
     "encode_png",
     "group_rows",
@@ -158,6 +170,30 @@ def _decode_jpeg(data: bytes) -> np.ndarray:
     return np.asarray(Image.open(io.BytesIO(data)).convert("RGB"))
 
 
+def damaged_table(path: Path, err: BaseException | None = None) -> StoreError:
+    """The one-line error of a table that cannot be read: what is wrong and what rebuilds it."""
+    path = Path(path)
+    why = f" ({str(err).splitlines()[0][:160]})" if err is not None and str(err) else ""
+    msg = (
+        f"{path}: damaged or truncated table{why}; rebuild it with "
+        f"{rebuild_hint(path.parent, path.name)}"
+    )
+    return StoreError(msg)
+
+
+@contextlib.contextmanager
+def reading(path: Path) -> Iterator[None]:
+    """Turn Arrow/Parquet read failures of ``path`` into :func:`damaged_table`'s one line."""
+    try:
+        yield
+    except (pa.ArrowException, OSError) as err:
+        if isinstance(err, PermissionError):
+            raise
+        if isinstance(err, FileNotFoundError) and not Path(path).parent.exists():
+            raise
+        raise damaged_table(path, err) from err
+
+
 def _check_version(schema: pa.Schema, path: Path) -> None:
     found = (schema.metadata or {}).get(_VERSION_KEY)
     if found is None or int(found) != SCHEMA_VERSION:
@@ -230,14 +266,12 @@ def write_table_atomic(
     md[_VERSION_KEY] = str(SCHEMA_VERSION).encode()
     table = table.replace_schema_metadata(md)
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
+    with staged(path) as tmp:
         pq.write_table(
             table, tmp, row_group_size=group_rows(table), **parquet_options(table.schema)
         )
         tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    record_table(path)
 
 
 def read_schema(path: Path) -> pa.Schema:
@@ -258,8 +292,11 @@ def read_table(path: Path, columns: Sequence[str] | None = None) -> pa.Table:
     if not path.is_file():
         msg = f"{path}: no such table; build it first (see `care --help`)."
         raise StoreError(msg)
-    _check_version(pq.read_schema(path), path)
-    return pq.read_table(path, columns=list(columns) if columns else None)
+    if damaged(path.parent, [path.name], checksum=False):
+        raise damaged_table(path)
+    with reading(path):
+        _check_version(pq.read_schema(path), path)
+        return pq.read_table(path, columns=list(columns) if columns else None)
 
 
 def iter_batches(
@@ -305,13 +342,16 @@ class StoreWriter:
         self._text: pa.Table | None = None
 
     def __enter__(self) -> StoreWriter:
-        if self.tmp.exists():
-            shutil.rmtree(self.tmp)
+        remove_path(self.tmp)
         self.tmp.mkdir(parents=True)
-        self._views_writer = open_writer(self.tmp / "views.parquet", VIEWS_SCHEMA)
-        if self.encoder is not None:
-            schema = FEATURES_SCHEMA.with_metadata(self.encoder.metadata())
-            self._features_writer = open_writer(self.tmp / "features.parquet", schema)
+        try:
+            self._views_writer = open_writer(self.tmp / "views.parquet", VIEWS_SCHEMA)
+            if self.encoder is not None:
+                schema = FEATURES_SCHEMA.with_metadata(self.encoder.metadata())
+                self._features_writer = open_writer(self.tmp / "features.parquet", schema)
+        except BaseException:
+            self.__exit__(None, None, None)
+            raise
         return self
 
     def add(self, frame: Frame, features: np.ndarray | None = None) -> int:
@@ -413,13 +453,19 @@ class StoreWriter:
             "created_unix": time.time(),
             **meta,
         }
+        # the store's fingerprint on disk: every table's size and checksum, so a deleted,
+        # truncated or altered table is found (``care check``, the next ingest)
+        full["tables"] = {p.name: file_digest(p) for p in sorted(self.tmp.glob("*.parquet"))}
         (self.tmp / "meta.json").write_text(json.dumps(full, indent=2, default=str))
+        source = meta.get("source")
+        write_marker(
+            self.tmp, "store", source=source.get("path") if isinstance(source, dict) else None
+        )
         old = self.path.with_name(f".{self.path.name}.old-{os.getpid()}")
         if self.path.exists():
             self.path.rename(old)
         self.tmp.rename(self.path)
-        if old.exists():
-            shutil.rmtree(old)
+        remove_path(old)
 
     def __exit__(
         self,
@@ -427,11 +473,21 @@ class StoreWriter:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        for writer in (self._views_writer, self._features_writer):
-            if writer is not None:
-                writer.close()
-        if self.tmp.exists():
-            shutil.rmtree(self.tmp)
+        # on every path, a full disk included: closing a writer may fail then, and the
+        # temporary must go all the same (else it keeps the disk full for the next run)
+        written = 0
+        try:
+            for writer in (self._views_writer, self._features_writer):
+                if writer is not None:
+                    with contextlib.suppress(Exception):
+                        writer.close()
+            self._views_writer = self._features_writer = None
+        finally:
+            if self.tmp.exists():
+                written = sum(p.stat().st_size for p in self.tmp.iterdir() if p.is_file())
+            remove_path(self.tmp)
+        if exc is not None and is_disk_full(exc):
+            raise disk_full(self.path, written, exc) from exc  # type: ignore[arg-type]
 
 
 def _in_frame(to_map: np.ndarray | None, cam_to_world: list[float]) -> np.ndarray:
@@ -452,7 +508,13 @@ class Store:
         if not meta_path.is_file():
             msg = f"{self.path}: not a complete feature store (no meta.json); run `care ingest` first."
             raise StoreError(msg)
-        self.meta: dict[str, Any] = json.loads(meta_path.read_text())
+        try:
+            self.meta: dict[str, Any] = json.loads(meta_path.read_text())
+            if not isinstance(self.meta, dict):
+                raise ValueError("not a JSON object")
+        except (ValueError, UnicodeDecodeError) as err:
+            msg = f"{meta_path}: not valid JSON ({err}); rebuild the store with {rebuild_hint(self.path, 'meta')}"
+            raise StoreError(msg) from err
         if self.meta.get("schema_version") != SCHEMA_VERSION:
             msg = (
                 f"{self.path}: store schema version {self.meta.get('schema_version')}, this "
@@ -460,9 +522,34 @@ class Store:
             )
             raise StoreError(msg)
 
+        bad = damaged(self.path, self.meta.get("tables") or {}, checksum=False)
+        if bad:
+            raise damaged_table(self.path / bad[0])
+
     @property
     def num_views(self) -> int:
         return int(self.meta["num_views"])
+
+    def verify(self) -> list[str]:
+        """Messages about every damaged table of the store and its maps (empty: all whole).
+
+        Compares each recorded table's size and checksum and reads every Parquet footer.
+        """
+        problems = [
+            f"{self.path / name}: missing, truncated or altered since it was written; rebuild "
+            f"it with {rebuild_hint(self.path, name)}"
+            for name in damaged(self.path)
+        ]
+        named = {p.split(":")[0] for p in problems}
+        for path in sorted(self.path.glob("*.parquet")):
+            if str(path) in named:
+                continue
+            try:
+                with reading(path):
+                    pq.ParquetFile(path).metadata  # noqa: B018 - reads the footer
+            except StoreError as err:
+                problems.append(str(err))
+        return problems
 
     def table_path(self, name: str) -> Path:
         return self.path / f"{name}.parquet"
@@ -509,10 +596,11 @@ class Store:
         ``view_ids`` when given: the others are not decoded); poses in the map frame
         (``in_map``) or the recording's world frame."""
         path = self.table_path("views")
-        _check_version(pq.read_schema(path), path)
+        with reading(path):
+            _check_version(pq.read_schema(path), path)
         frame = self.map_frame if in_map else MapFrame.identity()
         to_map = None if frame.is_identity else frame.map_from_world
-        for batch in iter_batches(path, batch_size):
+        for batch in _batches(path, batch_size):
             if view_ids is not None:
                 batch = batch.filter(pa.array(np.isin(batch.column("view_id"), list(view_ids))))
             for row in batch.to_pylist():
@@ -542,7 +630,8 @@ class Store:
         if not path.is_file():
             msg = f"{self.path}: the store has no features; re-run `care ingest` with --encoder."
             raise StoreError(msg)
-        return EncoderInfo.from_metadata(pq.read_schema(path).metadata or {})
+        with reading(path):
+            return EncoderInfo.from_metadata(pq.read_schema(path).metadata or {})
 
     def iter_features(
         self, *, batch_size: int = 8, view_ids: set[int] | None = None
@@ -551,8 +640,9 @@ class Store:
         ``view_ids`` when given)."""
         path = self.table_path("features")
         info = self.encoder
-        _check_version(pq.read_schema(path), path)
-        for batch in iter_batches(path, batch_size):
+        with reading(path):
+            _check_version(pq.read_schema(path), path)
+        for batch in _batches(path, batch_size):
             if view_ids is not None:
                 batch = batch.filter(pa.array(np.isin(batch.column("view_id"), list(view_ids))))
             ids = batch.column("view_id").to_numpy()
@@ -565,11 +655,40 @@ class Store:
             values = feats.values.to_numpy(zero_copy_only=False)
             for i in range(batch.num_rows):
                 flat = values[offsets[i] : offsets[i + 1]]
+                if flat.size != int(fh[i]) * int(fw[i]) * info.dim:
+                    msg = (
+                        f"{path}: view {int(ids[i])} holds {flat.size} feature values, not "
+                        f"{int(fh[i])}x{int(fw[i])}x{info.dim} (the encoder's dimension); rebuild it "
+                        f"with {rebuild_hint(self.path, 'features')}"
+                    )
+                    raise StoreError(msg)
                 yield int(ids[i]), flat.reshape(int(fh[i]), int(fw[i]), info.dim)
 
     def text_embeddings(self) -> tuple[list[str], np.ndarray]:
         """Cached class names and their (n, d) float32 text embeddings."""
-        table = read_table(self.table_path("text"))
+        path = self.table_path("text")
+        table = read_table(path)
         names = table.column("name").to_pylist()
         emb = table.column("embedding").combine_chunks().values.to_numpy()
-        return names, emb.reshape(len(names), -1).astype(np.float32)
+        emb = emb.reshape(len(names), -1).astype(np.float32)
+        dim = (self.meta.get("encoder") or {}).get("dim")
+        if dim is not None and names and emb.shape[1] != dim:
+            msg = (
+                f"{path}: text embeddings of dimension {emb.shape[1]}, but the store's features "
+                f"have {dim}; rebuild the store with {rebuild_hint(self.path, 'text')}"
+            )
+            raise StoreError(msg)
+        return names, emb
+
+
+def _batches(path: Path, batch_size: int) -> Iterator[pa.RecordBatch]:
+    """:func:`iter_batches` of ``path``, a damaged row group becoming one line (not a
+    traceback)."""
+    with reading(path):
+        it = iter_batches(path, batch_size)
+    while True:
+        with reading(path):
+            batch = next(it, None)
+        if batch is None:
+            return
+        yield batch

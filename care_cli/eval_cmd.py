@@ -14,11 +14,13 @@ from typing import Annotated, Any, NoReturn
 
 import typer
 
+from care_cli.choices import Criterion, MapKind, Strategy
+
 __all__ = ["register"]
 
 StoreArg = Annotated[Path, typer.Argument(help="Store directory with fused maps (`care fuse`).")]
 TextArg = Annotated[str, typer.Argument(help="What to look for: a class name or free text.")]
-MapOpt = Annotated[str, typer.Option("--map", help="Map to ask: instances or grid.")]
+MapOpt = Annotated[MapKind, typer.Option("--map", help="Map to ask.")]
 RayOpt = Annotated[
     bool,
     typer.Option("--ray", help="Evaluate scenes as Ray tasks (a local Ray unless --ray-address)."),
@@ -122,7 +124,8 @@ def _resolve(store: Path, kind: str, text: str, weights: Path | None = None) -> 
     from query import load_map
     from query.openvocab import open_query
 
-    target = open_query(load_map(store, kind, weights=weights), text)  # type: ignore[arg-type]
+    cmap = load_map(store, MapKind(kind).value, weights=weights)  # type: ignore[arg-type]
+    target = open_query(cmap, text)
     if target.match.method != "vocabulary":
         typer.echo(f"query {target.match.describe()}", err=True)
     return target
@@ -134,8 +137,8 @@ def query(
         str | None,
         typer.Argument(help="What to look for: a class name or free text (not with --batch)."),
     ] = None,
-    kind: MapOpt = "instances",
-    top: Annotated[int, typer.Option(help="How many candidates to list.")] = 10,
+    kind: MapOpt = "instances",  # type: ignore[assignment]
+    top: Annotated[int, typer.Option(help="How many candidates to list (>= 1).", min=1)] = 10,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
     clearance: ClearanceOpt = None,
     weights: WeightsOpt = None,
@@ -163,8 +166,6 @@ def query(
 
     from query import rank_by_confidence
 
-    if top < 1:
-        _fail(f"--top must be at least 1, got {top}")
     if (batch is None) == (text is None):
         _fail("give either TEXT or --batch FILE")
     if batch is not None:
@@ -196,7 +197,9 @@ def query(
             )
         )
         return
-    typer.echo(f"{kind} map, class {match.names[0]!r}: {cmap.num_candidates} candidates")
+    typer.echo(
+        f"{MapKind(kind).value} map, class {match.names[0]!r}: {cmap.num_candidates} candidates"
+    )
     typer.echo(
         f"rank  cand  confidence  entropy   stderr     pwkl  views  position  "
         f"goal in {goals.frame_id!r} (x, y, yaw deg)"
@@ -221,14 +224,12 @@ def replan(
             "--exclude-radius of a position count as visited."
         ),
     ] = None,
-    strategy: Annotated[
-        str, typer.Option(help="Replan strategy (see `care eval --help`).")
-    ] = "min_stderr",
-    criterion: Annotated[
-        str, typer.Option(help="Candidate set: confidence or category.")
-    ] = "confidence",
-    k: Annotated[int, typer.Option("-k", help="Size parameter of the candidate set.")] = 4,
-    kind: MapOpt = "instances",
+    strategy: Annotated[Strategy, typer.Option(help="Replan strategy.")] = "min_stderr",  # type: ignore[assignment]
+    criterion: Annotated[Criterion, typer.Option(help="Candidate set.")] = "confidence",  # type: ignore[assignment]
+    k: Annotated[
+        int, typer.Option("-k", help="Size parameter of the candidate set (>= 1).", min=1)
+    ] = 4,
+    kind: MapOpt = "instances",  # type: ignore[assignment]
     exclude_radius: Annotated[
         float, typer.Option(help="Grid: skip cells within this distance (m) of failed ones.")
     ] = 1.0,
@@ -247,7 +248,8 @@ def replan(
     cmap, match = target.cmap, target.match
     goals = _goal_maker(store, clearance)
     choice = next_goal(
-        cmap, target, ids, strategy=strategy, criterion=criterion,
+        cmap, target, ids, strategy=Strategy(strategy).value,
+        criterion=Criterion(criterion).value,
         k=k, exclude_radius=exclude_radius, seed=seed, visited_at=places,
     )  # fmt: skip
     out = dataclasses.asdict(choice)
@@ -356,7 +358,7 @@ def eval_(
         float, typer.Option(help="Grid: radius (m) skipped around a failure.")
     ] = 1.0,
     bootstrap: Annotated[int, typer.Option(help="Bootstrap resamples for the 95% CIs.")] = 1000,
-    workers: Annotated[int, typer.Option(help="Local processes (0: one per CPU).")] = 0,
+    workers: Annotated[int, typer.Option(help="Local processes (0: one per CPU).", min=0)] = 0,
     ray: RayOpt = False,
     ray_address: RayAddressOpt = None,
     gt: GtOpt = None,
@@ -433,7 +435,7 @@ def run(
     attempts: Annotated[int, typer.Option(help="Attempts per query (first + replans).")] = 2,
     seeds: Annotated[int, typer.Option(help="Seeds of the random strategies.")] = 10,
     workers: Annotated[
-        int, typer.Option(help="Local processes of the evaluation (0: one per CPU).")
+        int, typer.Option(help="Local processes of the evaluation (0: one per CPU).", min=0)
     ] = 0,
     ray: RayOpt = False,
     ray_address: RayAddressOpt = None,

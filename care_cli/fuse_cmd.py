@@ -13,6 +13,7 @@ from typing import Annotated, Any
 import typer
 
 from care.mapframe import UpAxis
+from care_cli.choices import InstanceFeatures, ProposalMethod
 
 __all__ = ["register"]
 
@@ -132,31 +133,43 @@ def grid(
     from fuse.grid import GridConfig, build_grid
     from fuse.recompute import recompute_grid
 
-    _map_frame(store, up_axis, floor_z)
-    if recompute:
-        path = recompute_grid(store, _vocabulary(vocabulary), logit_scale)
-        if rrd is not None:
-            from fuse.viz_grid import log_grid
+    config = GridConfig(  # options checked (GridConfig.__post_init__) before any work
+        cell_size=cell_size,
+        stride=stride,
+        z_min=z_min,
+        z_max=z_max,
+        sigma_z=sigma_z,
+        distance_weighting=distance_weighting,
+        logit_scale=logit_scale,
+        vocabulary=_vocabulary(vocabulary),
+        obstacle_height=obstacle_height,
+        overwrite=overwrite,
+        memory_budget=None if memory_budget is None else _bytes(memory_budget),
+    )
+    with _writing(store, rrd):
+        _map_frame(store, up_axis, floor_z)
+        if recompute:
+            path = recompute_grid(store, config.vocabulary, logit_scale)
+            if rrd is not None:
+                from fuse.viz_grid import log_grid
 
-            log_grid(store, rrd)
-    else:
-        config = GridConfig(
-            cell_size=cell_size,
-            stride=stride,
-            z_min=z_min,
-            z_max=z_max,
-            sigma_z=sigma_z,
-            distance_weighting=distance_weighting,
-            logit_scale=logit_scale,
-            vocabulary=_vocabulary(vocabulary),
-            obstacle_height=obstacle_height,
-            overwrite=overwrite,
-            memory_budget=None if memory_budget is None else _bytes(memory_budget),
-        )
-        path = build_grid(store, config, rrd=rrd)
+                log_grid(store, rrd)
+        else:
+            path = build_grid(store, config, rrd=rrd)
     _summary(path)
     if rrd is not None:
         typer.echo(f"rerun {rrd}")
+
+
+def _writing(store: Path, rrd: Path | None) -> Any:
+    """Refuse a --rrd that is not ours, then hold the store's lock while its maps are written."""
+    from care.outputs import check_file_output, output_lock
+    from care.store import Store
+
+    Store(store)  # a complete, undamaged store, or one line saying what to do
+    if rrd is not None:
+        check_file_output(rrd, inputs=[store])
+    return output_lock(store)
 
 
 def _summary(path: Path) -> None:
@@ -171,17 +184,17 @@ def _summary(path: Path) -> None:
 def instances(
     store: StoreArg,
     proposals: Annotated[
-        str,
+        ProposalMethod,
         typer.Option(
             help="Proposal method: geometric (planes removed, DBSCAN) or labels (oracle)."
         ),
-    ] = "geometric",
+    ] = "geometric",  # type: ignore[assignment]
     features: Annotated[
-        str,
+        InstanceFeatures,
         typer.Option(
             help="Per-view feature: masked (pooled dense features) or crops (re-encoded)."
         ),
-    ] = "masked",
+    ] = "masked",  # type: ignore[assignment]
     voxel_size: Annotated[float, typer.Option(help="Voxel edge (m) of the scene cloud.")] = 0.03,
     stride: Annotated[int, typer.Option(help="Back-project every stride-th depth pixel.")] = 2,
     top_k: Annotated[int, typer.Option(help="Views kept per instance (OpenMask3D: 5).")] = 5,
@@ -204,26 +217,27 @@ def instances(
     gravity-aligned map frame."""
     from fuse.instances import InstanceConfig, build_instances, recompute_instances
 
-    _map_frame(store, up_axis, floor_z)
-    if recompute:
-        path = recompute_instances(store, _vocabulary(vocabulary), logit_scale)
-        if rrd is not None:
-            from fuse.viz_instances import log_instances
+    config = InstanceConfig(  # options checked (InstanceConfig.__post_init__) before any work
+        proposals=ProposalMethod(proposals).value,
+        features=InstanceFeatures(features).value,
+        voxel_size=voxel_size,
+        stride=stride,
+        top_k=top_k,
+        logit_scale=logit_scale,
+        vocabulary=_vocabulary(vocabulary),
+        overwrite=overwrite,
+        **_field_values(InstanceConfig, set_ or []),
+    )
+    with _writing(store, rrd):
+        _map_frame(store, up_axis, floor_z)
+        if recompute:
+            path = recompute_instances(store, config.vocabulary, logit_scale)
+            if rrd is not None:
+                from fuse.viz_instances import log_instances
 
-            log_instances(store, rrd)
-    else:
-        config = InstanceConfig(
-            proposals=proposals,
-            features=features,
-            voxel_size=voxel_size,
-            stride=stride,
-            top_k=top_k,
-            logit_scale=logit_scale,
-            vocabulary=_vocabulary(vocabulary),
-            overwrite=overwrite,
-            **_field_values(InstanceConfig, set_ or []),
-        )
-        path = build_instances(store, config, rrd=rrd)
+                log_instances(store, rrd)
+        else:
+            path = build_instances(store, config, rrd=rrd)
     _summary(path)
     _proposal_quality(store)
     if rrd is not None:

@@ -7,6 +7,8 @@ from typing import Annotated
 
 import typer
 
+from care_cli.choices import EncoderName, Perception
+
 __all__ = ["register"]
 
 _READ = "Topics and frames"
@@ -93,10 +95,8 @@ def ingest(
     recording: Annotated[Path, typer.Argument(help="MCAP file, rosbag2 directory or ROS 1 .bag.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Store directory to write.")],
     encoder: Annotated[
-        str | None,
-        typer.Option(
-            "--encoder", help="Feature encoder (clip, labels, precomputed); none = no features."
-        ),
+        EncoderName | None,
+        typer.Option("--encoder", help="Feature encoder; none = no features."),
     ] = None,
     weights: Annotated[
         str | None, typer.Option("--weights", help="Encoder weights directory or checkpoint id.")
@@ -108,13 +108,13 @@ def ingest(
     device: Annotated[
         str | None, typer.Option("--device", help="torch device (default CUDA if available).")
     ] = None,
-    batch_size: Annotated[int, typer.Option("--batch-size", help="Views per encoder batch.")] = 8,
+    batch_size: Annotated[
+        int, typer.Option("--batch-size", help="Views per encoder batch.", min=1)
+    ] = 8,
     perception: Annotated[
-        str,
-        typer.Option(
-            "--perception", help="Perception preset of the labels encoder (default or ideal)."
-        ),
-    ] = "default",
+        Perception,
+        typer.Option("--perception", help="Perception preset of the labels encoder."),
+    ] = "default",  # type: ignore[assignment]
     seed: Annotated[
         int, typer.Option("--seed", help="Seed of the labels encoder's biases and noise.")
     ] = 0,
@@ -130,7 +130,7 @@ def ingest(
         Path | None, typer.Option("--rrd", help="Write a Rerun recording of the ingest.")
     ] = None,
     rrd_every: Annotated[
-        int, typer.Option("--rrd-every", help="Log the point cloud of every Nth frame.")
+        int, typer.Option("--rrd-every", help="Log the point cloud of every Nth frame.", min=1)
     ] = 10,
     force: Annotated[
         bool, typer.Option("--force", help="Rebuild even if the store is up to date.")
@@ -170,13 +170,13 @@ def ingest(
         read=_read_options(
             rgb, depth, camera_info, pose_source, world_frame, camera_frame, max_dt, static_pose
         ),
-        encoder=encoder,
+        encoder=None if encoder is None else EncoderName(encoder).value,
         encoder_options=EncoderOptions(
             weights=weights,
             device=device,
             batch_size=batch_size,
             precomputed=precomputed,
-            perception=perception,
+            perception=Perception(perception).value,
             seed=seed,
         ),
         select=FrameSelection(start, end, every, min_motion, min_rotation),

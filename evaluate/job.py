@@ -24,7 +24,9 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 from tqdm import tqdm
 
+from care.checks import check_numbers
 from care.errors import CareError, EvalError
+from care.outputs import evaluation_output
 from care.store import read_table, write_table_atomic
 from evaluate.groundtruth import GtSource, UnknownClasses, check_ground_truth, gt_files
 from evaluate.report import Report, write_report
@@ -124,6 +126,13 @@ class EvalConfig:
         except ValueError as err:
             msg = f"--gt-unknown-classes {self.unknown_classes!r}: choose refuse or ignore"
             raise EvalError(msg) from err
+        check_numbers(
+            EvalError,
+            "evaluation config",
+            positive={"iou_threshold": self.iou_threshold, "success_radius": self.success_radius,
+                      "label_distance": self.label_distance},
+            non_negative={"exclude_radius": self.exclude_radius, "bootstrap": self.bootstrap},
+        )  # fmt: skip
         for name in self.strategies:
             get_strategy(name)
         bad = [m for m in self.maps if m not in MAP_TABLES]
@@ -622,16 +631,18 @@ def run_eval(
     ``gt_defaults``: format, transform and class map for scenes that name none."""
     scenes = with_ground_truth(scenes_of(dataset), gt, gt_defaults)
     left_out = check_scenes(scenes, config)
-    attempts = run_scenes(
-        scenes, config, out, workers=workers, ray_address=ray_address, progress=progress
-    )
-    ks = {kind: config.ks(kind) for kind in MAP_TABLES}
-    header = describe(config, scenes, attempts)
-    dropped = {name: classes for name, classes in left_out.items() if classes}
-    if dropped:
-        header += (
-            "- ground-truth classes not in the vocabulary, left out (--gt-unknown-classes ignore): "
-            + "; ".join(f"{name}: {', '.join(classes)}" for name, classes in dropped.items())
-            + "\n"
+    out = Path(out)
+    with evaluation_output(out, [s.store for s in scenes]):
+        attempts = run_scenes(
+            scenes, config, out, workers=workers, ray_address=ray_address, progress=progress
         )
-    return write_report(attempts, out, ks, bootstrap=config.bootstrap, header=header)
+        ks = {kind: config.ks(kind) for kind in MAP_TABLES}
+        header = describe(config, scenes, attempts)
+        dropped = {name: classes for name, classes in left_out.items() if classes}
+        if dropped:
+            header += (
+                "- ground-truth classes not in the vocabulary, left out (--gt-unknown-classes ignore): "
+                + "; ".join(f"{name}: {', '.join(classes)}" for name, classes in dropped.items())
+                + "\n"
+            )
+        return write_report(attempts, out, ks, bootstrap=config.bootstrap, header=header)

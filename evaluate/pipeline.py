@@ -16,6 +16,7 @@ import pyarrow.parquet as pq
 
 from care.encoders import EncoderOptions
 from care.errors import EvalError
+from care.outputs import owned_output
 from evaluate.groundtruth import GtSource
 from evaluate.job import EvalConfig, Scene, run_eval, with_ground_truth
 from evaluate.report import Report
@@ -147,38 +148,39 @@ def run_all(source: Path | None, out: Path, config: RunConfig | None = None) -> 
     out = Path(out)
     recordings = recordings_of(source or SAMPLE)
     planned = _scenes_with_gt(recordings, gt_sources_of(source or SAMPLE), config, out)
-    scenes, rrds, unevaluated = [], [], []
-    for (name, recording), (plan, has_gt) in zip(recordings, planned, strict=True):
-        store = out / "stores" / name
-        run_ingest(
-            IngestConfig(
-                recording=recording, out=store, encoder=config.encoder,
-                encoder_options=config.encoder_options, vocabulary=config.vocabulary,
-                progress=config.progress,
-            )
+    with owned_output(out, "run", [rec for _, rec in recordings]):
+        scenes, rrds, unevaluated = [], [], []
+        for (name, recording), (plan, has_gt) in zip(recordings, planned, strict=True):
+            store = out / "stores" / name
+            run_ingest(
+                IngestConfig(
+                    recording=recording, out=store, encoder=config.encoder,
+                    encoder_options=config.encoder_options, vocabulary=config.vocabulary,
+                    progress=config.progress,
+                )
+            )  # fmt: skip
+            grid_rrd, inst_rrd = out / f"{name}.grid.rrd", out / f"{name}.instances.rrd"
+            fresh = not (store / "cells.parquet").is_file() or not grid_rrd.is_file()
+            build_grid(store, config.grid, rrd=grid_rrd if fresh else None)
+            fresh = not (store / "instances.parquet").is_file() or not inst_rrd.is_file()
+            build_instances(store, config.instances, rrd=inst_rrd if fresh else None)
+            if has_gt:
+                scenes.append(plan)
+            else:
+                unevaluated.append(name)
+            rrds += [p for p in (grid_rrd, inst_rrd) if p.is_file()]
+        stores = tuple(out / "stores" / name for name, _ in recordings)
+        if not scenes:
+            return RunResult(None, stores, tuple(rrds), tuple(unevaluated))
+        eval_dir = out / "eval"
+        report = run_eval(
+            scenes, config.evaluation, eval_dir,
+            workers=config.workers, ray_address=config.ray_address, progress=config.progress,
         )  # fmt: skip
-        grid_rrd, inst_rrd = out / f"{name}.grid.rrd", out / f"{name}.instances.rrd"
-        fresh = not (store / "cells.parquet").is_file() or not grid_rrd.is_file()
-        build_grid(store, config.grid, rrd=grid_rrd if fresh else None)
-        fresh = not (store / "instances.parquet").is_file() or not inst_rrd.is_file()
-        build_instances(store, config.instances, rrd=inst_rrd if fresh else None)
-        if has_gt:
-            scenes.append(plan)
-        else:
-            unevaluated.append(name)
-        rrds += [p for p in (grid_rrd, inst_rrd) if p.is_file()]
-    stores = tuple(out / "stores" / name for name, _ in recordings)
-    if not scenes:
-        return RunResult(None, stores, tuple(rrds), tuple(unevaluated))
-    eval_dir = out / "eval"
-    report = run_eval(
-        scenes, config.evaluation, eval_dir,
-        workers=config.workers, ray_address=config.ray_address, progress=config.progress,
-    )  # fmt: skip
-    attempts = pq.read_table(eval_dir / "attempts.parquet")
-    for scene in scenes:
-        maps = {kind: load_map(scene.store, kind) for kind in config.evaluation.maps}  # type: ignore[misc]
-        path = out / f"{scene.name}.eval.rrd"
-        write_evaluation_rrd(path, attempts, report.summary, maps, scene=scene.name)
-        rrds.append(path)
-    return RunResult(report, stores, tuple(rrds), tuple(unevaluated))
+        attempts = pq.read_table(eval_dir / "attempts.parquet")
+        for scene in scenes:
+            maps = {kind: load_map(scene.store, kind) for kind in config.evaluation.maps}  # type: ignore[misc]
+            path = out / f"{scene.name}.eval.rrd"
+            write_evaluation_rrd(path, attempts, report.summary, maps, scene=scene.name)
+            rrds.append(path)
+        return RunResult(report, stores, tuple(rrds), tuple(unevaluated))

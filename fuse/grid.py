@@ -45,8 +45,10 @@ import pyarrow.parquet as pq
 from PIL import Image
 from tqdm import tqdm
 
+from care.checks import check_numbers
 from care.errors import FuseError
 from care.malloc import resident_bytes
+from care.outputs import damaged, record_table
 from care.store import (
     SCHEMA_VERSION,
     Store,
@@ -56,6 +58,7 @@ from care.store import (
     read_table,
 )
 from fuse.accumulate import CandidateSums
+from fuse.budget import check_raster
 from fuse.cells import CellIndex, ViewSamples, unpack_cells, view_samples
 from fuse.frame import check_height_band, ensure_map_frame, store_stamp
 from fuse.layout import CELLS_TABLE, GridLayout
@@ -145,6 +148,15 @@ class GridConfig:
         if self.cells_per_pass is not None and self.cells_per_pass < 1:
             msg = f"invalid grid config: cells_per_pass={self.cells_per_pass}; need at least 1"
             raise FuseError(msg)
+        check_numbers(
+            FuseError,
+            "grid config",
+            positive={"cell_size": self.cell_size, "sigma_z": self.sigma_z,
+                      "logit_scale": self.logit_scale},
+            finite={"z_min": self.z_min, "z_max": self.z_max,
+                    "obstacle_height": self.obstacle_height},
+            at_least_one={"stride": self.stride},
+        )  # fmt: skip
         if self.cell_size <= 0 or self.stride < 1 or self.sigma_z <= 0 or self.z_min > self.z_max:
             msg = (
                 f"invalid grid config: cell_size={self.cell_size}, stride={self.stride}, "
@@ -167,6 +179,7 @@ def grid_image(
     """Raster (ny, nx[, c]) of per-cell values; row 0 = largest y, so north is up."""
     values = np.asarray(values)
     nx, ny = shape
+    check_raster((ny, nx, *values.shape[1:]), np.result_type(values, type(fill)).itemsize)
     image = np.full((ny, nx, *values.shape[1:]), fill, dtype=np.result_type(values, type(fill)))
     image[ny - 1 - np.asarray(iy), np.asarray(ix)] = values
     return image
@@ -211,6 +224,8 @@ def _view_rows(view_id: int, ids: np.ndarray, samples: ViewSamples) -> pa.Table:
 def _is_current(store: Store, config: GridConfig, vocabulary: tuple[str, ...]) -> bool:
     cells, views = store.table_path(CELLS_TABLE), store.table_path(CELL_VIEWS_TABLE)
     if config.overwrite or not (cells.is_file() and views.is_file()):
+        return False
+    if damaged(store.path, [cells.name, views.name]):  # a damaged map is rebuilt, not trusted
         return False
     md = pq.read_schema(cells).metadata or {}
     return (
@@ -437,6 +452,7 @@ def _write_cells(
     id order, and its query sidecar (:mod:`fuse.sidecar`) beside ``final``: the first
     pass's cells from ``sums``, then each later pass's, fused from the views that see them."""
     layout, grid_ix, grid_iy = _layout(first.index, config.cell_size)
+    check_raster((layout.shape[1], layout.shape[0], 3), 1, config.cell_size)  # the images
     metadata = {**metadata, **layout.metadata()}
     n_cells = first.index.size
     writer: pq.ParquetWriter | None = None
@@ -518,6 +534,8 @@ def build_grid(store_path: Path, config: GridConfig | None = None, rrd: Path | N
             del first
             tmp.replace(views_path)  # per-view table first: a current cells.parquet implies it
             tmp_cells.replace(cells_path)
+            record_table(views_path)
+            record_table(cells_path)
         finally:
             tmp.unlink(missing_ok=True)
             tmp_cells.unlink(missing_ok=True)

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,8 +31,10 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from care.checks import check_numbers
 from care.encoders import Encoder
 from care.errors import FuseError
+from care.outputs import damaged, record_table
 from care.store import Store, write_table_atomic
 from fuse.frame import ensure_map_frame, store_stamp
 from fuse.measures import DEFAULT_LOGIT_SCALE, candidate_metadata, list_column
@@ -155,6 +158,13 @@ class InstanceConfig:
             "batch_size": self.batch_size,
         }
         bad = [f"{k}={v}" for k, v in sizes.items() if not v > 0]
+        check_numbers(
+            FuseError,
+            "instance config",
+            positive={f.name: getattr(self, f.name) for f in dataclasses.fields(self)
+                      if f.type in ("float", float) and f.name not in ("crop_padding",)},
+            non_negative={"crop_padding": self.crop_padding},
+        )  # fmt: skip
         if bad:
             msg = f"invalid instance config: {', '.join(bad)}; these must be positive"
             raise FuseError(msg)
@@ -179,7 +189,7 @@ def _scene_cloud(store: Store, config: InstanceConfig) -> tuple[SceneCloud, dict
     path = store.table_path(SCENE_POINTS_TABLE)
     key = config.fingerprint(_CLOUD_FIELDS).encode()
     meta = {b"care.cloud.config": key, b"care.store.created": store_stamp(store)}
-    if path.is_file() and not config.overwrite:
+    if path.is_file() and not config.overwrite and not damaged(store.path, [path.name]):
         md = pq.read_schema(path).metadata or {}
         if all(md.get(k) == v for k, v in meta.items()):
             return read_scene_points(path), None
@@ -194,6 +204,8 @@ def _is_current(store: Store, config: InstanceConfig, vocabulary: tuple[str, ...
         store.table_path(n) for n in (INSTANCES_TABLE, INSTANCE_VIEWS_TABLE, SCENE_POINTS_TABLE)
     ]
     if config.overwrite or not all(p.is_file() for p in paths):
+        return False
+    if damaged(store.path, [p.name for p in paths]):  # a damaged map is rebuilt, not trusted
         return False
     md = pq.read_schema(paths[0]).metadata or {}
     return (
@@ -328,7 +340,7 @@ def build_instances(
         # failed build leaves the previous map whole (the cloud, the per-view rows and the
         # masks that index into them belong together).
         views_path = store.table_path(INSTANCE_VIEWS_TABLE)
-        staged_views = views_path.with_name(f".{views_path.name}.building")
+        staged_views = views_path.with_name(f".{views_path.name}.building-{os.getpid()}")
         try:
             write_table_atomic(views, staged_views, meta)
             sums = sums_from_views(
@@ -340,6 +352,7 @@ def build_instances(
             if cloud_meta is not None:
                 write_scene_points(cloud, store.table_path(SCENE_POINTS_TABLE), cloud_meta)
             staged_views.replace(views_path)
+            record_table(views_path)
             write_table_atomic(table, out, meta)
         finally:
             staged_views.unlink(missing_ok=True)

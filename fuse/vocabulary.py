@@ -21,9 +21,9 @@ def vocabulary_text(
     store: Store, vocabulary: Sequence[str] | None = None
 ) -> tuple[tuple[str, ...], np.ndarray]:
     """``(names, (n, d) float32 L2-normalised embeddings)`` for ``vocabulary`` or the store's."""
-    try:
+    if store.table_path("text").is_file():  # a damaged or mismatched cache is an error
         cached_names, cached = store.text_embeddings()
-    except CareError:
+    else:
         cached_names, cached = [], np.zeros((0, store.encoder.dim), np.float32)
     names = tuple(cached_names) if vocabulary is None else tuple(vocabulary)
     if not names:

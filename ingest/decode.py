@@ -81,10 +81,10 @@ def _raw_array(msg: Any, topic: str, allowed: tuple[str, ...]) -> tuple[np.ndarr
     channels = _CHANNELS.get(enc, 1)
     data = np.asarray(msg.data, dtype=np.uint8)
     row_bytes = w * channels * dtype.itemsize
-    if step < row_bytes or data.size < h * step:
+    if step < row_bytes or data.size != h * step:
         msg_ = (
             f"topic {topic}: image data has {data.size} bytes, expected {h} rows of step "
-            f"{step} >= {row_bytes} for {w}x{h} {enc}; the message is corrupt."
+            f"{step} >= {row_bytes} ({h * step} bytes) for {w}x{h} {enc}; the message is corrupt."
         )
         raise IngestError(msg_)
     rows = data[: h * step].reshape(h, step)[:, :row_bytes]

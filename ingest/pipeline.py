@@ -19,10 +19,12 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from care.checks import check_numbers
 from care.encoders import Encoder, EncoderOptions, RecordingContext, make_encoder
 from care.encoders.record import RECORD_KEY, EncoderRecord
 from care.errors import IngestError
 from care.frames import Frame
+from care.outputs import check_file_output, check_output, damaged, output_lock
 from care.store import SCHEMA_VERSION, StoreWriter
 from care.threads import Work, threads_for
 from ingest.select import FrameSelection, FrameSelector
@@ -61,6 +63,14 @@ class IngestConfig:
     """Rebuild even if the store is up to date."""
     progress: bool = True
     """Show a tqdm progress bar."""
+
+    def __post_init__(self) -> None:
+        check_numbers(
+            IngestError,
+            "ingest config",
+            at_least_one={"rrd_every": self.rrd_every,
+                          "batch_size": self.encoder_options.batch_size},
+        )  # fmt: skip
 
 
 def _source_identity(path: Path) -> dict[str, Any]:
@@ -143,9 +153,16 @@ def _up_to_date(config: IngestConfig, fp: str, key: str = "fingerprint") -> bool
         return False
     try:
         meta = json.loads(meta_path.read_text())
-    except (OSError, json.JSONDecodeError):
+    except (OSError, ValueError):
         return False
-    return meta.get(key) == fp
+    # same inputs, and every table as it was committed (size and checksum): a damaged
+    # store is rebuilt, not trusted
+    return (
+        isinstance(meta, dict)
+        and meta.get(key) == fp
+        and bool(meta.get("tables"))
+        and not damaged(config.out)
+    )
 
 
 def _vocabulary(config: IngestConfig, label_names: tuple[str, ...]) -> list[str]:
@@ -180,16 +197,33 @@ def run_ingest(config: IngestConfig, encoder: Encoder | None = None) -> Path:
     if not recording.exists():
         msg = f"{recording}: no such file or directory; check the recording path."
         raise IngestError(msg)
+    # refused before any work: a path we did not create, the recording itself, ...
+    check_output(config.out, kind="store", inputs=[recording])
+    if config.rrd is not None:
+        check_file_output(config.rrd, inputs=[recording])
     source = _source_identity(recording)
     request = request_fingerprint(config, source) if encoder is None else None
     if request is not None and _up_to_date(config, request, "request_fingerprint"):
         return config.out  # before building the encoder: no model is loaded
     if encoder is None and config.encoder is not None:
         encoder = make_encoder(config.encoder, config.encoder_options)
-    fp = fingerprint(config, encoder, source)
-    if _up_to_date(config, fp):
-        return config.out
-    config.out.parent.mkdir(parents=True, exist_ok=True)
+    with output_lock(config.out):
+        check_output(config.out, kind="store", inputs=[recording])  # as the lock found it
+        fp = fingerprint(config, encoder, source)
+        if _up_to_date(config, fp):
+            return config.out
+        _build(config, recording, encoder, source, fp, request)
+    return config.out
+
+
+def _build(
+    config: IngestConfig,
+    recording: Path,
+    encoder: Encoder | None,
+    source: dict[str, Any],
+    fp: str,
+    request: str | None,
+) -> None:
     with RecordingFrames(recording, config.read) as frames:
         vocab = _vocabulary(config, frames.label_names)
         if encoder is not None:
@@ -223,6 +257,7 @@ def run_ingest(config: IngestConfig, encoder: Encoder | None = None) -> Path:
                 meta["counts"]["skipped"] = dict(sorted(selector.skipped.items()))
                 writer.commit({**meta, "request_fingerprint": request})
         except BaseException:
+            bar.leave = False  # the error is the one line left on the terminal
             if logger is not None:
                 logger.close()
                 logger.discard()
@@ -232,7 +267,6 @@ def run_ingest(config: IngestConfig, encoder: Encoder | None = None) -> Path:
         if logger is not None:
             logger.close()
             logger.keep()
-    return config.out
 
 
 def _stream(

@@ -25,12 +25,13 @@ from typing import Any
 
 import numpy as np
 
+from care.checks import check_numbers
 from care.errors import IngestError
 from care.frames import Frame
 from ingest import decode
 from ingest.readers import RecordingReader, TopicInfo, open_reader
 from ingest.sync import Match, StampSync
-from ingest.tf import TFBuffer
+from ingest.tf import TFBuffer, check_transform
 from ingest.topics import TopicSelection, select_topics
 
 __all__ = ["ReadOptions", "ReadStats", "RecordingFrames"]
@@ -60,6 +61,9 @@ class ReadOptions:
     extrapolation allowed at the ends of a transform's samples)."""
     static_pose: bool = False
     """Identity pose for every frame, for recordings without any pose source."""
+
+    def __post_init__(self) -> None:
+        check_numbers(IngestError, "read options", non_negative={"max_dt": self.max_dt})
 
 
 @dataclass
@@ -149,7 +153,9 @@ class RecordingFrames:
             elif topic == sel.class_names:
                 self.label_names = self._parse_names(msg.data, topic)
             elif topic == sel.pose_source:
-                pose_samples.append(decode.pose_sample(msg, t))
+                sample = decode.pose_sample(msg, t)
+                check_transform(sample, f"pose source {topic}")
+                pose_samples.append(sample)
             elif not o.static_pose:
                 static = topic.rstrip("/").endswith("tf_static")
                 for tf in decode.transforms(msg, t):
@@ -202,7 +208,22 @@ class RecordingFrames:
         root = self._tf.root(self.camera_frame)
         chain = {root}
         chain.update(f for f in frames if self._tf.root(f) == root)
-        return next((f for f in _WORLD_FRAME_NAMES if f in chain), root)
+        found = next((f for f in _WORLD_FRAME_NAMES if f in chain), None)
+        if found is not None:
+            return found
+        # the camera's tree has no world frame: if another tree has one, the camera hangs
+        # under a frame TF never joins to the world (taking its root as the world would
+        # give every view the same, meaningless pose)
+        elsewhere = next((f for f in _WORLD_FRAME_NAMES if f in frames), None)
+        if elsewhere is not None:
+            msg = (
+                f"{self.path}: camera frame {self.camera_frame!r} is not connected to world "
+                f"frame {elsewhere!r}: {self._tf.describe_tree(self.camera_frame)}, "
+                f"{self._tf.describe_tree(elsewhere)}; record the transform that joins them, "
+                f"or pass --world-frame {root} to map in the camera's own tree"
+            )
+            raise IngestError(msg)
+        return root
 
     def describe(self) -> dict[str, Any]:
         """The choices made, for ``care topics`` and the store's meta.json."""
@@ -225,11 +246,16 @@ class RecordingFrames:
             {"depth": True, **dict.fromkeys(sel.extras, False)},
             max_dt_ns=round(self.options.max_dt * 1e9),
         )
+        seen: set[int] = set()  # colour stamps: a repeated one would be a duplicate view
         for topic, t, msg in self._reader.messages([sel.rgb, *streams]):
             stamp = decode.stamp_ns(msg, t)
             if topic == sel.rgb:
                 self.stats.rgb_messages += 1
                 self._learn_camera_frame(msg)
+                if stamp in seen:
+                    self.stats.dropped["duplicate_stamp"] += 1
+                    continue
+                seen.add(stamp)
             for match in sync.push(None if topic == sel.rgb else streams[topic], stamp, msg):
                 frame = self._assemble(match)
                 if frame is not None:

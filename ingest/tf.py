@@ -17,7 +17,20 @@ from care.errors import IngestError
 from care.geometry import quaternion_to_matrix, slerp
 from ingest.decode import StampedTransform
 
-__all__ = ["TFBuffer"]
+__all__ = ["TFBuffer", "check_transform"]
+
+
+def check_transform(tf: StampedTransform, source: str = "TF") -> None:
+    """Refuse an impossible transform: a non-finite translation, or a rotation quaternion
+    that is non-finite or of (near) zero norm (it has no rotation to normalise to)."""
+    where = f"{source} transform {tf.parent!r} -> {tf.child!r} at stamp {tf.stamp_ns} ns"
+    if not np.all(np.isfinite(tf.translation)):
+        msg = f"{where}: non-finite translation {tf.translation.tolist()}; the recording's poses are corrupt (fix them or pass --pose-source TOPIC)"
+        raise IngestError(msg)
+    q = np.asarray(tf.rotation, np.float64)
+    if not np.all(np.isfinite(q)) or np.linalg.norm(q) < 1e-6:
+        msg = f"{where}: rotation quaternion {q.tolist()} is {'non-finite' if not np.all(np.isfinite(q)) else 'zero'}, not a rotation; the recording's poses are corrupt (fix them or pass --pose-source TOPIC)"
+        raise IngestError(msg)
 
 
 @dataclass
@@ -80,6 +93,7 @@ class TFBuffer:
         """Add one sample; a frame that changes parent is an error (TF is a tree)."""
         if tf.child is None or tf.child == tf.parent:
             return
+        check_transform(tf)
         edge = self._edges.get(tf.child)
         if edge is None:
             edge = self._edges[tf.child] = _Edge(tf.parent, static)
@@ -142,8 +156,18 @@ class TFBuffer:
                 msg = f"no transform from camera frame {source!r} to world frame {target!r}: {role} frame {frame!r} is not in TF (frames present: {present}); pass --camera-frame/--world-frame, --pose-source, or --static-pose."
                 raise IngestError(msg)
         if self.root(source) != self.root(target):
-            msg = f"no transform from camera frame {source!r} to world frame {target!r}: they are in separate TF trees (transforms present: {self.describe()}); pass --world-frame or --camera-frame."
+            msg = f"no transform from camera frame {source!r} to world frame {target!r}: they are in separate TF trees, {self.describe_tree(source)} and {self.describe_tree(target)}; record the transform that joins them, or pass --world-frame or --camera-frame."
             raise IngestError(msg)
+
+    def tree(self, frame: str) -> list[str]:
+        """Every frame of the TF tree holding ``frame``, root first."""
+        root = self.root(frame)
+        return [root, *sorted(f for f in self.frames if f != root and self.root(f) == root)]
+
+    def describe_tree(self, frame: str) -> str:
+        """``frame``'s tree for messages: its root and its frames."""
+        tree = self.tree(frame)
+        return f"the tree of {frame!r} rooted at {tree[0]!r} ({', '.join(tree)})"
 
     def lookup(
         self, target: str, source: str, times: np.ndarray, tolerance_ns: int = 0

@@ -15,9 +15,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from care.checks import check_numbers
 from care.errors import ReplanError
 from query.map import MEASURES, CandidateMap
-from replan.strategies import Pick, Situation, Strategy, best_of, candidate_set, get_strategy
+from replan.strategies import (
+    CRITERIA,
+    Pick,
+    Situation,
+    Strategy,
+    best_of,
+    candidate_set,
+    get_strategy,
+)
 
 __all__ = [
     "DEFAULT_EXCLUDE_RADIUS",
@@ -231,6 +240,15 @@ def next_goal(
     robot went to without finding the object; the candidates within the exclusion radius of
     one (1 m by default, for instances too) count as visited.
     """
+    if criterion not in CRITERIA:
+        msg = f"unknown selection criterion {criterion!r}; choose one of {', '.join(CRITERIA)}"
+        raise ReplanError(msg)
+    check_numbers(
+        ReplanError,
+        "replan settings",
+        non_negative={} if exclude_radius is None else {"exclude_radius": exclude_radius},
+        at_least_one={"k": k},
+    )
     from query.openvocab import QueryTarget, open_query
 
     target = query if isinstance(query, QueryTarget) else open_query(cmap, query)

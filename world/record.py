@@ -22,6 +22,7 @@ from tqdm import tqdm
 
 from care.errors import WorldError
 from care.frames import Frame
+from care.outputs import check_output, is_ours, write_marker
 from world.dataset_index import INDEX_NAME
 from world.groundtruth import GroundTruth, gt_paths
 from world.render import RenderConfig, Renderer
@@ -265,7 +266,14 @@ def make_dataset(config: DatasetConfig) -> Path:
         msg = f"--rooms {config.num_rooms}: the sample world makes 1 to 6 rooms"
         raise WorldError(msg)
     out = Path(config.out)
+    legacy = (out / INDEX_NAME).is_file() and b"care_sample_dataset" in (
+        out / INDEX_NAME
+    ).read_bytes()
+    if not legacy:  # never fill a directory of the user's (a dataset of ours may be completed)
+        check_output(out, kind="dataset")
     out.mkdir(parents=True, exist_ok=True)
+    if not is_ours(out, "dataset"):
+        write_marker(out, "dataset")
     summaries: dict[int, RecordingSummary] = {}
     workers = max(1, min(config.workers, config.scenes))
     bar = tqdm(total=config.scenes, desc="sample scenes", unit="scene", disable=not config.progress)

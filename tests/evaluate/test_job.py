@@ -221,8 +221,9 @@ def test_cli_eval_query_replan(dataset, tmp_path) -> None:
         capture_output=True,
         text=True,
     )
-    assert bad.returncode == 1
-    assert bad.stderr.startswith("error: unknown replan strategy")
+    assert bad.returncode == 2  # a usage error: the choices come from the registry
+    assert bad.stderr.startswith("error: Invalid value for '--strategy'")
+    assert "'best' is not one of" in bad.stderr
     e = subprocess.run(
         [
             *run,
@@ -272,7 +273,8 @@ def test_cli_eval_with_ray_matches_the_process_pool(dataset, tmp_path, ray_sessi
 def test_unreachable_ray_cluster_is_one_clear_error(dataset, tmp_path) -> None:
     """Nothing listens on loopback port 1: one line at once, not minutes of Ray retries."""
     pytest.importorskip("ray")
-    run = [sys.executable, "-m", "care_cli.main", "eval", str(dataset), "--out", str(tmp_path)]
+    out = tmp_path / "out"  # not tmp_path itself: it holds the dataset, and is refused
+    run = [sys.executable, "-m", "care_cli.main", "eval", str(dataset), "--out", str(out)]
     bad = subprocess.run(
         [*run, "--ray-address", "127.0.0.1:1"], capture_output=True, text=True, timeout=60
     )

@@ -1,0 +1,33 @@
+"""The CLI's typed choices are the registries' names (care_cli.choices lists a few by hand
+to keep torch and open3d out of every ``care`` call)."""
+
+from __future__ import annotations
+
+
+def test_choices_match_registries() -> None:
+    from care.encoders import ENCODERS
+    from care.encoders.labels import PERCEPTION_PRESETS
+    from care_cli import choices
+    from fuse.instances import INSTANCE_FEATURES
+    from fuse.proposals import PROPOSERS
+    from query.map import MAP_TABLES
+    from replan import CRITERIA, STRATEGIES
+
+    pairs = [
+        (choices.Strategy, STRATEGIES),
+        (choices.Criterion, CRITERIA),
+        (choices.MapKind, MAP_TABLES),
+        (choices.EncoderName, ENCODERS),
+        (choices.Perception, PERCEPTION_PRESETS),
+        (choices.ProposalMethod, PROPOSERS),
+        (choices.InstanceFeatures, INSTANCE_FEATURES),
+    ]
+    for enum, registry in pairs:
+        assert [m.value for m in enum] == list(registry), enum
+
+
+def test_help_lists_the_choices(care) -> None:
+    code, out, _ = care("replan", "--help")
+    assert code == 0
+    for name in ("min_stderr", "max_entropy", "category"):
+        assert name in out
