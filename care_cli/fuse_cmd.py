@@ -73,17 +73,21 @@ def grid(
     overwrite: OverwriteOpt = False,
     recompute: _recompute_opt("cell_views.parquet") = False,
     rrd: RrdOpt = None,
+    rrd_class: Annotated[
+        str | None,
+        typer.Option(
+            "--rrd-class",
+            help="Class of the confidence layer in --rrd (default: the most frequent object class).",
+        ),
+    ] = None,
 ) -> None:
     """Fuse every view's dense features into occupied top-down cells (cells.parquet)."""
     from fuse.grid import GridConfig, build_grid
     from fuse.recompute import recompute_grid
+    from fuse.viz_grid import log_grid
 
     if recompute:
         path = recompute_grid(store, _vocabulary(vocabulary), logit_scale)
-        if rrd is not None:
-            from fuse.viz_grid import log_grid
-
-            log_grid(store, rrd)
     else:
         config = GridConfig(
             cell_size=cell_size,
@@ -97,7 +101,9 @@ def grid(
             obstacle_height=obstacle_height,
             overwrite=overwrite,
         )
-        path = build_grid(store, config, rrd=rrd)
+        path = build_grid(store, config)
+    if rrd is not None:
+        log_grid(store, rrd, target=rrd_class)
     _summary(path)
     if rrd is not None:
         typer.echo(f"rerun {rrd}")

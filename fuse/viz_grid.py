@@ -1,27 +1,35 @@
-"""Rerun logging of the grid map: one colour-mapped image layer per measure, and a blueprint.
+"""Rerun logging of the grid map: one real-valued image layer per measure, and a blueprint.
 
 Entity paths (constants below): the top-down layers live under ``grid/`` as 2D images (row 0
 = north, as :func:`fuse.grid.grid_image` lays them out); the cells also appear in the 3D
 ``world`` as points at their highest fused point, coloured by RGB. :func:`map_blueprint` is
-the one layout of the map recording (3D view left, top-down tabs right); the instance map
-adds its own 3D views through its ``views_3d`` argument.
+the one layout of the map recording (3D view left, top-down tabs right).
+
+Values, not colours: each measure is logged as a float32 ``DepthImage`` (``meter=1``, so the
+viewer's hover shows the cell's value) with a colour map and an explicit value range, which
+the tab's title spells out. Cells no view observed, and cells whose pwKL is +inf (a class
+seen by a single view has no spread), are NaN in the value image and drawn by a
+``<layer>/status`` segmentation overlay in their own labelled colours, so neither is
+confused with a small or a large value.
 """
 
 from __future__ import annotations
 
 import json
+from collections import Counter
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 import rerun as rr
 import rerun.blueprint as rrb
-from matplotlib import colormaps
 
+from care.encoders.labels import STRUCTURE_NAMES
 from care.errors import FuseError
 from care.store import Store, read_table
-from care.viz import open_recording
+from care.viz import open_scene_recording, panels
 from fuse.grid import CELLS_TABLE, GridLayout, grid_image
 from fuse.vocabulary import vocabulary_text
 
@@ -29,8 +37,12 @@ __all__ = [
     "GRID_CELLS_3D",
     "GRID_ENTITY",
     "MEASURE_LAYERS",
-    "colourise",
+    "LayerStyle",
+    "confidence_layer",
+    "default_class",
+    "layer_entity",
     "log_grid",
+    "log_layer",
     "map_blueprint",
     "measure_layers",
 ]
@@ -41,28 +53,101 @@ GRID_CELLS_3D = "world/grid/cells"
 """The occupied cells as 3D points at (x, y, z_max), coloured by RGB."""
 MEASURE_LAYERS = ("confidence", "entropy", "stderr", "pwkl", "num_views")
 """Measure layers in tab order; ``confidence`` is for the class chosen at logging time."""
+STATUS_OBSERVED, STATUS_UNOBSERVED, STATUS_INFINITE = 0, 1, 2
+"""Classes of a layer's ``status`` overlay."""
+_STATUS_CONTEXT = rr.AnnotationContext(
+    [
+        (STATUS_OBSERVED, "value", (0, 0, 0, 0)),
+        (STATUS_UNOBSERVED, "not observed", (45, 45, 52, 255)),
+        (STATUS_INFINITE, "+inf", (255, 255, 255, 255)),
+    ]
+)
 
 
-def colourise(values: np.ndarray, cmap: str = "viridis") -> np.ndarray:
-    """(H, W, 4) uint8 RGBA of a float raster; NaN (no cell) transparent, +inf the top colour.
+@dataclass(frozen=True)
+class LayerStyle:
+    """Colour map and how its range is chosen for one measure."""
 
-    Ranges are robust (1st..99th percentile of the finite values) so one outlier cell
-    does not wash out the layer.
-    """
-    values = np.asarray(values, dtype=np.float64)
-    finite = np.isfinite(values)
-    lo, hi = np.percentile(values[finite], [1, 99]) if finite.any() else (0.0, 1.0)
-    span = hi - lo if hi > lo else 1.0
-    scaled = np.clip((np.where(finite, values, hi) - lo) / span, 0.0, 1.0)
-    rgba = (colormaps[cmap](scaled) * 255).astype(np.uint8)
-    rgba[np.isnan(values)] = 0
-    return rgba
+    colormap: str
+    fixed: tuple[float, float] | None = None
+    """A fixed range (a probability is 0..1); None: the 1st..99th percentile of the finite
+    values, so one outlier cell does not wash out the layer."""
+
+
+STYLES = {
+    "confidence": LayerStyle("viridis", (0.0, 1.0)),
+    "entropy": LayerStyle("magma"),
+    "stderr": LayerStyle("plasma"),
+    "pwkl": LayerStyle("inferno"),
+    "num_views": LayerStyle("cyantoyellow"),
+}
+
+
+def confidence_layer(name: str) -> str:
+    """Layer name of the confidence of class ``name`` (spaces kept out of entity paths)."""
+    return f"confidence_{name.replace(' ', '_')}"
+
+
+def layer_entity(layer: str) -> str:
+    """Entity path of a top-down layer."""
+    return f"{GRID_ENTITY}/{layer}"
+
+
+def default_class(cells: pa.Table) -> str | None:
+    """The object class (not wall, floor, ...) that most cells have as their top class."""
+    vocabulary = json.loads((cells.schema.metadata or {}).get(b"care.vocabulary", b"[]"))
+    top = [c[0] for c in cells.column("top_classes").to_pylist() if c]
+    counts = Counter(vocabulary[i] for i in top if vocabulary[i].lower() not in STRUCTURE_NAMES)
+    if counts:
+        return counts.most_common(1)[0][0]
+    return next((v for v in vocabulary if v.lower() not in STRUCTURE_NAMES), None)
+
+
+def _value_range(values: np.ndarray, style: LayerStyle) -> tuple[float, float]:
+    if style.fixed is not None:
+        return style.fixed
+    finite = values[np.isfinite(values)]
+    if not finite.size:
+        return 0.0, 1.0
+    lo, hi = (float(v) for v in np.percentile(finite, [1, 99]))
+    return (lo, hi) if hi > lo else (lo, lo + 1.0)
+
+
+def log_layer(
+    rec: rr.RecordingStream,
+    layer: str,
+    raster: np.ndarray,
+    style: LayerStyle,
+    *,
+    static: bool = True,
+) -> tuple[float, float]:
+    """Log one measure raster (NaN = unobserved) at ``grid/<layer>``; returns its range."""
+    raster = np.asarray(raster, np.float64)
+    status = np.where(np.isnan(raster), STATUS_UNOBSERVED, STATUS_OBSERVED)
+    status[np.isposinf(raster)] = STATUS_INFINITE
+    values = np.where(np.isfinite(raster), raster, np.nan).astype(np.float32)
+    lo, hi = _value_range(values, style)
+    entity = layer_entity(layer)
+    rec.log(
+        f"{entity}/value",
+        rr.DepthImage(
+            values, meter=1.0, colormap=style.colormap, depth_range=[lo, hi], draw_order=0.0
+        ),
+        static=static,
+    )
+    rec.log(
+        f"{entity}/status",
+        rr.SegmentationImage(status.astype(np.uint8), opacity=1.0, draw_order=1.0),
+        static=static,
+    )
+    return lo, hi
 
 
 def measure_layers(
     store: Store, cells: pa.Table, target: str | None = None
 ) -> dict[str, np.ndarray]:
-    """Rasters (ny, nx) of each measure; ``confidence`` is P_c[target] (default: first class).
+    """Rasters (ny, nx) of each measure; ``confidence`` is P_c[target] (default:
+    :func:`default_class`).
 
     The confidence is exact for any class the store can embed: ``exp(s f . t - log_norm)``
     from the stored fused feature, not the truncated ``top_probs``.
@@ -70,8 +155,7 @@ def measure_layers(
     md = cells.schema.metadata or {}
     layout = GridLayout.from_table(cells)
     ix, iy = cells.column("ix").to_numpy(), cells.column("iy").to_numpy()
-    vocabulary = json.loads(md.get(b"care.vocabulary", b"[]"))
-    target = target if target is not None else (vocabulary[0] if vocabulary else None)
+    target = target if target is not None else default_class(cells)
     layers: dict[str, np.ndarray] = {}
     if target is not None:
         _, text = vocabulary_text(store, [target])
@@ -87,19 +171,29 @@ def measure_layers(
     return layers
 
 
+def _tab_title(layer: str, lo: float, hi: float, colormap: str) -> str:
+    return f"{layer} [{lo:.3g}, {hi:.3g}] {colormap}"
+
+
 def map_blueprint(
-    *, views_3d: Sequence[rrb.View] = (), layers: Sequence[str] = ("rgb", *MEASURE_LAYERS)
+    *,
+    views_3d: Sequence[rrb.View] = (),
+    layers: Sequence[str] = ("rgb", *MEASURE_LAYERS),
+    titles: dict[str, str] | None = None,
 ) -> rrb.Blueprint:
     """The map recording's layout: 3D views on the left, one top-down tab per layer right."""
-    tabs = [rrb.Spatial2DView(origin=f"{GRID_ENTITY}/{name}", name=name) for name in layers]
-    left = [rrb.Spatial3DView(origin="world", name="3D"), *views_3d]
+    titles = titles or {}
+    tabs = [
+        rrb.Spatial2DView(origin=layer_entity(name), name=titles.get(name, name)) for name in layers
+    ]
+    left = [rrb.Spatial3DView(origin="world", name="3D: cells at their highest point"), *views_3d]
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Tabs(*left) if len(left) > 1 else left[0],
             rrb.Tabs(*tabs),
             column_shares=[3, 2],
         ),
-        collapse_panels=True,
+        *panels(),
     )
 
 
@@ -109,11 +203,14 @@ def log_grid(
     *,
     target: str | None = None,
     rec: rr.RecordingStream | None = None,
+    scene: str | None = None,
 ) -> rr.RecordingStream:
     """Log the grid of ``store_path`` to ``rec`` (or a new recording saved to ``rrd``).
 
-    Sends :func:`map_blueprint` when it opens the recording itself; a caller that passes
-    ``rec`` sends its own blueprint (with its own 3D views).
+    ``target``: the class of the confidence layer (default :func:`default_class`), named in
+    its entity path (``grid/confidence_<class>``) and tab. ``scene`` names the recording
+    (default the store's directory name). Sends :func:`map_blueprint` when it opens the
+    recording itself.
     """
     store = Store(store_path)
     cells = read_table(store.table_path(CELLS_TABLE))
@@ -122,23 +219,39 @@ def log_grid(
         if rrd is None:
             msg = "log_grid needs an rrd path or an open recording"
             raise FuseError(msg)
-        rec = open_recording("care_map", rrd)
-        rec.send_blueprint(map_blueprint())
+        rec = open_scene_recording(rrd, scene or Path(store_path).name)
+    target = target if target is not None else default_class(cells)
+    if target is not None:
+        vocabulary_text(store, [target])  # an unknown class fails here, before any logging
     layout = GridLayout.from_table(cells)
     ix, iy = cells.column("ix").to_numpy(), cells.column("iy").to_numpy()
     rgb = np.stack([cells.column(c).to_numpy() for c in "rgb"], axis=1)
+    rec.log(GRID_ENTITY, _STATUS_CONTEXT, static=True)
     rec.log(
-        f"{GRID_ENTITY}/rgb",
-        rr.Image(grid_image(ix, iy, rgb, layout.shape, fill=0).astype(np.uint8)),
+        f"{layer_entity('rgb')}/value",
+        rr.Image(grid_image(ix, iy, rgb, layout.shape, fill=0).astype(np.uint8), draw_order=0.0),
         static=True,
     )
-    cmaps = {"entropy": "magma", "stderr": "plasma", "pwkl": "inferno", "num_views": "cividis"}
+    observed = grid_image(ix, iy, np.ones(len(ix)), layout.shape)
+    rec.log(
+        f"{layer_entity('rgb')}/status",
+        rr.SegmentationImage(
+            np.where(np.isnan(observed), STATUS_UNOBSERVED, STATUS_OBSERVED).astype(np.uint8),
+            opacity=1.0,
+            draw_order=1.0,
+        ),
+        static=True,
+    )
+    titles, layers = {"rgb": "rgb"}, ["rgb"]
     for name, raster in measure_layers(store, cells, target).items():
-        rec.log(
-            f"{GRID_ENTITY}/{name}",
-            rr.Image(colourise(raster, cmaps.get(name, "viridis"))),
-            static=True,
-        )
+        layer = confidence_layer(target) if name == "confidence" else name
+        style = STYLES[name]
+        lo, hi = log_layer(rec, layer, raster, style)
+        label = f"P({target})" if name == "confidence" else name
+        titles[layer] = _tab_title(label, lo, hi, style.colormap)
+        layers.append(layer)
+    if own:
+        rec.send_blueprint(map_blueprint(layers=layers, titles=titles))
     xyz = np.stack(
         [
             cells.column("x").to_numpy(),
