@@ -29,6 +29,7 @@ __all__ = [
     "log_camera",
     "open_recording",
     "open_scene_recording",
+    "overview_eye",
     "panels",
     "rrd_entity_counts",
     "set_stamp",
@@ -70,6 +71,24 @@ def panels(*, time: bool = False) -> list[rrb.BlueprintPart]:
         rrb.SelectionPanel(state="collapsed"),
         rrb.TimePanel(state="expanded" if time else "collapsed"),
     ]
+
+
+def overview_eye(points: np.ndarray) -> rrb.EyeControls3D:
+    """A 3D view's starting eye: above and south of the ``(n, 3)`` points, looking at their
+    middle from about 45 degrees, so a scene opens seen from outside and above its walls."""
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    if not len(pts):
+        return rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital)
+    lo, hi = np.percentile(pts, [1, 99], axis=0)
+    centre = (lo + hi) / 2
+    reach = float(max(hi[0] - lo[0], hi[1] - lo[1], 1.0))
+    return rrb.EyeControls3D(
+        kind=rrb.Eye3DKind.Orbital,
+        position=centre + np.array([0.0, -0.75 * reach, 0.9 * reach]),
+        look_target=centre,
+        eye_up=(0.0, 0.0, 1.0),
+    )
 
 
 def jpeg(rgb: np.ndarray, quality: int = JPEG_QUALITY) -> bytes:
