@@ -215,6 +215,16 @@ def run(
     ] = 0,
     ray: RayOpt = False,
     ray_address: RayAddressOpt = None,
+    rrd_ingest: Annotated[
+        bool, typer.Option(help="Also write <name>.ingest.rrd (camera, depth, map building up).")
+    ] = True,
+    rrd_class: Annotated[
+        str | None,
+        typer.Option(
+            "--rrd-class",
+            help="Class of the grid recording's confidence layer (default: most frequent object).",
+        ),
+    ] = None,
 ) -> None:
     """The main job: ingest, fuse both maps, evaluate every strategy; print the table."""
     from evaluate.job import EvalConfig
@@ -224,6 +234,8 @@ def run(
         evaluation=EvalConfig(attempts=attempts, seeds=seeds),
         workers=workers or None,
         ray_address=_ray_target(ray, ray_address),
+        rrd_ingest=rrd_ingest,
+        rrd_class=rrd_class,
     )
     result = run_all(recording, out, config)
     md = result.report.markdown

@@ -19,10 +19,11 @@ from evaluate.report import Report
 from evaluate.viz import write_evaluation_rrd
 from fuse.grid import GridConfig, build_grid
 from fuse.instances import InstanceConfig, build_instances
+from fuse.viz_grid import log_grid
 from ingest.pipeline import IngestConfig, run_ingest
 from query.map import load_map
 from world.dataset_index import INDEX_NAME, read_index
-from world.groundtruth import gt_paths
+from world.groundtruth import GroundTruth, gt_paths
 
 __all__ = ["SAMPLE", "RunConfig", "RunResult", "recordings_of", "run_all"]
 
@@ -48,6 +49,10 @@ class RunConfig:
     """Evaluate scenes as Ray tasks: True for a local Ray, an address for a cluster."""
     progress: bool = True
     """Show progress bars."""
+    rrd_ingest: bool = True
+    """Also write ``<name>.ingest.rrd`` (camera images, depth, the map building up)."""
+    rrd_class: str | None = None
+    """Class of the grid recording's confidence layer (default: its most frequent object)."""
 
 
 @dataclass(frozen=True)
@@ -75,8 +80,9 @@ def recordings_of(source: Path) -> list[tuple[str, Path]]:
 
 def run_all(source: Path | None, out: Path, config: RunConfig | None = None) -> RunResult:
     """Ingest, fuse and evaluate every recording of ``source`` (default the bundled sample)
-    into ``out``: ``out/stores/<name>``, ``out/<name>.{grid,instances,eval}.rrd`` and the
-    evaluation outputs (``results.md``, Parquet, plots) in ``out/eval``."""
+    into ``out``: ``out/stores/<name>``, ``out/<name>.{ingest,grid,instances,eval}.rrd`` (one
+    Rerun recording id per scene, so they open together) and the evaluation outputs
+    (``results.md``, Parquet, plots) in ``out/eval``."""
     config = config or RunConfig()
     out = Path(out)
     recordings = recordings_of(source or SAMPLE)
@@ -91,18 +97,22 @@ def run_all(source: Path | None, out: Path, config: RunConfig | None = None) -> 
     scenes, rrds = [], []
     for name, recording in recordings:
         store = out / "stores" / name
+        ingest_rrd = out / f"{name}.ingest.rrd" if config.rrd_ingest else None
         run_ingest(
             IngestConfig(
-                recording=recording, out=store, encoder=config.encoder, progress=config.progress
+                recording=recording, out=store, encoder=config.encoder, progress=config.progress,
+                rrd=ingest_rrd,
             )
-        )
+        )  # fmt: skip
         grid_rrd, inst_rrd = out / f"{name}.grid.rrd", out / f"{name}.instances.rrd"
         fresh = not (store / "cells.parquet").is_file() or not grid_rrd.is_file()
-        build_grid(store, config.grid, rrd=grid_rrd if fresh else None)
+        build_grid(store, config.grid)
+        if fresh or config.rrd_class is not None:
+            log_grid(store, grid_rrd, target=config.rrd_class, scene=name)
         fresh = not (store / "instances.parquet").is_file() or not inst_rrd.is_file()
         build_instances(store, config.instances, rrd=inst_rrd if fresh else None)
         scenes.append(Scene(name, store, Path(recording).resolve()))
-        rrds += [p for p in (grid_rrd, inst_rrd) if p.is_file()]
+        rrds += [p for p in (ingest_rrd, grid_rrd, inst_rrd) if p is not None and p.is_file()]
     eval_dir = out / "eval"
     report = run_eval(
         [s.store for s in scenes], config.evaluation, eval_dir,
@@ -112,6 +122,9 @@ def run_all(source: Path | None, out: Path, config: RunConfig | None = None) -> 
     for scene in scenes:
         maps = {kind: load_map(scene.store, kind) for kind in config.evaluation.maps}  # type: ignore[misc]
         path = out / f"{scene.name}.eval.rrd"
-        write_evaluation_rrd(path, attempts, report.summary, maps, scene=scene.name)
+        write_evaluation_rrd(
+            path, attempts, report.summary, maps, scene=scene.name,
+            gt=GroundTruth.load(scene.recording), store=scene.store,
+        )  # fmt: skip
         rrds.append(path)
     return RunResult(report, tuple(s.store for s in scenes), tuple(rrds))
