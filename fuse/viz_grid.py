@@ -29,7 +29,7 @@ import rerun.blueprint as rrb
 from care.encoders.labels import STRUCTURE_NAMES
 from care.errors import FuseError
 from care.store import Store, read_table
-from care.viz import open_scene_recording, panels
+from care.viz import open_scene_recording, overview_eye, panels
 from fuse.grid import CELLS_TABLE, GridLayout, grid_image
 from fuse.vocabulary import vocabulary_text
 
@@ -58,8 +58,8 @@ STATUS_OBSERVED, STATUS_UNOBSERVED, STATUS_INFINITE = 0, 1, 2
 _STATUS_CONTEXT = rr.AnnotationContext(
     [
         (STATUS_OBSERVED, "value", (0, 0, 0, 0)),
-        (STATUS_UNOBSERVED, "not observed", (45, 45, 52, 255)),
-        (STATUS_INFINITE, "+inf", (255, 255, 255, 255)),
+        (STATUS_UNOBSERVED, "not observed", (128, 128, 128, 255)),
+        (STATUS_INFINITE, "+inf", (0, 220, 255, 255)),
     ]
 )
 
@@ -180,13 +180,19 @@ def map_blueprint(
     views_3d: Sequence[rrb.View] = (),
     layers: Sequence[str] = ("rgb", *MEASURE_LAYERS),
     titles: dict[str, str] | None = None,
+    eye: rrb.EyeControls3D | None = None,
 ) -> rrb.Blueprint:
     """The map recording's layout: 3D views on the left, one top-down tab per layer right."""
     titles = titles or {}
     tabs = [
         rrb.Spatial2DView(origin=layer_entity(name), name=titles.get(name, name)) for name in layers
     ]
-    left = [rrb.Spatial3DView(origin="world", name="3D: cells at their highest point"), *views_3d]
+    left = [
+        rrb.Spatial3DView(
+            origin="world", name="3D: cells at their highest point", eye_controls=eye
+        ),
+        *views_3d,
+    ]
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Tabs(*left) if len(left) > 1 else left[0],
@@ -250,8 +256,6 @@ def log_grid(
         label = f"P({target})" if name == "confidence" else name
         titles[layer] = _tab_title(label, lo, hi, style.colormap)
         layers.append(layer)
-    if own:
-        rec.send_blueprint(map_blueprint(layers=layers, titles=titles))
     xyz = np.stack(
         [
             cells.column("x").to_numpy(),
@@ -260,6 +264,8 @@ def log_grid(
         ],
         axis=1,
     )
+    if own:
+        rec.send_blueprint(map_blueprint(layers=layers, titles=titles, eye=overview_eye(xyz)))
     rec.log(GRID_CELLS_3D, rr.Points3D(xyz, colors=rgb, radii=layout.cell_size / 2), static=True)
     if own:
         rec.flush()
