@@ -10,7 +10,8 @@ protocols and rooms in turn), under ``world/eval``:
 - ``first``: the first attempt, green on success, red on failure;
 - ``choice/<strategy>`` (and ``choice_category/<strategy>``): each replan rule's second
   attempt at the displayed k (:func:`display_k`), drawn as a marker above the candidate it
-  chose, on a stalk down to it, so rules that chose the same candidate stay apart;
+  chose, on a stalk down to it, so rules that chose the same candidate stay apart (the view
+  opens with the paper's four rules shown, the ablations and random ones hidden);
 - ``query``: a text document with the query, the first attempt and a table of every rule's
   choice (every criterion and k); ``eval/log``: one line per query.
 
@@ -51,6 +52,9 @@ CHART_ENTITY = "eval/charts"
 LOG_ENTITY = "eval/log"
 DOC_ENTITY = "query"
 SCENE_ENTITY = "world/scene"
+FOCUS_ENTITY = "world"
+"""Shifted per query so the query's room sits at the origin, where the 3D view looks (the
+view's origin is the root above ``world``): stepping through queries moves room to room."""
 QUERY_TIMELINE = "query"
 GREEN, RED, GREY, TARGET = (40, 200, 80), (230, 50, 50), (150, 150, 150), (60, 230, 230)
 SHORT = {
@@ -78,6 +82,12 @@ COLOURS = {
     "min_entropy": (148, 103, 189),
     "max_pwkl": (227, 119, 194),
 }
+_SHOWN = ("max_confidence", "max_entropy", "min_stderr", "min_pwkl")
+"""Rules whose choices the 3D view shows as it opens (the paper's); the others' entities are
+there, hidden, one click (the eye icon) away."""
+_HIDDEN_CHOICES = [f"{EVAL_ENTITY}/choice/{name}" for name in SHORT if name not in _SHOWN] + [
+    f"{EVAL_ENTITY}/choice_category"
+]
 _TOP = 10
 """Ranked candidates drawn per query."""
 _MAX_TARGET_POINTS = 3000
@@ -183,13 +193,22 @@ def _log_context(rec: rr.RecordingStream, gt, unit: str, row: dict) -> np.ndarra
     if len(pts) > _MAX_TARGET_POINTS:
         pts = pts[:: int(np.ceil(len(pts) / _MAX_TARGET_POINTS))]
     rec.log(f"{EVAL_ENTITY}/target/points", rr.Points3D(pts, colors=[TARGET], radii=0.01))
+    # the point the 3D eye follows: the room's middle (else the targets'), on the floor
+    around = np.asarray(room.floor_polygon, np.float64) if room is not None else pts[:, :2]
+    if len(around):
+        middle = (around.min(axis=0) + around.max(axis=0)) / 2
+        rec.log(FOCUS_ENTITY, rr.Transform3D(translation=[-middle[0], -middle[1], 0.0]))
     return room.room_id if room is not None else None
 
 
 def _choice_marker(
-    rec: rr.RecordingStream, entity: str, position: np.ndarray, height: float, row: dict
+    rec: rr.RecordingStream, entity: str, position: np.ndarray, slot: int, row: dict
 ) -> None:
-    top = position + np.array([0.0, 0.0, height])
+    """A marker on a stalk from the chosen candidate, its direction fixed per rule (slot), so
+    rules that chose the same candidate fan out and their labels stay readable from above."""
+    angle = np.pi / 4 + slot * np.pi / 2 + (slot // 4) * np.pi / 4
+    reach = 0.6 + 0.25 * (slot // 4)
+    top = position + np.array([reach * np.cos(angle), reach * np.sin(angle), 0.5])
     ok = row["success"]
     label = f"{SHORT.get(row['strategy'], row['strategy'])} {'ok' if ok else 'miss'}"
     colour = COLOURS.get(row["strategy"], GREY)
@@ -278,13 +297,12 @@ def _log_query(
         if r["attempt"] == 2 and r["candidate"] >= 0 and r["k"] in (0, kind_k)
         and r["strategy"] not in ("oracle",)
     ]  # fmt: skip
-    order = sorted({r["strategy"] for r in seconds}, key=list(SHORT).index)
+    order = [*_SHOWN, *(name for name in SHORT if name not in _SHOWN)]
     for r in seconds:
         parent = "choice_category" if r["criterion"] == "category" else "choice"
-        height = 0.35 + 0.18 * order.index(r["strategy"])
         _choice_marker(
             rec, f"{EVAL_ENTITY}/{parent}/{r['strategy']}", cmap.positions[r["candidate"]],
-            height, r,
+            order.index(r["strategy"]), r,
         )  # fmt: skip
     rec.log(
         DOC_ENTITY,
@@ -375,13 +393,12 @@ def _log_chart(
 def evaluation_blueprint(charts: Sequence[tuple[str, str]]) -> rrb.Blueprint:
     """3D query context and the log left; the query's details and the charts right.
 
-    The 3D eye follows the query's target, so stepping through queries moves to each room.
+    The 3D view looks at the query's room: :data:`FOCUS_ENTITY` moves each room to the origin.
     """
     eye = rrb.EyeControls3D(
         kind=rrb.Eye3DKind.Orbital,
-        tracking_entity=f"{EVAL_ENTITY}/target/boxes",
-        position=(0.0, -2.5, 6.5),
-        look_target=(0.0, 0.0, 0.0),
+        position=(0.0, -4.0, 6.0),
+        look_target=(0.0, 0.0, 0.3),
         eye_up=(0.0, 0.0, 1.0),
     )
     tabs = [
@@ -398,10 +415,11 @@ def evaluation_blueprint(charts: Sequence[tuple[str, str]]) -> rrb.Blueprint:
         rrb.Horizontal(
             rrb.Vertical(
                 rrb.Spatial3DView(
-                    origin="world",
-                    contents=["+ world/**", f"- {EVAL_ENTITY}/choice_category/**"],
+                    origin="/",
+                    contents="+ world/**",
                     name="query: room, target (cyan), ranked, 1st attempt, replan choices",
                     eye_controls=eye,
+                    overrides={path: rrb.EntityBehavior(visible=False) for path in _HIDDEN_CHOICES},
                 ),
                 rrb.TextLogView(origin=LOG_ENTITY, name="queries"),
                 row_shares=[3, 1],
@@ -485,6 +503,7 @@ def write_evaluation_rrd(
         points, colours = cloud.points, cloud.colors
     if rec is None:
         rec = open_scene_recording(rrd, scene)
+        rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)  # the 3D view's origin
     charts = sorted({(r["map"], r["protocol"]) for r in summary.to_pylist() if r["map"] in maps})
     if own:
         rec.send_blueprint(evaluation_blueprint(charts))
