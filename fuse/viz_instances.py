@@ -12,7 +12,9 @@ Entities (all 3D ones under ``world``, z up):
 
 The blueprint shows two 3D tabs (scene colours; instance colours: the two clouds are the
 same points, so they never share a view), and beside them the selected instance's details
-and its chosen views, each a 2D view rooted at the view's pinhole.
+and its chosen views, each a 2D view rooted at the view's pinhole. The 3D views leave the
+chosen cameras out (lines from the instance point at them): an instance with fewer views
+clears the unused ranks, and the viewer reports a cleared pinhole's image in a 3D view.
 """
 
 from __future__ import annotations
@@ -82,13 +84,13 @@ def instances_blueprint(max_views: int, eye: rrb.EyeControls3D | None = None) ->
     """The 3D tabs left; the selected instance's details and chosen views right."""
     scene = rrb.Spatial3DView(
         origin="world",
-        contents=["+ world/**", f"- {ENTITY_SEGMENTS}/**"],
+        contents=["+ world/**", f"- {ENTITY_SEGMENTS}/**", f"- {ENTITY_CHOSEN}/**"],
         name="3D: scene colours, boxes",
         eye_controls=eye,
     )
     segments = rrb.Spatial3DView(
         origin="world",
-        contents=["+ world/**", f"- {ENTITY_RGB}"],
+        contents=["+ world/**", f"- {ENTITY_RGB}", f"- {ENTITY_CHOSEN}/**"],
         name="3D: instance colours",
         eye_controls=eye,
     )
