@@ -53,4 +53,5 @@ def test_overview_eye_looks_at_the_middle_from_above() -> None:
     target = np.asarray(eye.look_target.as_arrow_array().to_pylist()[0])
     position = np.asarray(eye.position.as_arrow_array().to_pylist()[0])
     np.testing.assert_allclose(target, [5.0, 2.0, 1.25])
-    assert position[2] > target[2] + 5.0 and position[1] < target[1]  # above, south
+    assert position[2] > target[2] + 5.0  # above
+    assert position[1] < target[1]  # south
