@@ -222,7 +222,7 @@ def run(
         str | None,
         typer.Option(
             "--rrd-class",
-            help="Class of the grid recording's confidence layer (default: most frequent object).",
+            help="Class of the grid recording's confidence layer (default: each query class).",
         ),
     ] = None,
 ) -> None:

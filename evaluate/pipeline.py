@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from care.errors import EvalError
@@ -52,7 +53,8 @@ class RunConfig:
     rrd_ingest: bool = True
     """Also write ``<name>.ingest.rrd`` (camera images, depth, the map building up)."""
     rrd_class: str | None = None
-    """Class of the grid recording's confidence layer (default: its most frequent object)."""
+    """Class of the grid recording's confidence layer (default: one layer per query class of
+    the scene's evaluation)."""
 
 
 @dataclass(frozen=True)
@@ -94,7 +96,7 @@ def run_all(source: Path | None, out: Path, config: RunConfig | None = None) -> 
             "`care query` for others"
         )
         raise EvalError(msg)
-    scenes, rrds = [], []
+    scenes, grid_due = [], {}
     for name, recording in recordings:
         store = out / "stores" / name
         ingest_rrd = out / f"{name}.ingest.rrd" if config.rrd_ingest else None
@@ -107,24 +109,29 @@ def run_all(source: Path | None, out: Path, config: RunConfig | None = None) -> 
         grid_rrd, inst_rrd = out / f"{name}.grid.rrd", out / f"{name}.instances.rrd"
         fresh = not (store / "cells.parquet").is_file() or not grid_rrd.is_file()
         build_grid(store, config.grid)
-        if fresh or config.rrd_class is not None:
-            log_grid(store, grid_rrd, target=config.rrd_class, scene=name)
+        grid_due[name] = fresh or config.rrd_class is not None  # logged after the evaluation
         fresh = not (store / "instances.parquet").is_file() or not inst_rrd.is_file()
         build_instances(store, config.instances, rrd=inst_rrd if fresh else None)
         scenes.append(Scene(name, store, Path(recording).resolve()))
-        rrds += [p for p in (ingest_rrd, grid_rrd, inst_rrd) if p is not None and p.is_file()]
     eval_dir = out / "eval"
     report = run_eval(
         [s.store for s in scenes], config.evaluation, eval_dir,
         workers=config.workers, ray_address=config.ray_address, progress=config.progress,
     )  # fmt: skip
     attempts = pq.read_table(eval_dir / "attempts.parquet")
+    rrds: list[Path] = []
     for scene in scenes:
+        if grid_due[scene.name]:  # the confidence of the scene's query classes (or --rrd-class)
+            mine = attempts.filter(pc.equal(attempts.column("scene"), scene.name))
+            classes = list(dict.fromkeys(mine.column("target").to_pylist()))
+            target = config.rrd_class if config.rrd_class is not None else classes or None
+            log_grid(scene.store, out / f"{scene.name}.grid.rrd", target=target, scene=scene.name)
         maps = {kind: load_map(scene.store, kind) for kind in config.evaluation.maps}  # type: ignore[misc]
         path = out / f"{scene.name}.eval.rrd"
         write_evaluation_rrd(
             path, attempts, report.summary, maps, scene=scene.name,
             gt=GroundTruth.load(scene.recording), store=scene.store,
         )  # fmt: skip
-        rrds.append(path)
+        stages = ("ingest", "grid", "instances", "eval")
+        rrds += [p for p in (out / f"{scene.name}.{s}.rrd" for s in stages) if p.is_file()]
     return RunResult(report, tuple(s.store for s in scenes), tuple(rrds))

@@ -39,6 +39,7 @@ __all__ = [
     "MEASURE_LAYERS",
     "LayerStyle",
     "confidence_layer",
+    "confidence_raster",
     "default_class",
     "layer_entity",
     "log_grid",
@@ -143,28 +144,33 @@ def log_layer(
     return lo, hi
 
 
+def confidence_raster(store: Store, cells: pa.Table, target: str) -> np.ndarray:
+    """Raster (ny, nx) of P_c[target], exact for any class the store can embed:
+    ``exp(s f . t - log_norm)`` from the stored fused feature, not the truncated
+    ``top_probs``."""
+    md = cells.schema.metadata or {}
+    layout = GridLayout.from_table(cells)
+    ix, iy = cells.column("ix").to_numpy(), cells.column("iy").to_numpy()
+    _, text = vocabulary_text(store, [target])
+    feature = cells.column("feature").combine_chunks()
+    flat = feature.values.to_numpy(zero_copy_only=False).astype(np.float64)
+    scale = float(md.get(b"care.logit_scale", b"100"))
+    logits = scale * flat.reshape(len(feature), -1) @ text[0].astype(np.float64)
+    conf = np.exp(logits - cells.column("log_norm").to_numpy())
+    return grid_image(ix, iy, conf, layout.shape)
+
+
 def measure_layers(
     store: Store, cells: pa.Table, target: str | None = None
 ) -> dict[str, np.ndarray]:
     """Rasters (ny, nx) of each measure; ``confidence`` is P_c[target] (default:
-    :func:`default_class`).
-
-    The confidence is exact for any class the store can embed: ``exp(s f . t - log_norm)``
-    from the stored fused feature, not the truncated ``top_probs``.
-    """
-    md = cells.schema.metadata or {}
+    :func:`default_class`; see :func:`confidence_raster`)."""
     layout = GridLayout.from_table(cells)
     ix, iy = cells.column("ix").to_numpy(), cells.column("iy").to_numpy()
     target = target if target is not None else default_class(cells)
     layers: dict[str, np.ndarray] = {}
     if target is not None:
-        _, text = vocabulary_text(store, [target])
-        feature = cells.column("feature").combine_chunks()
-        flat = feature.values.to_numpy(zero_copy_only=False).astype(np.float64)
-        scale = float(md.get(b"care.logit_scale", b"100"))
-        logits = scale * flat.reshape(len(feature), -1) @ text[0].astype(np.float64)
-        conf = np.exp(logits - cells.column("log_norm").to_numpy())
-        layers["confidence"] = grid_image(ix, iy, conf, layout.shape)
+        layers["confidence"] = confidence_raster(store, cells, target)
     for name in MEASURE_LAYERS[1:]:
         values = cells.column(name).to_numpy().astype(np.float64)
         layers[name] = grid_image(ix, iy, values, layout.shape)
@@ -181,12 +187,24 @@ def map_blueprint(
     layers: Sequence[str] = ("rgb", *MEASURE_LAYERS),
     titles: dict[str, str] | None = None,
     eye: rrb.EyeControls3D | None = None,
+    grouped: Sequence[str] = (),
 ) -> rrb.Blueprint:
-    """The map recording's layout: 3D views on the left, one top-down tab per layer right."""
+    """The map recording's layout: 3D views on the left, one top-down tab per layer right.
+
+    ``grouped`` layers (the confidence of several classes) share one tab of their own tabs.
+    """
     titles = titles or {}
-    tabs = [
-        rrb.Spatial2DView(origin=layer_entity(name), name=titles.get(name, name)) for name in layers
-    ]
+
+    def view(name: str) -> rrb.View:
+        return rrb.Spatial2DView(origin=layer_entity(name), name=titles.get(name, name))
+
+    tabs: list[rrb.View | rrb.Container] = []
+    for name in layers:
+        if name in grouped:
+            if name == grouped[0]:
+                tabs.append(rrb.Tabs(*map(view, grouped), name="confidence of query classes"))
+        else:
+            tabs.append(view(name))
     left = [
         rrb.Spatial3DView(
             origin="world", name="3D: cells at their highest point", eye_controls=eye
@@ -207,16 +225,17 @@ def log_grid(
     store_path: Path,
     rrd: Path | None = None,
     *,
-    target: str | None = None,
+    target: str | Sequence[str] | None = None,
     rec: rr.RecordingStream | None = None,
     scene: str | None = None,
 ) -> rr.RecordingStream:
     """Log the grid of ``store_path`` to ``rec`` (or a new recording saved to ``rrd``).
 
     ``target``: the class of the confidence layer (default :func:`default_class`), named in
-    its entity path (``grid/confidence_<class>``) and tab. ``scene`` names the recording
-    (default the store's directory name). Sends :func:`map_blueprint` when it opens the
-    recording itself.
+    its entity path (``grid/confidence_<class>``) and tab; several classes (e.g. the
+    evaluation's query classes) give a layer each, under one tab of tabs. ``scene`` names the
+    recording (default the store's directory name). Sends :func:`map_blueprint` when it opens
+    the recording itself.
     """
     store = Store(store_path)
     cells = read_table(store.table_path(CELLS_TABLE))
@@ -226,9 +245,12 @@ def log_grid(
             msg = "log_grid needs an rrd path or an open recording"
             raise FuseError(msg)
         rec = open_scene_recording(rrd, scene or Path(store_path).name)
-    target = target if target is not None else default_class(cells)
-    if target is not None:
-        vocabulary_text(store, [target])  # an unknown class fails here, before any logging
+    if target is None:
+        targets = [c for c in [default_class(cells)] if c is not None]
+    else:
+        targets = [target] if isinstance(target, str) else list(dict.fromkeys(target))
+    if targets:
+        vocabulary_text(store, targets)  # an unknown class fails here, before any logging
     layout = GridLayout.from_table(cells)
     ix, iy = cells.column("ix").to_numpy(), cells.column("iy").to_numpy()
     rgb = np.stack([cells.column(c).to_numpy() for c in "rgb"], axis=1)
@@ -249,13 +271,18 @@ def log_grid(
         static=True,
     )
     titles, layers = {"rgb": "rgb"}, ["rgb"]
-    for name, raster in measure_layers(store, cells, target).items():
-        layer = confidence_layer(target) if name == "confidence" else name
-        style = STYLES[name]
-        lo, hi = log_layer(rec, layer, raster, style)
-        label = f"P({target})" if name == "confidence" else name
-        titles[layer] = _tab_title(label, lo, hi, style.colormap)
+    for name in targets:
+        layer, style = confidence_layer(name), STYLES["confidence"]
+        lo, hi = log_layer(rec, layer, confidence_raster(store, cells, name), style)
+        titles[layer] = _tab_title(f"P({name})", lo, hi, style.colormap)
         layers.append(layer)
+    for name, raster in measure_layers(store, cells, targets[0] if targets else None).items():
+        if name == "confidence":
+            continue
+        style = STYLES[name]
+        lo, hi = log_layer(rec, name, raster, style)
+        titles[name] = _tab_title(name, lo, hi, style.colormap)
+        layers.append(name)
     xyz = np.stack(
         [
             cells.column("x").to_numpy(),
@@ -265,7 +292,10 @@ def log_grid(
         axis=1,
     )
     if own:
-        rec.send_blueprint(map_blueprint(layers=layers, titles=titles, eye=overview_eye(xyz)))
+        grouped = layers[1 : 1 + len(targets)] if len(targets) > 1 else []
+        rec.send_blueprint(
+            map_blueprint(layers=layers, titles=titles, eye=overview_eye(xyz), grouped=grouped)
+        )
     rec.log(GRID_CELLS_3D, rr.Points3D(xyz, colors=rgb, radii=layout.cell_size / 2), static=True)
     if own:
         rec.flush()

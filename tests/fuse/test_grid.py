@@ -289,6 +289,7 @@ def test_rerun_layers_and_blueprint(tmp_path: Path) -> None:
         MEASURE_LAYERS,
         confidence_layer,
         default_class,
+        log_grid,
         map_blueprint,
         measure_layers,
     )
@@ -324,6 +325,12 @@ def test_rerun_layers_and_blueprint(tmp_path: Path) -> None:
     assert np.isposinf(expected).any()
     np.testing.assert_array_equal(status == 2, np.isposinf(expected))
     np.testing.assert_array_equal(status == 1, np.isnan(expected))
+    # several classes (the evaluation's query classes): a layer each, values P_c[class]
+    many = tmp_path / "many.rrd"
+    log_grid(store, many, target=["chair", "sofa"])
+    counts = rrd_entity_counts(many)
+    for name in ("chair", "sofa"):
+        assert counts[(f"/grid/{confidence_layer(name)}/value", "DepthImage:buffer")] == 1
     # the confidence layers of all classes sum to one on occupied cells, NaN elsewhere
     total = sum(measure_layers(Store(store), cells, name)["confidence"] for name in NAMES)
     occupied = np.isfinite(total)
