@@ -444,6 +444,16 @@ def run(
     gt_transform: GtTransformOpt = None,
     gt_class_map: GtClassMapOpt = None,
     gt_unknown_classes: GtUnknownOpt = "refuse",
+    rrd_ingest: Annotated[
+        bool, typer.Option(help="Also write <name>.ingest.rrd (camera, depth, map building up).")
+    ] = True,
+    rrd_class: Annotated[
+        str | None,
+        typer.Option(
+            "--rrd-class",
+            help="Class of the grid recording's confidence layer (default: each query class).",
+        ),
+    ] = None,
 ) -> None:
     """The main job: ingest, fuse both maps, evaluate every strategy; print the table.
 
@@ -463,6 +473,8 @@ def run(
         ray_address=_ray_target(ray, ray_address),
         gt=tuple(gt or ()),
         gt_defaults=_gt_defaults(gt_format, gt_transform, gt_class_map),
+        rrd_ingest=rrd_ingest,
+        rrd_class=rrd_class,
     )
     result = run_all(recording, out, config)
     if result.unevaluated:

@@ -127,11 +127,19 @@ def grid(
     ] = None,
     up_axis: UpAxisOpt = None,
     floor_z: FloorOpt = None,
+    rrd_class: Annotated[
+        str | None,
+        typer.Option(
+            "--rrd-class",
+            help="Class of the confidence layer in --rrd (default: the most frequent object class).",
+        ),
+    ] = None,
 ) -> None:
     """Fuse every view's dense features into occupied top-down cells (cells.parquet), in
     the store's gravity-aligned map frame (z up, floor at 0), also written as map.pgm/.yaml."""
     from fuse.grid import GridConfig, build_grid
     from fuse.recompute import recompute_grid
+    from fuse.viz_grid import log_grid
 
     config = GridConfig(  # options checked (GridConfig.__post_init__) before any work
         cell_size=cell_size,
@@ -150,12 +158,10 @@ def grid(
         _map_frame(store, up_axis, floor_z)
         if recompute:
             path = recompute_grid(store, config.vocabulary, logit_scale)
-            if rrd is not None:
-                from fuse.viz_grid import log_grid
-
-                log_grid(store, rrd)
         else:
-            path = build_grid(store, config, rrd=rrd)
+            path = build_grid(store, config)
+        if rrd is not None:
+            log_grid(store, rrd, target=rrd_class)
     _summary(path)
     if rrd is not None:
         typer.echo(f"rerun {rrd}")

@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from care.encoders import EncoderOptions
@@ -23,6 +24,7 @@ from evaluate.report import Report
 from evaluate.viz import write_evaluation_rrd
 from fuse.grid import GridConfig, build_grid
 from fuse.instances import InstanceConfig, build_instances
+from fuse.viz_grid import log_grid
 from ingest.pipeline import IngestConfig, run_ingest
 from ingest.readers import is_recording, recordings_in
 from query.map import load_map
@@ -60,6 +62,11 @@ class RunConfig:
     """Ground truth of each recording, in order (default: its index entry's, or beside it)."""
     gt_defaults: GtSource = field(default_factory=GtSource)
     """Format, frame transform and class map of ground truth that names none."""
+    rrd_ingest: bool = True
+    """Also write ``<name>.ingest.rrd`` (camera images, depth, the map building up)."""
+    rrd_class: str | None = None
+    """Class of the grid recording's confidence layer (default: one layer per query class of
+    the scene's evaluation)."""
 
 
 @dataclass(frozen=True)
@@ -141,46 +148,61 @@ def _scenes_with_gt(
 
 def run_all(source: Path | None, out: Path, config: RunConfig | None = None) -> RunResult:
     """Ingest, fuse and evaluate every recording of ``source`` (default the bundled sample)
-    into ``out``: ``out/stores/<name>``, ``out/<name>.{grid,instances,eval}.rrd`` and the
-    evaluation outputs (``results.md``, Parquet, plots) in ``out/eval``. Recordings without
-    ground truth get their maps and Rerun files and are listed in ``unevaluated``."""
+    into ``out``: ``out/stores/<name>``, ``out/<name>.{ingest,grid,instances,eval}.rrd`` (one
+    Rerun recording id per scene, so they open together) and the evaluation outputs
+    (``results.md``, Parquet, plots) in ``out/eval``. Recordings without ground truth get
+    their maps and Rerun files and are listed in ``unevaluated``."""
     config = config or RunConfig()
     out = Path(out)
     recordings = recordings_of(source or SAMPLE)
     planned = _scenes_with_gt(recordings, gt_sources_of(source or SAMPLE), config, out)
     with owned_output(out, "run", [rec for _, rec in recordings]):
-        scenes, rrds, unevaluated = [], [], []
+        scenes, unevaluated, grid_due = [], [], {}
         for (name, recording), (plan, has_gt) in zip(recordings, planned, strict=True):
             store = out / "stores" / name
+            ingest_rrd = out / f"{name}.ingest.rrd" if config.rrd_ingest else None
             run_ingest(
                 IngestConfig(
                     recording=recording, out=store, encoder=config.encoder,
                     encoder_options=config.encoder_options, vocabulary=config.vocabulary,
-                    progress=config.progress,
+                    progress=config.progress, rrd=ingest_rrd,
                 )
             )  # fmt: skip
             grid_rrd, inst_rrd = out / f"{name}.grid.rrd", out / f"{name}.instances.rrd"
             fresh = not (store / "cells.parquet").is_file() or not grid_rrd.is_file()
-            build_grid(store, config.grid, rrd=grid_rrd if fresh else None)
+            build_grid(store, config.grid)
+            grid_due[name] = fresh or config.rrd_class is not None  # logged after the evaluation
             fresh = not (store / "instances.parquet").is_file() or not inst_rrd.is_file()
             build_instances(store, config.instances, rrd=inst_rrd if fresh else None)
             if has_gt:
                 scenes.append(plan)
             else:
                 unevaluated.append(name)
-            rrds += [p for p in (grid_rrd, inst_rrd) if p.is_file()]
+        report, attempts = None, None
+        if scenes:
+            report = run_eval(
+                scenes, config.evaluation, out / "eval",
+                workers=config.workers, ray_address=config.ray_address, progress=config.progress,
+            )  # fmt: skip
+            attempts = pq.read_table(out / "eval" / "attempts.parquet")
+        evaluated = {scene.name: scene for scene in scenes}
+        rrds: list[Path] = []
+        for name, _ in recordings:
+            store = out / "stores" / name
+            if grid_due[name]:  # the confidence of the scene's query classes (or --rrd-class)
+                target = config.rrd_class
+                if target is None and name in evaluated:
+                    mine = attempts.filter(pc.equal(attempts.column("scene"), name))
+                    target = list(dict.fromkeys(mine.column("target").to_pylist())) or None
+                log_grid(store, out / f"{name}.grid.rrd", target=target, scene=name)
+            if name in evaluated:
+                scene = evaluated[name]
+                maps = {kind: load_map(store, kind) for kind in config.evaluation.maps}  # type: ignore[misc]
+                write_evaluation_rrd(
+                    out / f"{name}.eval.rrd", attempts, report.summary, maps, scene=name,
+                    gt=scene.gt.load(scene.recording), store=store,
+                )  # fmt: skip
+            stages = ("ingest", "grid", "instances", "eval")
+            rrds += [p for p in (out / f"{name}.{s}.rrd" for s in stages) if p.is_file()]
         stores = tuple(out / "stores" / name for name, _ in recordings)
-        if not scenes:
-            return RunResult(None, stores, tuple(rrds), tuple(unevaluated))
-        eval_dir = out / "eval"
-        report = run_eval(
-            scenes, config.evaluation, eval_dir,
-            workers=config.workers, ray_address=config.ray_address, progress=config.progress,
-        )  # fmt: skip
-        attempts = pq.read_table(eval_dir / "attempts.parquet")
-        for scene in scenes:
-            maps = {kind: load_map(scene.store, kind) for kind in config.evaluation.maps}  # type: ignore[misc]
-            path = out / f"{scene.name}.eval.rrd"
-            write_evaluation_rrd(path, attempts, report.summary, maps, scene=scene.name)
-            rrds.append(path)
         return RunResult(report, stores, tuple(rrds), tuple(unevaluated))

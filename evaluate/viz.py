@@ -1,32 +1,97 @@
-"""Rerun logging of the evaluation: every decision of a query, and the success rates per k.
+"""Rerun logging of the evaluation: every query stepped through, and success-vs-k charts.
 
-On the ``query`` timeline (one step per query), under ``world/eval/<map>/``: the top ranked
-candidates coloured by confidence, the first attempt (green on success, red on failure), and
-each strategy's next choice labelled with the measure that chose it and its outcome; a
-``TextLog`` line per query says the same in words. On the ``k`` timeline, the success rate of
-every (strategy, criterion) as a scalar, so the viewer plots the paper's tables.
+On the ``query`` timeline (one step per query, from 0, every query of the scene: maps,
+protocols and rooms in turn), under ``world/eval``:
+
+- ``room``: the outline of the query's room (the unit it is evaluated in);
+- ``target/boxes`` and ``target/points``: the ground-truth instances that count as a success
+  (the one instance of an instance query; every object of the class in the room otherwise);
+- ``ranked``: the room's best candidates by confidence (``#1`` is the first attempt);
+- ``first``: the first attempt, green on success, red on failure;
+- ``choice/<strategy>`` (and ``choice_category/<strategy>``): each replan rule's second
+  attempt at the displayed k (:func:`display_k`), drawn as a marker above the candidate it
+  chose, on a stalk down to it, so rules that chose the same candidate stay apart (the view
+  opens with the paper's four rules shown, the ablations and random ones hidden);
+- ``query``: a text document with the query, the first attempt and a table of every rule's
+  choice (every criterion and k); ``eval/log``: one line per query.
+
+The success rate of every (strategy, criterion) against k is drawn as a static 2D chart per
+map and protocol under ``eval/charts/<map>_<protocol>`` (one entity per series, with a legend),
+so the charts stay visible while the time cursor steps through queries.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 import rerun as rr
+import rerun.blueprint as rrb
 
-from care.viz import open_recording
+from care.viz import open_scene_recording, panels
 from query.confidence import confidence
 from query.map import CandidateMap
 
-__all__ = ["EVAL_ENTITY", "QUERY_TIMELINE", "log_evaluation", "write_evaluation_rrd"]
+__all__ = [
+    "CHART_ENTITY",
+    "EVAL_ENTITY",
+    "QUERY_TIMELINE",
+    "display_k",
+    "evaluation_blueprint",
+    "first_failed_step",
+    "log_evaluation",
+    "query_groups",
+    "write_evaluation_rrd",
+]
 
 EVAL_ENTITY = "world/eval"
-SCALAR_ENTITY = "eval/success"
+CHART_ENTITY = "eval/charts"
+LOG_ENTITY = "eval/log"
+DOC_ENTITY = "query"
+SCENE_ENTITY = "world/scene"
+FOCUS_ENTITY = "world"
+"""Shifted per query so the query's room sits at the origin, where the 3D view looks (the
+view's origin is the root above ``world``): stepping through queries moves room to room."""
 QUERY_TIMELINE = "query"
-K_TIMELINE = "k"
-GREEN, RED, GREY = (40, 200, 80), (230, 50, 50), (150, 150, 150)
+GREEN, RED, GREY, TARGET = (40, 200, 80), (230, 50, 50), (150, 150, 150), (60, 230, 230)
+SHORT = {
+    "no_replan": "no replan",
+    "oracle": "oracle",
+    "max_confidence": "max conf",
+    "random": "random",
+    "random_topk": "rand top-k",
+    "max_entropy": "max H",
+    "min_stderr": "min SE",
+    "min_pwkl": "min pwKL",
+    "min_entropy": "min H",
+    "max_pwkl": "max pwKL",
+}
+"""Short names of the replan rules for labels (the tables use the long ones)."""
+COLOURS = {
+    "no_replan": (120, 120, 120),
+    "oracle": (255, 255, 255),
+    "max_confidence": (31, 119, 180),
+    "random": (160, 160, 100),
+    "random_topk": (188, 189, 34),
+    "max_entropy": (255, 127, 14),
+    "min_stderr": (44, 160, 44),
+    "min_pwkl": (214, 39, 40),
+    "min_entropy": (148, 103, 189),
+    "max_pwkl": (227, 119, 194),
+}
+_SHOWN = ("max_confidence", "max_entropy", "min_stderr", "min_pwkl")
+"""Rules whose choices the 3D view shows as it opens (the paper's); the others' entities are
+there, hidden, one click (the eye icon) away."""
+_HIDDEN_CHOICES = [f"{EVAL_ENTITY}/choice/{name}" for name in SHORT if name not in _SHOWN] + [
+    f"{EVAL_ENTITY}/choice_category"
+]
+_TOP = 10
+"""Ranked candidates drawn per query."""
+_MAX_TARGET_POINTS = 3000
+_CHART_W, _CHART_H = 500.0, 300.0
 
 
 def _viridis(values: np.ndarray) -> np.ndarray:
@@ -38,58 +103,337 @@ def _viridis(values: np.ndarray) -> np.ndarray:
     return (mpl.colormaps["viridis"](v)[:, :3] * 255).astype(np.uint8)
 
 
-def _choice_label(r: dict) -> str:
-    """``min_stderr/conf k=4: 0.012 ok`` for one replan choice."""
-    rule = r["strategy"] if r["criterion"] == "-" else f"{r['strategy']}/{r['criterion'][:4]}"
-    k = f" k={r['k']}" if r["k"] else ""
-    outcome = "ok" if r["success"] else "fail"
-    return f"{rule}{k}: {r['value']:.3g} {outcome}{' (fallback)' if r['fell_back'] else ''}"
+def _strategy_of(name: str) -> str:
+    return name.replace(" (expected)", "")
 
 
-def _log_query(rec: rr.RecordingStream, cmap: CandidateMap, rows: list[dict], top: int) -> str:
-    """Log one query's ranking and decisions; returns its one-line description.
+def query_groups(attempts: pa.Table, scene: str, kinds: Sequence[str]) -> list[list[dict]]:
+    """The rows of each query of ``scene`` (deterministic rules and seed 0 of random ones),
+    in the order the timeline steps through them."""
+    mine = attempts.filter(
+        pc.and_(
+            pc.equal(attempts.column("scene"), scene), pc.less_equal(attempts.column("seed"), 0)
+        )
+    )
+    mine = mine.filter(pc.is_in(mine.column("map"), pa.array(list(kinds), pa.string())))
+    groups: dict[tuple, list[dict]] = {}
+    for row in mine.to_pylist():
+        groups.setdefault((row["map"], row["protocol"], row["unit"], row["query"]), []).append(row)
+    return list(groups.values())
 
-    The ranked points are the scene's best by confidence (labelled ``scene #r``); the
-    evaluation ranks within each room, so a room's first attempt need not be scene #1.
-    """
-    kind, target = rows[0]["map"], rows[0]["target"]
-    base = f"{EVAL_ENTITY}/{kind}"
-    y = cmap.class_id(target)
-    conf = confidence(cmap, np.array([y]))[0]
-    ranked = np.argsort(-conf, kind="stable")[:top]
+
+def first_failed_step(attempts: pa.Table, scene: str, kinds: Sequence[str]) -> int | None:
+    """Step of the first query whose first attempt failed (a query worth a screenshot)."""
+    for step, rows in enumerate(query_groups(attempts, scene, kinds)):
+        first = next(r for r in rows if r["attempt"] == 1)
+        if not first["success"]:
+            return step
+    return None
+
+
+def display_k(attempts: pa.Table, kind: str) -> int:
+    """The k whose choices the 3D view shows for map ``kind``: its smallest k."""
+    ks = attempts.filter(pc.equal(attempts.column("map"), kind)).column("k").to_numpy()
+    ks = ks[ks > 0]
+    return int(ks.min()) if len(ks) else 0
+
+
+# -- the 3D context of one query ---------------------------------------------------------
+
+
+def _gt_targets(gt, unit_room: int | None, row: dict) -> tuple[np.ndarray, list[str]]:
+    """Instance ids (and their labels) that make a choice for this query a success."""
+    table = gt.instances
+    ids = table.column("instance_id").to_numpy()
+    names = [n.strip().lower() for n in table.column("class_name").to_pylist()]
+    rooms = table.column("room_id").to_numpy()
+    if "#" in row["query"]:  # instance protocol: class#instance_id
+        wanted = np.array([int(row["query"].rsplit("#", 1)[1])])
+    else:
+        hit = np.array([n == row["target"].strip().lower() for n in names], bool)
+        if unit_room is not None:
+            hit &= rooms == unit_room
+        wanted = ids[hit]
+    keep = np.isin(ids, wanted)
+    return ids[keep], [f"target {row['target']}#{i}" for i in ids[keep]]
+
+
+def _log_context(rec: rr.RecordingStream, gt, unit: str, row: dict) -> np.ndarray | None:
+    """Room outline and target instances; returns the room's candidate mask function input."""
+    if gt is None:
+        rec.log(f"{EVAL_ENTITY}/room", rr.Clear(recursive=False))
+        rec.log(f"{EVAL_ENTITY}/target", rr.Clear(recursive=True))
+        return None
+    from evaluate.success import _unit_names
+
+    room_of_unit = dict(zip(_unit_names(gt), gt.rooms, strict=True))
+    room = room_of_unit.get(unit)
+    if room is not None:
+        poly = np.asarray(room.floor_polygon, np.float64)
+        ring = np.vstack([poly, poly[:1]])
+        rec.log(
+            f"{EVAL_ENTITY}/room",
+            rr.LineStrips3D(
+                [np.c_[ring, np.full(len(ring), 0.02)]], colors=[TARGET], radii=0.02,
+                labels=[unit],
+            ),
+        )  # fmt: skip
+    else:
+        rec.log(f"{EVAL_ENTITY}/room", rr.Clear(recursive=False))
+    ids, labels = _gt_targets(gt, None if room is None else room.room_id, row)
+    table = gt.instances
+    keep = np.isin(table.column("instance_id").to_numpy(), ids)
+    lo = np.asarray(table.column("bbox_min").to_pylist(), np.float32).reshape(-1, 3)[keep]
+    hi = np.asarray(table.column("bbox_max").to_pylist(), np.float32).reshape(-1, 3)[keep]
     rec.log(
-        f"{base}/ranked",
+        f"{EVAL_ENTITY}/target/boxes",
+        rr.Boxes3D(mins=lo, sizes=hi - lo, colors=[TARGET], radii=0.015, labels=labels),
+    )
+    pts = gt.points[np.isin(gt.point_instance, ids)]
+    if len(pts) > _MAX_TARGET_POINTS:
+        pts = pts[:: int(np.ceil(len(pts) / _MAX_TARGET_POINTS))]
+    rec.log(f"{EVAL_ENTITY}/target/points", rr.Points3D(pts, colors=[TARGET], radii=0.01))
+    # the point the 3D eye follows: the room's middle (else the targets'), on the floor
+    around = np.asarray(room.floor_polygon, np.float64) if room is not None else pts[:, :2]
+    if len(around):
+        middle = (around.min(axis=0) + around.max(axis=0)) / 2
+        rec.log(FOCUS_ENTITY, rr.Transform3D(translation=[-middle[0], -middle[1], 0.0]))
+    return room.room_id if room is not None else None
+
+
+def _choice_marker(
+    rec: rr.RecordingStream, entity: str, position: np.ndarray, slot: int, row: dict
+) -> None:
+    """A marker on a stalk from the chosen candidate, its direction fixed per rule (slot), so
+    rules that chose the same candidate fan out and their labels stay readable from above."""
+    angle = np.pi / 4 + slot * np.pi / 2 + (slot // 4) * np.pi / 4
+    reach = 0.6 + 0.25 * (slot // 4)
+    top = position + np.array([reach * np.cos(angle), reach * np.sin(angle), 0.5])
+    ok = row["success"]
+    label = f"{SHORT.get(row['strategy'], row['strategy'])} {'ok' if ok else 'miss'}"
+    colour = COLOURS.get(row["strategy"], GREY)
+    rec.log(
+        entity,
+        rr.Points3D([top], colors=[colour], radii=0.07, labels=[label], show_labels=True),
+        rr.LineStrips3D([[top, position]], colors=[colour], radii=0.01),
+    )
+
+
+def _query_doc(step: int, total: int, rows: list[dict], first: dict, kind_k: int) -> str:
+    head = rows[0]
+    lines = [
+        f'## Query {step + 1} of {total}: "{head["target"]}"',
+        "",
+        f"map **{head['map']}**, protocol **{head['protocol']}**, room **{head['unit']}**, "
+        f"query `{head['query']}`",
+        "",
+        f"First attempt: candidate {first['candidate']} (confidence {first['confidence']:.3f}) "
+        f"**{'succeeded' if first['success'] else 'failed'}**.",
+        "",
+    ]
+    seconds = [r for r in rows if r["attempt"] == 2]
+    if seconds:
+        lines += [
+            f"Second attempts (the 3D view shows criterion confidence at k={kind_k}):",
+            "",
+            "| rule | criterion | k | candidate | value | outcome |",
+            "|---|---|---|---|---|---|",
+        ]
+        for r in sorted(seconds, key=lambda r: (r["strategy"], r["criterion"], r["k"])):
+            outcome = "success" if r["success"] else "miss"
+            fell = " (fell back)" if r["fell_back"] else ""
+            lines.append(
+                f"| {SHORT.get(r['strategy'], r['strategy'])} | {r['criterion']} | {r['k']} | "
+                f"{r['candidate']} | {r['value']:.4g} | {outcome}{fell} |"
+            )
+    elif not first["success"]:
+        lines.append("No rule made a second attempt.")
+    return "\n".join(lines)
+
+
+def _log_query(
+    rec: rr.RecordingStream,
+    cmap: CandidateMap,
+    rows: list[dict],
+    gt,
+    kind_k: int,
+    step: int,
+    total: int,
+) -> str:
+    """Log one query's context, ranking and decisions; returns its one-line description."""
+    head = rows[0]
+    room_id = _log_context(rec, gt, head["unit"], head)
+    y = cmap.class_id(head["target"])
+    conf = confidence(cmap, np.array([y]))[0]
+    in_room = np.ones(cmap.num_candidates, bool)
+    if gt is not None and room_id is not None:
+        in_room = gt.room_of(cmap.positions[:, :2]) == room_id
+    ids = np.flatnonzero(in_room)
+    ranked = ids[np.argsort(-conf[ids], kind="stable")[:_TOP]]
+    rec.log(
+        f"{EVAL_ENTITY}/ranked",
         rr.Points3D(
-            cmap.positions[ranked], colors=_viridis(conf[ranked]), radii=0.06,
-            labels=[f"scene #{r + 1} {conf[c]:.2f}" for r, c in enumerate(ranked)],
+            cmap.positions[ranked], colors=_viridis(conf[ranked]), radii=0.05,
+            labels=[f"#{r + 1} {conf[c]:.2f}" if r else "" for r, c in enumerate(ranked)],
         ),
     )  # fmt: skip
     first = next(r for r in rows if r["attempt"] == 1)  # the same for every strategy
-    words = [f"{rows[0]['query']} ({rows[0]['unit']}): first #{first['candidate']} "]
-    words.append("succeeded" if first["success"] else "failed")
     if first["candidate"] >= 0:
         rec.log(
-            f"{base}/first",
+            f"{EVAL_ENTITY}/first",
             rr.Points3D(
                 cmap.positions[[first["candidate"]]], colors=[GREEN if first["success"] else RED],
-                radii=0.12, labels=[f"first: conf {first['confidence']:.2f}"],
+                radii=0.12,
+                labels=[f"1st (#1 {first['confidence']:.2f}): {'ok' if first['success'] else 'FAILED'}"],
             ),
         )  # fmt: skip
-    seconds = [r for r in rows if r["attempt"] == 2 and r["candidate"] >= 0]
-    if seconds:
-        labels = [_choice_label(r) for r in seconds]
-        rec.log(
-            f"{base}/replan",
-            rr.Points3D(
-                cmap.positions[[r["candidate"] for r in seconds]],
-                colors=[GREEN if r["success"] else RED for r in seconds], radii=0.09, labels=labels,
-            ),
-        )  # fmt: skip
-        good = sorted({r["strategy"] for r in seconds if r["success"]})
-        words.append(f"; replans that succeed: {', '.join(good) or 'none'}")
     else:
-        rec.log(f"{base}/replan", rr.Clear(recursive=False))
-    return "".join(words)
+        rec.log(f"{EVAL_ENTITY}/first", rr.Clear(recursive=False))
+    rec.log(f"{EVAL_ENTITY}/choice", rr.Clear(recursive=True))
+    rec.log(f"{EVAL_ENTITY}/choice_category", rr.Clear(recursive=True))
+    seconds = [
+        r
+        for r in rows
+        if r["attempt"] == 2 and r["candidate"] >= 0 and r["k"] in (0, kind_k)
+        and r["strategy"] not in ("oracle",)
+    ]  # fmt: skip
+    order = [*_SHOWN, *(name for name in SHORT if name not in _SHOWN)]
+    for r in seconds:
+        parent = "choice_category" if r["criterion"] == "category" else "choice"
+        _choice_marker(
+            rec, f"{EVAL_ENTITY}/{parent}/{r['strategy']}", cmap.positions[r["candidate"]],
+            order.index(r["strategy"]), r,
+        )  # fmt: skip
+    rec.log(
+        DOC_ENTITY,
+        rr.TextDocument(
+            _query_doc(step, total, rows, first, kind_k), media_type=rr.MediaType.MARKDOWN
+        ),
+    )
+    words = f"{head['map']}/{head['protocol']} {head['unit']}: {head['query']}: first "
+    words += "ok" if first["success"] else "FAILED"
+    good = sorted({SHORT.get(r["strategy"], r["strategy"]) for r in seconds if r["success"]})
+    if not first["success"]:
+        words += f"; replans that succeed (k={kind_k}): {', '.join(good) or 'none'}"
+    return words
+
+
+# -- charts ----------------------------------------------------------------------------
+
+
+def _chart_name(kind: str, protocol: str) -> str:
+    return f"{kind}_{protocol}"
+
+
+def _log_chart(
+    rec: rr.RecordingStream, kind: str, protocol: str, rates: list[dict], ks: list[int]
+) -> None:
+    """One success-vs-k chart: axes, one polyline per (strategy, criterion), a legend."""
+    base = f"{CHART_ENTITY}/{_chart_name(kind, protocol)}"
+    n = max(len(ks) - 1, 1)
+    lowest = min((r["rate"] for r in rates), default=0.0)
+    floor = max(0.0, float(np.floor(lowest / 10.0) * 10.0))  # the axis starts where data does
+    if floor > 90.0:
+        floor = 90.0
+    ticks = np.linspace(floor, 100.0, 5)
+
+    def xy(i: float, rate: float) -> tuple[float, float]:
+        return (_CHART_W * i / n, _CHART_H * (1 - (rate - floor) / (100.0 - floor)))
+
+    frame = [xy(0, 100), xy(0, floor), xy(n, floor)]
+    grid = [[xy(0, v), xy(n, v)] for v in ticks[1:]]
+    rec.log(f"{base}/axes", rr.LineStrips2D([frame, *grid], colors=[(90, 90, 90)]), static=True)
+    rec.log(
+        f"{base}/axes/y",
+        rr.Points2D(
+            [(-40.0, xy(0, v)[1]) for v in ticks], radii=0.1,
+            labels=[f"{v:.4g}%" for v in ticks], colors=[(200, 200, 200)],
+        ),
+        static=True,
+    )  # fmt: skip
+    rec.log(
+        f"{base}/axes/k",
+        rr.Points2D(
+            [(xy(i, floor)[0], _CHART_H + 22.0) for i in range(len(ks))], radii=0.1,
+            labels=[f"k={k}" for k in ks], colors=[(200, 200, 200)],
+        ),
+        static=True,
+    )  # fmt: skip
+    series: dict[tuple[str, str], dict[int, float]] = {}
+    for r in rates:
+        series.setdefault((r["strategy"], r["criterion"]), {})[r["k"]] = r["rate"]
+    legend_y = 0.0
+    for (strategy, criterion), by_k in sorted(series.items()):
+        base_name = _strategy_of(strategy)
+        colour = np.array(COLOURS.get(base_name, GREY), float)
+        if criterion == "category":
+            colour = colour * 0.55
+        if "(expected)" in strategy:
+            colour = colour * 0.8 + 40
+        values = [by_k.get(k, by_k.get(0)) for k in ks]
+        pts = [xy(i, v) for i, v in enumerate(values) if v is not None]
+        name = SHORT.get(base_name, base_name) + (" exp." if "(expected)" in strategy else "")
+        label = name if criterion == "-" else f"{name} / {criterion}"
+        entity = f"{base}/{strategy.replace(' (expected)', '_expected')}/{criterion.replace('-', 'none')}"
+        c = colour.clip(0, 255).astype(np.uint8)
+        rec.log(
+            entity,
+            rr.LineStrips2D([pts], colors=[c], radii=1.5),
+            rr.Points2D(pts, colors=[c], radii=3.0),
+            static=True,
+        )
+        rec.log(
+            f"{entity}/legend",
+            rr.Points2D([(_CHART_W + 130.0, legend_y)], colors=[c], radii=5.0, labels=[label]),
+            static=True,
+        )
+        legend_y += 16.0
+
+
+def evaluation_blueprint(charts: Sequence[tuple[str, str]]) -> rrb.Blueprint:
+    """3D query context and the log left; the query's details and the charts right.
+
+    The 3D view looks at the query's room: :data:`FOCUS_ENTITY` moves each room to the origin.
+    """
+    eye = rrb.EyeControls3D(
+        kind=rrb.Eye3DKind.Orbital,
+        position=(0.0, -4.0, 6.0),
+        look_target=(0.0, 0.0, 0.3),
+        eye_up=(0.0, 0.0, 1.0),
+    )
+    tabs = [
+        rrb.Spatial2DView(
+            origin=f"{CHART_ENTITY}/{_chart_name(kind, protocol)}",
+            name=f"success vs k: {kind} / {protocol}",
+            visual_bounds=rrb.VisualBounds2D(
+                x_range=[-70.0, _CHART_W + 250.0], y_range=[-30.0, _CHART_H + 50.0]
+            ),
+        )
+        for kind, protocol in charts
+    ]
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(
+                rrb.Spatial3DView(
+                    origin="/",
+                    contents="+ world/**",
+                    name="query: room, target (cyan), ranked, 1st attempt, replan choices",
+                    eye_controls=eye,
+                    overrides={path: rrb.EntityBehavior(visible=False) for path in _HIDDEN_CHOICES},
+                ),
+                rrb.TextLogView(origin=LOG_ENTITY, name="queries"),
+                row_shares=[3, 1],
+            ),
+            rrb.Vertical(
+                rrb.TextDocumentView(origin=DOC_ENTITY, name="query"),
+                rrb.Tabs(*tabs) if tabs else rrb.Vertical(),
+                row_shares=[1, 1],
+            ),
+            column_shares=[3, 2],
+        ),
+        rrb.TimePanel(state="expanded", timeline=QUERY_TIMELINE, play_state="paused"),
+        *panels()[:2],
+    )
 
 
 def log_evaluation(
@@ -99,43 +443,40 @@ def log_evaluation(
     maps: dict[str, CandidateMap],
     *,
     scene: str,
-    max_queries: int = 40,
-    top: int = 10,
+    gt=None,
+    scene_points: np.ndarray | None = None,
+    scene_colours: np.ndarray | None = None,
 ) -> int:
-    """Log the decisions of up to ``max_queries`` queries of ``scene`` and every success rate.
+    """Log every query of ``scene`` and the success-vs-k charts; returns the queries logged.
 
-    Only deterministic strategies and the first seed of the random ones are drawn (at every
-    criterion and k). Returns the number of queries logged.
+    ``gt`` (a :class:`world.groundtruth.GroundTruth`) adds the room outline, the target
+    instances and limits the ranked candidates to the query's room.
     """
-    for kind, cmap in maps.items():
+    if scene_points is not None:
         rec.log(
-            f"{EVAL_ENTITY}/{kind}/candidates",
-            rr.Points3D(cmap.positions, colors=[GREY], radii=0.02),
+            f"{SCENE_ENTITY}",
+            rr.Points3D(scene_points, colors=scene_colours, radii=0.01),
             static=True,
         )
-    mine = attempts.filter(
-        pc.and_(
-            pc.equal(attempts.column("scene"), scene), pc.less_equal(attempts.column("seed"), 0)
-        )
-    )
-    mine = mine.filter(pc.is_in(mine.column("map"), pa.array(list(maps))))
-    groups: dict[tuple, list[dict]] = {}
-    for row in mine.to_pylist():
-        groups.setdefault((row["map"], row["protocol"], row["unit"], row["query"]), []).append(row)
-    for step, (key, rows) in enumerate(list(groups.items())[:max_queries]):
+    groups = query_groups(attempts, scene, list(maps))
+    ks_shown = {kind: display_k(attempts, kind) for kind in maps}
+    for step, rows in enumerate(groups):
         rec.set_time(QUERY_TIMELINE, sequence=step)
-        text = _log_query(rec, maps[key[0]], rows, top)
-        rec.log("eval/log", rr.TextLog(f"[{key[0]}/{key[1]}] {text}"))
-    rates = summary.to_pylist()
-    ks_of = {m: sorted({x["k"] for x in rates if x["map"] == m and x["k"]}) for m in maps}
-    for r in rates:
-        name = r["strategy"].replace(" (expected)", "_expected")
-        path = f"{SCALAR_ENTITY}/{r['map']}/{r['protocol']}/{name}/{r['criterion'].replace('-', 'none')}"
-        for k in [r["k"]] if r["k"] else ks_of.get(r["map"], []):
-            rec.set_time(K_TIMELINE, sequence=int(k))
-            rec.log(path, rr.Scalars([r["rate"]]))
+        kind = rows[0]["map"]
+        text = _log_query(rec, maps[kind], rows, gt, ks_shown[kind], step, len(groups))
+        first_ok = next(r for r in rows if r["attempt"] == 1)["success"]
+        rec.log(
+            LOG_ENTITY,
+            rr.TextLog(f"[{step}] {text}", level=rr.TextLogLevel.INFO if first_ok else "WARN"),
+        )
     rec.reset_time()
-    return min(len(groups), max_queries)
+    rates = [r for r in summary.to_pylist() if r["map"] in maps]
+    charts = sorted({(r["map"], r["protocol"]) for r in rates})
+    for kind, protocol in charts:
+        mine = [r for r in rates if r["map"] == kind and r["protocol"] == protocol]
+        ks = sorted({r["k"] for r in mine if r["k"]})
+        _log_chart(rec, kind, protocol, mine, ks or [0])
+    return len(groups)
 
 
 def write_evaluation_rrd(
@@ -146,11 +487,30 @@ def write_evaluation_rrd(
     *,
     scene: str,
     rec: rr.RecordingStream | None = None,
+    gt=None,
+    store: Path | None = None,
 ) -> Path:
-    """Log :func:`log_evaluation` into ``rec``, or a new ``rrd`` file (``rerun rrd``)."""
+    """Log :func:`log_evaluation` into ``rec``, or a new ``rrd`` file (``rerun rrd``).
+
+    ``store`` adds the scene's point cloud (its ``scene_points.parquet``) as 3D context.
+    """
     own = rec is None
-    rec = rec or open_recording("care_eval", rrd)
-    log_evaluation(rec, attempts, summary, maps, scene=scene)
+    points = colours = None
+    if store is not None and (Path(store) / "scene_points.parquet").is_file():
+        from fuse.pointcloud import read_scene_points
+
+        cloud = read_scene_points(Path(store) / "scene_points.parquet")
+        points, colours = cloud.points, cloud.colors
+    if rec is None:
+        rec = open_scene_recording(rrd, scene)
+        rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)  # the 3D view's origin
+    charts = sorted({(r["map"], r["protocol"]) for r in summary.to_pylist() if r["map"] in maps})
+    if own:
+        rec.send_blueprint(evaluation_blueprint(charts))
+    log_evaluation(
+        rec, attempts, summary, maps, scene=scene, gt=gt, scene_points=points,
+        scene_colours=colours,
+    )  # fmt: skip
     if own:
         rec.flush()
         rec.disconnect()

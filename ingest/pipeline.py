@@ -184,6 +184,7 @@ def _open_logger(config: IngestConfig, frames: RecordingFrames) -> Any:
         every=config.rrd_every,
         world_frame=frames.world_frame or "map",
         camera_frame=frames.camera_frame or "camera_optical_frame",
+        scene=Path(config.out).name,
     )
 
 

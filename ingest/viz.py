@@ -1,10 +1,16 @@
-"""Rerun logging of an ingest run (``care ingest ... --rrd PATH``).
+"""Rerun logging of an ingest run (``care ingest ... --rrd PATH``) and its blueprint.
 
-Everything lies on the ``stamp`` timeline. Named transform frames mirror the recording's TF
-names: the world entity is in the world frame (e.g. ``map``), a Transform3D relates it to
-the camera's optical frame (e.g. ``camera_optical_frame``), and the pinhole relates that to
-the image plane (``<camera frame>/image``), so the viewer shows the same frame names as
-``tf2`` would.
+Everything lies on the ``stamp`` timeline and uses Rerun's entity-path transforms: the camera
+entity carries the optical-frame pose (a ``Transform3D`` relative to ``world``, z up) and the
+``Pinhole`` (RDF optical axes), and its children ``rgb`` (JPEG) and ``depth`` (16-bit PNG,
+millimetres) are images in that pinhole's image plane. A 2D view whose origin is the camera
+entity therefore has the pinhole as its root, which is what the viewer needs to draw camera
+images without an error. The recording's TF names (world and optical frame) are drawn as a
+small graph, since the entity paths are the viewer's frames, not TF's.
+
+The back-projected points of every Nth frame go to their own entity per frame
+(``world/map/<n>``) so the 3D view builds the map up as time advances instead of replacing it;
+the trajectory is logged as the path so far at every frame.
 """
 
 from __future__ import annotations
@@ -14,40 +20,71 @@ from pathlib import Path
 
 import numpy as np
 import rerun as rr
+import rerun.blueprint as rrb
 
 from care.frames import Frame
 from care.geometry import backproject, transform_points
-from care.viz import open_recording, set_stamp
+from care.viz import depth_png, jpeg, open_scene_recording, panels, set_stamp
 
 __all__ = [
     "CAMERA_ENTITY",
     "DEPTH_ENTITY",
-    "IMAGE_ENTITY",
-    "POINTS_ENTITY",
+    "MAP_ENTITY",
     "RGB_ENTITY",
+    "TF_ENTITY",
     "TRAJECTORY_ENTITY",
-    "TRANSFORM_ENTITY",
     "IngestLogger",
+    "ingest_blueprint",
 ]
 
-WORLD_ENTITY = "world"
-TRANSFORM_ENTITY = "world/tf/camera"
 CAMERA_ENTITY = "world/camera"
-IMAGE_ENTITY = "world/camera/image"
-RGB_ENTITY = "world/camera/image/rgb"
-DEPTH_ENTITY = "world/camera/image/depth"
-POINTS_ENTITY = "world/points"
+"""Camera pose (Transform3D) and intrinsics (Pinhole): the root of the 2D camera views."""
+RGB_ENTITY = "world/camera/rgb"
+DEPTH_ENTITY = "world/camera/depth"
+MAP_ENTITY = "world/map"
+"""Parent of ``world/map/<frame index>``: the back-projected points of every Nth frame."""
 TRAJECTORY_ENTITY = "world/trajectory"
+TF_ENTITY = "tf"
+"""The recording's TF frames as a graph (world frame -> optical frame -> image)."""
 
 _POINT_STRIDE = 4
 """Pixels between back-projected points (16x fewer points than pixels)."""
+_DEPTH_RANGE_M = (0.0, 6.0)
+"""Colour range of the depth view; indoor RGB-D cameras see a few metres."""
+
+
+def ingest_blueprint(world_frame: str = "map", camera_frame: str = "camera_optical_frame"):
+    """Layout of an ingest recording: camera image and depth side by side on top, the 3D map
+    building up beside the TF tree below; the time panel open to scrub through the frames."""
+    return rrb.Blueprint(
+        rrb.Vertical(
+            rrb.Horizontal(
+                rrb.Spatial2DView(origin=CAMERA_ENTITY, contents=RGB_ENTITY, name="camera rgb"),
+                rrb.Spatial2DView(
+                    origin=CAMERA_ENTITY, contents=DEPTH_ENTITY, name="camera depth (m)"
+                ),
+            ),
+            rrb.Horizontal(
+                rrb.Spatial3DView(
+                    origin="world",
+                    contents=["+ world/**", f"- {RGB_ENTITY}", f"- {DEPTH_ENTITY}"],
+                    name="3D: map so far, trajectory, camera",
+                ),
+                rrb.GraphView(origin=TF_ENTITY, name=f"TF: {world_frame} -> {camera_frame}"),
+                column_shares=[3, 1],
+            ),
+            row_shares=[1, 1],
+        ),
+        *panels(time=True),
+    )
 
 
 class IngestLogger:
     """Logs frames as they are ingested into a temporary file.
 
-    :meth:`close` writes the trajectory and flushes; then :meth:`keep` renames the file
-    into place (or :meth:`discard` removes it after a failed run).
+    :meth:`close` flushes; then :meth:`keep` renames the file into place (or :meth:`discard`
+    removes it after a failed run). ``scene`` names the recording (default: the file's name
+    up to its first dot), so the scene's other files merge with it in the viewer.
     """
 
     def __init__(
@@ -57,45 +94,29 @@ class IngestLogger:
         every: int = 10,
         world_frame: str = "map",
         camera_frame: str = "camera_optical_frame",
+        scene: str | None = None,
     ) -> None:
         self.path = Path(rrd_path)
         self.tmp = self.path.with_name(f".{self.path.name}.tmp-{os.getpid()}")
-        self.rec = open_recording("care-ingest", self.tmp)
+        self.scene = scene or self.path.name.split(".")[0]
+        self.rec = open_scene_recording(self.tmp, self.scene)
         self.every = max(1, int(every))
         self.world_frame = world_frame or "map"
         self.camera_frame = camera_frame or "camera_optical_frame"
-        self.image_frame = f"{self.camera_frame}/image"
         self._positions: list[np.ndarray] = []
-        self._last_stamp = 0
         self._static_done = False
 
-    def _log_static(self) -> None:
+    def _log_static(self, frame: Frame) -> None:
         rec = self.rec
-        world = rr.CoordinateFrame(self.world_frame)
-        rec.log(WORLD_ENTITY, world, static=True)
-        for entity in (POINTS_ENTITY, TRAJECTORY_ENTITY):
-            rec.log(entity, world, static=True)
-        rec.log(CAMERA_ENTITY, rr.CoordinateFrame(self.camera_frame), static=True)
-        rec.log(IMAGE_ENTITY, rr.CoordinateFrame(self.image_frame), static=True)
-        for entity in (RGB_ENTITY, DEPTH_ENTITY):
-            rec.log(entity, rr.CoordinateFrame(self.image_frame), static=True)
-        self._static_done = True
-
-    def log(self, index: int, frame: Frame) -> None:
-        """Log frame number ``index`` (0-based) of the run."""
-        if not self._static_done:
-            self._log_static()
-        rec = self.rec
-        set_stamp(rec, frame.stamp_ns)
-        T = np.asarray(frame.cam_to_world, np.float64)
+        rec.send_blueprint(ingest_blueprint(self.world_frame, self.camera_frame))
+        names = [self.world_frame, self.camera_frame, f"{self.camera_frame} image"]
         rec.log(
-            TRANSFORM_ENTITY,
-            rr.Transform3D(
-                translation=T[:3, 3],
-                mat3x3=T[:3, :3],
-                parent_frame=self.world_frame,
-                child_frame=self.camera_frame,
+            TF_ENTITY,
+            rr.GraphNodes(
+                node_ids=names, labels=names, positions=[(0.0, -80.0 * i) for i in range(3)]
             ),
+            rr.GraphEdges(edges=[names[:2], names[1:]], graph_type="directed"),
+            static=True,
         )
         rec.log(
             CAMERA_ENTITY,
@@ -105,29 +126,46 @@ class IngestLogger:
                 height=frame.height,
                 camera_xyz=rr.ViewCoordinates.RDF,
                 image_plane_distance=0.3,
-                parent_frame=self.camera_frame,
-                child_frame=self.image_frame,
+            ),
+            static=True,
+        )
+        self._static_done = True
+
+    def log(self, index: int, frame: Frame) -> None:
+        """Log frame number ``index`` (0-based) of the run."""
+        if not self._static_done:
+            self._log_static(frame)
+        rec = self.rec
+        set_stamp(rec, frame.stamp_ns)
+        T = np.asarray(frame.cam_to_world, np.float64)
+        rec.log(CAMERA_ENTITY, rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]))
+        rec.log(RGB_ENTITY, rr.EncodedImage(contents=jpeg(frame.rgb), media_type="image/jpeg"))
+        rec.log(
+            DEPTH_ENTITY,
+            rr.EncodedDepthImage(
+                depth_png(frame.depth_m),
+                media_type="image/png",
+                meter=1000.0,
+                colormap="turbo",
+                depth_range=[r * 1000.0 for r in _DEPTH_RANGE_M],
             ),
         )
-        rec.log(RGB_ENTITY, rr.Image(frame.rgb))
-        rec.log(DEPTH_ENTITY, rr.DepthImage(frame.depth_m, meter=1.0))
         self._positions.append(T[:3, 3].copy())
-        self._last_stamp = frame.stamp_ns
+        if len(self._positions) >= 2:  # the path so far, so any time shows where it has been
+            rec.log(
+                TRAJECTORY_ENTITY,
+                rr.LineStrips3D([np.asarray(self._positions)], colors=[(255, 170, 0)]),
+            )
         if index % self.every == 0:
             points, pixels = backproject(frame.depth_m, frame.K, stride=_POINT_STRIDE)
             colours = frame.rgb[pixels[:, 1], pixels[:, 0]]
-            rec.log(POINTS_ENTITY, rr.Points3D(transform_points(T, points), colors=colours))
-            self._log_trajectory()
-
-    def _log_trajectory(self) -> None:
-        if len(self._positions) >= 2:
-            self.rec.log(TRAJECTORY_ENTITY, rr.LineStrips3D([np.asarray(self._positions)]))
+            rec.log(
+                f"{MAP_ENTITY}/{index}",
+                rr.Points3D(transform_points(T, points), colors=colours, radii=0.015),
+            )
 
     def close(self) -> None:
-        """Log the whole trajectory at the last stamp and flush the file."""
-        if self._positions:
-            set_stamp(self.rec, self._last_stamp)
-            self._log_trajectory()
+        """Flush the file."""
         self.rec.flush()
         self.rec.disconnect()
 

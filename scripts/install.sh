@@ -1,11 +1,15 @@
 #!/usr/bin/env bash
-# One install for a fresh machine of this kind: the system library open3d needs, the CPU
-# torch wheel (any other torch pin pulls gigabytes of CUDA packages), then the project.
+# One install for a fresh machine of this kind: the system libraries (libusb for open3d;
+# Mesa's software Vulkan driver so the Rerun viewer can render headless in the viewer test),
+# the CPU torch wheel (any other torch pin pulls gigabytes of CUDA packages), then the project.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-if ! ldconfig -p 2>/dev/null | grep -q libusb-1.0; then
+APT=()
+ldconfig -p 2>/dev/null | grep -q libusb-1.0 || APT+=(libusb-1.0-0)
+ls /usr/share/vulkan/icd.d/lvp_icd*.json >/dev/null 2>&1 || APT+=(mesa-vulkan-drivers)
+if [ ${#APT[@]} -gt 0 ]; then
     SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO="sudo"
-    $SUDO apt-get update -qq && $SUDO apt-get install -y -qq libusb-1.0-0 >/dev/null
+    $SUDO apt-get update -qq && $SUDO apt-get install -y -qq "${APT[@]}" >/dev/null
 fi
 python3 -m pip install -q torch==2.13.0
 python3 -m pip install -q -e ".[dev]"

@@ -36,8 +36,11 @@ def test_care_run_on_the_bundled_sample(tmp_path: Path) -> None:
     assert "rerun " in done.stdout
     assert (out / "eval" / "results.md").is_file()
     counts = rrd_entity_counts(out / "scene_000.eval.rrd")
-    assert counts[("/eval/log", "TextLog:text")] >= 20
-    assert any(path.startswith("/world/eval/instances/first") for path, _ in counts)
-    scalars = [p for p, c in counts if p.startswith("/eval/success/grid/class/min_stderr")]
-    assert scalars
-    assert sum(rrd_entity_counts(out / "scene_000.grid.rrd").values()) > 0
+    assert counts[("/eval/log", "TextLog:text")] == 29 + 23 + 23  # every query, grid included
+    assert counts[("/world/eval/first", "Points3D:positions")] >= 29 + 23 + 23
+    assert counts[("/world/eval/target/boxes", "Boxes3D:half_sizes")] == 29 + 23 + 23
+    for chart in ("grid_class", "instances_class", "instances_instance"):
+        assert counts[(f"/eval/charts/{chart}/min_stderr/confidence", "LineStrips2D:strips")]
+    for stage in ("ingest", "grid", "instances"):
+        assert sum(rrd_entity_counts(out / f"scene_000.{stage}.rrd").values()) > 0
+    assert done.stdout.count(".rrd") == 4

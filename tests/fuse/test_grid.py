@@ -346,16 +346,54 @@ def test_rerun_layers_and_blueprint(tmp_path: Path) -> None:
 
     from care.store import Store
     from care.viz import rrd_entity_counts
-    from fuse.viz_grid import GRID_CELLS_3D, MEASURE_LAYERS, map_blueprint, measure_layers
+    from fuse.grid import grid_image
+    from fuse.viz_grid import (
+        GRID_CELLS_3D,
+        MEASURE_LAYERS,
+        confidence_layer,
+        default_class,
+        log_grid,
+        map_blueprint,
+        measure_layers,
+    )
 
     store = _store(tmp_path / "s")
     rrd = tmp_path / "grid.rrd"
     cells = read_table(build_grid(store, GridConfig(cell_size=0.1), rrd=rrd))
+    target = default_class(cells)
+    assert target in NAMES
     counts = rrd_entity_counts(rrd)
-    for name in ("rgb", *MEASURE_LAYERS):
-        assert counts[(f"/grid/{name}", "Image:buffer")] == 1
+    assert counts[("/grid/rgb/value", "Image:buffer")] == 1
+    layers = [confidence_layer(target), *MEASURE_LAYERS[1:]]
+    for name in layers:  # real values (hover shows them), with an overlay of their status
+        assert counts[(f"/grid/{name}/value", "DepthImage:buffer")] == 1
+        assert counts[(f"/grid/{name}/status", "SegmentationImage:buffer")] == 1
     assert counts[(f"/{GRID_CELLS_3D}", "Points3D:positions")] == 1
     assert RrdReader(rrd).blueprints()
+    # the stderr layer read back is the cells' stderr column, cell for cell; NaN off the map
+    chunks = [c for c in RrdReader(rrd).stream() if str(c.entity_path) == "/grid/stderr/value"]
+    batch = chunks[0].to_record_batch()
+    buffer = np.asarray(batch.column("DepthImage:buffer").to_pylist()[0][0], np.uint8)
+    layout = GridLayout.from_table(cells)
+    logged = np.frombuffer(buffer.tobytes(), np.float32).reshape(layout.shape[1], layout.shape[0])
+    ix, iy = cells.column("ix").to_numpy(), cells.column("iy").to_numpy()
+    expected = grid_image(ix, iy, cells.column("stderr").to_numpy(), layout.shape)
+    finite = np.isfinite(expected)
+    np.testing.assert_allclose(logged[finite], expected[finite], rtol=1e-6)
+    assert np.isnan(logged[~finite]).all()
+    # +inf (a single view) and unobserved are told apart by the status overlay
+    chunks = [c for c in RrdReader(rrd).stream() if str(c.entity_path) == "/grid/stderr/status"]
+    buffer = chunks[0].to_record_batch().column("SegmentationImage:buffer").to_pylist()[0][0]
+    status = np.asarray(buffer, np.uint8).reshape(logged.shape)
+    assert np.isposinf(expected).any()
+    np.testing.assert_array_equal(status == 2, np.isposinf(expected))
+    np.testing.assert_array_equal(status == 1, np.isnan(expected))
+    # several classes (the evaluation's query classes): a layer each, values P_c[class]
+    many = tmp_path / "many.rrd"
+    log_grid(store, many, target=["chair", "sofa"])
+    counts = rrd_entity_counts(many)
+    for name in ("chair", "sofa"):
+        assert counts[(f"/grid/{confidence_layer(name)}/value", "DepthImage:buffer")] == 1
     # the confidence layers of all classes sum to one on occupied cells, NaN elsewhere
     total = sum(measure_layers(Store(store), cells, name)["confidence"] for name in NAMES)
     occupied = np.isfinite(total)

@@ -272,8 +272,12 @@ def test_build_instances_labels(room: Path, tmp_path: Path) -> None:
         == 15
     )
     counts = rrd_entity_counts(rrd)
-    assert counts[("/world/instances/boxes", "Boxes3D:half_sizes")] == 1
-    assert any(e.startswith("/world/views/") for e, _ in counts)
+    for i in range(3):  # one entity per instance, one step of the instance timeline each
+        assert counts[(f"/world/instances/{i}", "Boxes3D:half_sizes")] == 1
+        assert counts[(f"/world/segments/{i}", "Points3D:positions")] == 1
+    assert counts[("/instance", "TextDocument:text")] == 3
+    assert counts[("/world/chosen/0/image", "EncodedImage:blob")] == 3
+    assert counts[("/world/chosen/0", "Pinhole:image_from_camera")] == 3
     assert ("/world/scene/rgb", "Points3D:positions") in counts
 
 

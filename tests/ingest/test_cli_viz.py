@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from rerun.chunk import RrdReader
+
 from care.store import Store
 from care.viz import rrd_entity_counts
 from ingest import viz
@@ -21,14 +23,15 @@ def test_ingest_logs_rerun_entities(run_cli, tmp_path: Path, h) -> None:
     assert Store(tmp_path / "store").num_views == 7
     counts = rrd_entity_counts(rrd)
     e = lambda name: "/" + name  # noqa: E731
-    assert counts[(e(viz.RGB_ENTITY), "Image:buffer")] == 7
-    assert counts[(e(viz.DEPTH_ENTITY), "DepthImage:meter")] == 7
-    assert counts[(e(viz.CAMERA_ENTITY), "Pinhole:image_from_camera")] == 7
-    assert counts[(e(viz.TRANSFORM_ENTITY), "Transform3D:translation")] == 7
-    assert counts[(e(viz.TRANSFORM_ENTITY), "Transform3D:child_frame")] == 7
-    assert counts[(e(viz.POINTS_ENTITY), "Points3D:positions")] == 3  # frames 0, 3, 6
-    # trajectory so far at frames 3 and 6, then the whole one at the end
-    assert counts[(e(viz.TRAJECTORY_ENTITY), "LineStrips3D:strips")] == 3
+    assert counts[(e(viz.RGB_ENTITY), "EncodedImage:blob")] == 7
+    assert counts[(e(viz.DEPTH_ENTITY), "EncodedDepthImage:blob")] == 7
+    assert counts[(e(viz.CAMERA_ENTITY), "Pinhole:image_from_camera")] == 1  # static
+    assert counts[(e(viz.CAMERA_ENTITY), "Transform3D:translation")] == 7
+    for index in (0, 3, 6):  # the map builds up: one entity per logged frame
+        assert counts[(e(f"{viz.MAP_ENTITY}/{index}"), "Points3D:positions")] == 1
+    # the path so far from the second frame on
+    assert counts[(e(viz.TRAJECTORY_ENTITY), "LineStrips3D:strips")] == 6
+    assert RrdReader(rrd).blueprints()
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
 
