@@ -441,15 +441,22 @@ def output_lock(out: Path, *, wait: bool = True) -> Iterator[None]:
 
 @contextlib.contextmanager
 def owned_output(out: Path, kind: str, inputs: Iterable[Path] = ()) -> Iterator[Path]:
-    """Check ``out`` (:func:`check_output`), lock it, create and mark it; yield it."""
+    """Check ``out`` (:func:`check_output`), lock it, create and mark it; yield it. A
+    directory this call created is removed again if the work inside fails."""
     out = Path(out)
     check_output(out, kind=kind, inputs=inputs)
     with output_lock(out):
         check_output(out, kind=kind, inputs=inputs)
+        created = not out.exists()
         out.mkdir(parents=True, exist_ok=True)
         if not is_ours(out, kind):
             write_marker(out, kind)
-        yield out
+        try:
+            yield out
+        except BaseException:
+            if created:  # made by this run, which failed: leave nothing behind
+                remove_path(out)
+            raise
 
 
 def evaluation_output(

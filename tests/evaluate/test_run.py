@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -10,6 +11,8 @@ import pytest
 
 from care.viz import rrd_entity_counts
 from evaluate.pipeline import SAMPLE
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.mark.slow
@@ -44,3 +47,12 @@ def test_care_run_on_the_bundled_sample(tmp_path: Path) -> None:
     for stage in ("ingest", "grid", "instances"):
         assert sum(rrd_entity_counts(out / f"scene_000.{stage}.rrd").values()) > 0
     assert done.stdout.count(".rrd") == 4
+    # the README's Python example runs as written, against this output
+    readme = (ROOT / "README.md").read_text()
+    example = readme.split("From Python, the call a robot stack makes live")[1]
+    code = example.split("```python\n", 1)[1].split("```", 1)[0]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    ran = subprocess.run(
+        [sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True
+    )
+    assert ran.returncode == 0, ran.stderr[-2000:]
