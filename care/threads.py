@@ -22,6 +22,7 @@ keeps near-ties deterministic across workers (``evaluate.job``).
 from __future__ import annotations
 
 import os
+import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from enum import Enum
@@ -83,10 +84,13 @@ def thread_count(work: Work) -> int:
 
 
 def _set(n: int) -> None:
-    import torch
     from threadpoolctl import threadpool_limits
 
-    torch.set_num_threads(n)
+    # torch is not imported for it (a second or more of start-up a command may not need):
+    # imported later, it sizes its pool from OMP_NUM_THREADS; imported already, it is set
+    os.environ["OMP_NUM_THREADS"] = str(n)
+    if "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(n)
     # BLAS libraries loaded later (a lazily imported module) start at their own default, so
     # numpy and scipy are imported first: their BLAS is what the array work here calls
     import numpy  # noqa: F401

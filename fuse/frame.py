@@ -10,7 +10,6 @@ outputs agree. ``care fuse ... --up-axis/--floor-z`` replaces it (and so rebuild
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +17,7 @@ import pyarrow.parquet as pq
 
 from care.geometry import backproject, transform_points
 from care.mapframe import MapFrame, UpAxis, estimate_map_frame
+from care.outputs import atomic_write_text
 from care.store import MAP_FRAME_FILE, Store, decode_png
 
 __all__ = [
@@ -84,12 +84,7 @@ def ensure_map_frame(
             pass  # unreadable: found again below
     points, poses = sample_points(store)
     frame = estimate_map_frame(points, poses, up_axis=up_axis, floor=floor_z)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        tmp.write_text(json.dumps({"options": options, "frame": frame.as_json()}, indent=2))
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    atomic_write_text(path, json.dumps({"options": options, "frame": frame.as_json()}, indent=2))
     return frame
 
 

@@ -19,7 +19,6 @@ grid and ``origin`` is the grid's origin.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +26,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 from PIL import Image
+
+from care.outputs import staged
 
 __all__ = [
     "FREE",
@@ -66,12 +67,9 @@ def occupancy_image(
 
 
 def _replace_atomic(path: Path, write: Callable[[Path], object]) -> None:
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
+    with staged(path) as tmp:
         write(tmp)
         tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 def write_ros_map(

@@ -90,8 +90,9 @@ def _jsonable(obj: Any) -> Any:
     return json.loads(json.dumps(obj, default=str))
 
 
-def fingerprint(config: IngestConfig, encoder: Encoder | None, source: dict[str, Any]) -> str:
-    """Hash of everything the store's content depends on (not where outputs go)."""
+def _digest(config: IngestConfig, source: dict[str, Any], encoder_key: dict[str, Any]) -> str:
+    """sha256 of what every store depends on (inputs and options, not where outputs go) and
+    ``encoder_key``: what identifies the encoder."""
     options = asdict(config.encoder_options)
     options.pop("device", None)
     options.pop("batch_size", None)
@@ -101,13 +102,22 @@ def fingerprint(config: IngestConfig, encoder: Encoder | None, source: dict[str,
         "source": source,
         "read": asdict(config.read),
         "select": asdict(config.select),
-        "encoder": None
-        if encoder is None
-        else {"name": encoder.name, "version": encoder.version, "dim": encoder.dim},
-        "encoder_options": options if encoder is not None else None,
+        "encoder_options": options if encoder_key["encoder"] is not None else None,
         "vocabulary": config.vocabulary,
+        **encoder_key,
     }
     return hashlib.sha256(json.dumps(_jsonable(key), sort_keys=True).encode()).hexdigest()
+
+
+def fingerprint(config: IngestConfig, encoder: Encoder | None, source: dict[str, Any]) -> str:
+    """Hash of everything the store's content depends on, the built encoder's identity
+    (name, version, dimension) included."""
+    built = (
+        None
+        if encoder is None
+        else {"name": encoder.name, "version": encoder.version, "dim": encoder.dim}
+    )
+    return _digest(config, source, {"encoder": built})
 
 
 def request_fingerprint(config: IngestConfig, source: dict[str, Any]) -> str:
@@ -117,10 +127,7 @@ def request_fingerprint(config: IngestConfig, source: dict[str, Any]) -> str:
     torch or loading a model (under a second)."""
     from importlib.metadata import PackageNotFoundError, version
 
-    options = asdict(config.encoder_options)
-    options.pop("device", None)
-    options.pop("batch_size", None)
-    weights = options.get("weights")
+    weights = config.encoder_options.weights
     digest = None
     if weights is not None and Path(weights).expanduser().is_dir():
         from care.encoders.record import weights_digest
@@ -130,19 +137,16 @@ def request_fingerprint(config: IngestConfig, source: dict[str, Any]) -> str:
         runtime = {"transformers": version("transformers"), "torch": version("torch")}
     except PackageNotFoundError:
         runtime = {}
-    key = {
-        "ingest_version": INGEST_VERSION,
-        "schema_version": SCHEMA_VERSION,
-        "source": source,
-        "read": asdict(config.read),
-        "select": asdict(config.select),
-        "encoder": config.encoder,
-        "encoder_options": options if config.encoder is not None else None,
-        "weights_digest": digest,
-        "runtime": runtime if config.encoder is not None else None,
-        "vocabulary": config.vocabulary,
-    }
-    return hashlib.sha256(json.dumps(_jsonable(key), sort_keys=True).encode()).hexdigest()
+    named = config.encoder is not None
+    return _digest(
+        config,
+        source,
+        {
+            "encoder": config.encoder,
+            "weights_digest": digest,
+            "runtime": runtime if named else None,
+        },
+    )
 
 
 def _up_to_date(config: IngestConfig, fp: str, key: str = "fingerprint") -> bool:

@@ -56,3 +56,23 @@ def test_care_run_on_the_bundled_sample(tmp_path: Path) -> None:
         [sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True
     )
     assert ran.returncode == 0, ran.stderr[-2000:]
+    # 1,000 class and free-text queries over the sample's grid, as one batch
+    import polars as pl
+
+    store = out / "stores" / "scene_000"
+    classes = ["chair", "bed", "sofa", "sink", "toilet", "refrigerator", "lamp", "table"]
+    free = ["somewhere to sit", "a place to sleep", "where I wash my hands", "a cold box"]
+    lines = [classes[i % 8] if i % 2 else f"{free[i % 4]} {i % 9}" for i in range(1000)]
+    (tmp_path / "queries.txt").write_text("\n".join(lines) + "\n")
+    batch = subprocess.run(
+        [*cmd[:3], "query", str(store), "--map", "grid", "--batch", str(tmp_path / "queries.txt")],
+        capture_output=True, text=True, timeout=900,
+    )  # fmt: skip
+    assert batch.returncode == 0, batch.stderr[-2000:]
+    assert "ms a query" in batch.stdout
+    answers = pl.read_parquet(tmp_path / "queries.answers.parquet")
+    assert answers["query_index"].n_unique() == 1000
+    first = answers.filter((pl.col("strategy") == "ranking") & (pl.col("attempt") == 1))
+    assert first.filter(pl.col("query") == "chair")["method"].unique().to_list() == ["vocabulary"]
+    free_rows = first.filter(pl.col("query") == "somewhere to sit 0")
+    assert free_rows["method"][0].startswith("joins the vocabulary")

@@ -5,7 +5,6 @@ from labelled points, and rooms from plain dicts. Every failure is one
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -13,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from care.errors import GroundTruthError
+from care.outputs import staged
 from truth.model import GroundTruth, Room, instances_table
 
 __all__ = [
@@ -132,12 +132,9 @@ def write_atomic(path: Path, write: Callable[[Path], None]) -> None:
     """Run ``write(tmp)`` and rename the temporary file into ``path``."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
+    with staged(path) as tmp:
         write(tmp)
         tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 def write_text(path: Path, text: str) -> None:
