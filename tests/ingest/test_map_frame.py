@@ -144,3 +144,29 @@ def test_cli_up_axis_option_replaces_the_frame(stores) -> None:
     frame = ensure_map_frame(stores["ros1"], UpAxis.NY)
     assert frame.up == (0.0, -1.0, 0.0)
     assert frame.method == "given"
+
+
+def test_cli_no_floor_is_one_line_and_no_map(tmp_path: Path, h) -> None:
+    """A camera looking at a wall (the synthetic tilted plane, no floor in view): one line
+    naming --up-axis, exit 1, no map; with the axis given the grid is built."""
+    import subprocess
+    import sys
+
+    rec = write_recording(tmp_path / "wall.mcap", h.synthetic_frames(6), fmt="mcap")
+    store = run_ingest(
+        IngestConfig(recording=rec, out=tmp_path / "store", progress=False, vocabulary="a,b"),
+        encoder=h.TinyEncoder(),
+    )
+    care = [sys.executable, "-m", "care_cli.main", "fuse", "grid", str(store)]
+    done = subprocess.run(care, capture_output=True, text=True)
+    assert done.returncode == 1
+    lines = [ln for ln in done.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, done.stderr
+    assert "no floor found" in lines[0]
+    assert "--up-axis" in lines[0]
+    assert not (store / "cells.parquet").exists()
+    given = subprocess.run(
+        [*care, "--up-axis", "+z", "--floor-z", "0", "--z-max", "4"], capture_output=True, text=True
+    )
+    assert given.returncode == 0, given.stderr[-1500:]
+    assert (store / "cells.parquet").is_file()
