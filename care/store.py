@@ -281,7 +281,10 @@ def read_schema(path: Path) -> pa.Schema:
     if not path.is_file():
         msg = f"{path}: no such table; build it first (see `care --help`)."
         raise StoreError(msg)
-    schema = pq.read_schema(path)
+    if damaged(path.parent, [path.name], checksum=False):
+        raise damaged_table(path)
+    with reading(path):
+        schema = pq.read_schema(path)
     _check_version(schema, path)
     return schema
 

@@ -27,7 +27,15 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from enum import Enum
 
-__all__ = ["ENV_VAR", "THREADS", "Work", "thread_count", "threads_for", "use_threads"]
+__all__ = [
+    "ENV_VAR",
+    "THREADS",
+    "Work",
+    "sync_torch",
+    "thread_count",
+    "threads_for",
+    "use_threads",
+]
 
 ENV_VAR = "CARE_THREADS"
 """Environment variable that overrides every thread count (0 = all cores)."""
@@ -83,14 +91,25 @@ def thread_count(work: Work) -> int:
     return _cores() if n is None else n
 
 
+_PROCESS_THREADS: int | None = None
+"""The count :func:`use_threads` chose for this process (applied to torch when it arrives)."""
+
+
+def sync_torch() -> None:
+    """Give torch the process's thread count; called by modules right after ``import torch``
+    (torch is not imported just to size its pool: a second or more of start-up that most
+    commands do not need; the OMP_NUM_THREADS variable would do it, but with it set an
+    interrupted run is killed by its SIGINT instead of exiting with 130)."""
+    if _PROCESS_THREADS is not None and "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(_PROCESS_THREADS)
+
+
 def _set(n: int) -> None:
     from threadpoolctl import threadpool_limits
 
-    # torch is not imported for it (a second or more of start-up a command may not need):
-    # imported later, it sizes its pool from OMP_NUM_THREADS; imported already, it is set
-    os.environ["OMP_NUM_THREADS"] = str(n)
-    if "torch" in sys.modules:
-        sys.modules["torch"].set_num_threads(n)
+    global _PROCESS_THREADS
+    _PROCESS_THREADS = n
+    sync_torch()
     # BLAS libraries loaded later (a lazily imported module) start at their own default, so
     # numpy and scipy are imported first: their BLAS is what the array work here calls
     import numpy  # noqa: F401

@@ -33,7 +33,10 @@ import numpy as np
 import pyarrow as pa
 import torch
 
+from care.threads import sync_torch
 from fuse.measures import PROB_FLOOR, candidate_columns, pwkl_comoment, stderr_from_moments
+
+sync_torch()  # the process's thread count, now that torch is here (care.threads)
 
 __all__ = ["COLUMN_CHUNK", "CandidateSums"]
 

@@ -73,6 +73,6 @@ def test_care_run_on_the_bundled_sample(tmp_path: Path) -> None:
     answers = pl.read_parquet(tmp_path / "queries.answers.parquet")
     assert answers["query_index"].n_unique() == 1000
     first = answers.filter((pl.col("strategy") == "ranking") & (pl.col("attempt") == 1))
-    assert first.filter(pl.col("query") == "chair")["method"].unique().to_list() == ["vocabulary"]
+    assert first.filter(pl.col("query") == "bed")["method"].unique().to_list() == ["vocabulary"]
     free_rows = first.filter(pl.col("query") == "somewhere to sit 0")
     assert free_rows["method"][0].startswith("joins the vocabulary")

@@ -279,7 +279,7 @@ def test_fuse_store_directory_not_writable(care, fx, copy_good) -> None:
         ),
         (
             ("replan", "{store}", "chair", "--visited", "a,b"),
-            r"expected comma-separated integers",
+            r"--visited 'a,b': give a candidate id \(12\) or a map position x,y",
             1,
         ),
         (("replan", "{store}", "chair", "-k", "0", "--visited", "0"), r"'-k'", 2),
@@ -434,12 +434,12 @@ def test_check_a_path_that_is_no_store(care, fx, tmp_path: Path) -> None:
 def test_unexpected_error_is_one_line_and_a_traceback_file(
     care, fx, good: Path, monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:
-    import query
+    from query.openvocab import QueryTarget
 
     def broken(*args, **kwargs):
         raise ZeroDivisionError("a bug")
 
-    monkeypatch.setattr(query, "confidence", broken)
+    monkeypatch.setattr(QueryTarget, "confidence", broken)
     monkeypatch.setenv("CARE_TRACEBACK_DIR", str(tmp_path))
     code, _, err = care("query", good / "store", "chair")
     line = fx.assert_fault(
