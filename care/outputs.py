@@ -30,7 +30,7 @@ import os
 import re
 import shutil
 import sys
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -55,6 +55,7 @@ __all__ = [
     "remove_path",
     "staged",
     "sweep_stale",
+    "write_atomic",
     "write_marker",
 ]
 
@@ -192,6 +193,16 @@ def staged(path: Path, *, directory: bool = False) -> Iterator[Path]:
             raise disk_full(path, written, err) from err  # type: ignore[arg-type]
         raise
     remove_path(tmp)
+
+
+def write_atomic(path: Path, write: Callable[[Path], object]) -> None:
+    """Run ``write(tmp)`` on a staged temporary of ``path`` and rename it into place (the
+    parent is created; nothing is left behind on failure)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with staged(path) as tmp:
+        write(tmp)
+        tmp.replace(path)
 
 
 def atomic_write_text(path: Path, text: str) -> None:

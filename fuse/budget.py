@@ -13,7 +13,7 @@ import os
 
 from care.errors import FuseError
 
-__all__ = ["available_memory", "check_cells", "check_raster"]
+__all__ = ["available_memory", "check_raster"]
 
 _SHARE = 0.8
 """Fraction of the available memory one structure may take."""
@@ -33,19 +33,6 @@ def available_memory() -> int:
 
 def _gib(n: float) -> str:
     return f"{n / 2**30:.1f} GiB"
-
-
-def check_cells(num_cells: int, bytes_per_cell: int, cell_size: float) -> None:
-    """Refuse growing the running sums to ``num_cells`` cells when that cannot fit."""
-    need = num_cells * bytes_per_cell
-    free = available_memory()
-    if need > _SHARE * free:
-        msg = (
-            f"--cell-size {cell_size}: the grid already has {num_cells} cells, needing "
-            f"{_gib(need)} for its sums, more than the {_gib(free)} of memory available; "
-            "raise --cell-size (or --stride)"
-        )
-        raise FuseError(msg)
 
 
 def check_raster(shape: tuple[int, ...], itemsize: int, cell_size: float | None = None) -> None:

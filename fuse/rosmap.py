@@ -19,7 +19,6 @@ grid and ``origin`` is the grid's origin.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,7 +26,7 @@ import numpy as np
 import yaml
 from PIL import Image
 
-from care.outputs import staged
+from care.outputs import write_atomic
 
 __all__ = [
     "FREE",
@@ -66,12 +65,6 @@ def occupancy_image(
     return image
 
 
-def _replace_atomic(path: Path, write: Callable[[Path], object]) -> None:
-    with staged(path) as tmp:
-        write(tmp)
-        tmp.replace(path)
-
-
 def write_ros_map(
     image: np.ndarray,
     cell_size: float,
@@ -89,7 +82,7 @@ def write_ros_map(
     thresholds = thresholds or RosMapThresholds()
     directory = Path(directory)
     pgm, spec = directory / f"{stem}.pgm", directory / f"{stem}.yaml"
-    _replace_atomic(pgm, lambda p: Image.fromarray(image, mode="L").save(p, format="PPM"))
+    write_atomic(pgm, lambda p: Image.fromarray(image, mode="L").save(p, format="PPM"))
     fields = {
         "image": pgm.name,
         "mode": "trinary",
@@ -99,7 +92,7 @@ def write_ros_map(
         "occupied_thresh": thresholds.occupied_thresh,
         "free_thresh": thresholds.free_thresh,
     }
-    _replace_atomic(
+    write_atomic(
         spec,
         lambda p: p.write_text(yaml.safe_dump(fields, sort_keys=False, default_flow_style=None)),
     )

@@ -133,16 +133,19 @@ class CandidateMap:
             raise QueryError(msg)
         return getattr(self, name)
 
+    def find_class(self, name: str) -> int | None:
+        """Index of a class name in the vocabulary (case-insensitive, first match), or None."""
+        return self._class_lookup.get(name.strip().lower())
+
     def class_id(self, name: str) -> int:
         """Index of a class name in the vocabulary (case-insensitive), or a QueryError."""
-        lookup = self._class_lookup
-        key = name.strip().lower()
-        if key not in lookup:
+        found = self.find_class(name)
+        if found is None:
             msg = (
                 f"{name!r} is not a class of this map's vocabulary ({len(self.vocabulary)} classes)"
             )
             raise QueryError(msg)
-        return lookup[key]
+        return found
 
     @cached_property
     def _class_lookup(self) -> dict[str, int]:

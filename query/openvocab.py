@@ -189,14 +189,13 @@ def open_queries(
     embed: Callable[[Sequence[str]], np.ndarray] | None = None,
 ) -> list[QueryTarget]:
     """:func:`open_query` for many texts, embedding the free ones in one call."""
-    lookup = {name.strip().lower(): i for i, name in reversed(list(enumerate(cmap.vocabulary)))}
     out: list[QueryTarget | None] = [None] * len(texts)
     free: list[int] = []
     for i, text in enumerate(texts):
         if not text.strip():
             msg = "empty query text; name an object or describe it"
             raise QueryError(msg)
-        class_id = lookup.get(text.strip().lower())
+        class_id = cmap.find_class(text)
         if class_id is None:
             free.append(i)
         else:

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -81,3 +83,24 @@ def _save_tiny_clip(out: Path, layers: int) -> Path:
 def save_tiny_clip():
     """``save_tiny_clip(out_dir, layers)``: write a tiny real CLIP checkpoint, return its path."""
     return _save_tiny_clip
+
+
+@pytest.fixture
+def run_cli(capsys: pytest.CaptureFixture[str]) -> Callable[..., tuple[int, str, str]]:
+    """Run ``care ARGS`` in-process through ``care_cli.main.main``: (exit code, stdout, stderr)."""
+    from care_cli import main as cli
+
+    def run(*args: str) -> tuple[int, str, str]:
+        argv = sys.argv
+        sys.argv = ["care", *map(str, args)]
+        code = 0
+        try:
+            cli.main()
+        except SystemExit as exc:
+            code = int(exc.code or 0)
+        finally:
+            sys.argv = argv
+        out, err = capsys.readouterr()
+        return code, out, err
+
+    return run

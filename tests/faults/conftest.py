@@ -83,26 +83,11 @@ def care_popen(*args: object) -> subprocess.Popen[str]:
 
 
 @pytest.fixture
-def care(capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> Callable:
-    """Run ``care ARGS`` in this process (fast): ``(exit code, stdout, stderr)``."""
-    from care_cli import main as cli
-
+def care(run_cli: Callable, monkeypatch: pytest.MonkeyPatch) -> Callable:
+    """Run ``care ARGS`` in this process (fast): ``(exit code, stdout, stderr)``, without
+    progress bars (tests/conftest.py's ``run_cli``)."""
     monkeypatch.setenv("TQDM_DISABLE", "1")
-
-    def run(*args: object) -> tuple[int, str, str]:
-        argv = sys.argv
-        sys.argv = ["care", *map(str, args)]
-        code = 0
-        try:
-            cli.main()
-        except SystemExit as exc:
-            code = int(exc.code or 0)
-        finally:
-            sys.argv = argv
-        out, err = capsys.readouterr()
-        return code, out, err
-
-    return run
+    return run_cli
 
 
 def snapshot(*roots: Path) -> dict[str, str]:

@@ -8,7 +8,6 @@ that our own writer never produces.
 from __future__ import annotations
 
 import json
-import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import SimpleNamespace
@@ -205,27 +204,6 @@ def rgbd_messages(
         if depth is not None:
             out.append(("/camera/depth/image_raw", t, depth(i, t)))
     return out
-
-
-@pytest.fixture
-def run_cli(capsys: pytest.CaptureFixture[str]) -> Callable[..., tuple[int, str, str]]:
-    """Run ``care ARGS`` in-process through ``care_cli.main.main``: (exit code, stdout, stderr)."""
-    from care_cli import main as cli
-
-    def run(*args: str) -> tuple[int, str, str]:
-        argv = sys.argv
-        sys.argv = ["care", *map(str, args)]
-        code = 0
-        try:
-            cli.main()
-        except SystemExit as exc:
-            code = int(exc.code or 0)
-        finally:
-            sys.argv = argv
-        out, err = capsys.readouterr()
-        return code, out, err
-
-    return run
 
 
 # -- real RGB-D data ---------------------------------------------------------------------

@@ -5,14 +5,13 @@ from labelled points, and rooms from plain dicts. Every failure is one
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from care.errors import GroundTruthError
-from care.outputs import staged
+from care.outputs import write_atomic
 from truth.model import GroundTruth, Room, instances_table
 
 __all__ = [
@@ -23,7 +22,6 @@ __all__ = [
     "room_of_dict",
     "room_to_dict",
     "vertices_xyz",
-    "write_atomic",
     "write_ply",
 ]
 
@@ -126,15 +124,6 @@ def field(doc: Any, key: str, path: Path, kind: type | tuple[type, ...] = object
         msg = f"{path}: field '{key}' should be {getattr(kind, '__name__', kind)}, got {type(value).__name__}"
         raise GroundTruthError(msg)
     return value
-
-
-def write_atomic(path: Path, write: Callable[[Path], None]) -> None:
-    """Run ``write(tmp)`` and rename the temporary file into ``path``."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with staged(path) as tmp:
-        write(tmp)
-        tmp.replace(path)
 
 
 def write_text(path: Path, text: str) -> None:
