@@ -20,7 +20,18 @@ import textwrap
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-__all__ = ["config_json", "field_docs", "from_recorded", "recorded_fields"]
+__all__ = ["config_json", "field_docs", "from_recorded", "member", "recorded_fields"]
+
+
+def member(kind: type[enum.Enum], value: object, error: type[Exception], what: str) -> Any:
+    """``value`` as a member of the enum ``kind`` (configs accept its values as text), or
+    ``error`` in one line that lists the choices."""
+    try:
+        return kind(value)
+    except ValueError as err:
+        choices = ", ".join(str(m.value) for m in kind)
+        msg = f"{what} {value!r}; choose one of {choices}"
+        raise error(msg) from err
 
 
 @functools.cache

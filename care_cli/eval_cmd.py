@@ -17,10 +17,12 @@ from typing import Annotated, Any, NoReturn
 
 import typer
 
-from care_cli.choices import Criterion, EncoderName, MapKind, Strategy
+from care.encoders.base import EncoderOptions
+from care_cli.choices import EncoderName, MapKind
 from care_cli.options import Options, config_options, with_choices
 from evaluate.config import EvalConfig, RunConfig
 from query.goals import GoalConfig
+from replan.attempts import ReplanConfig
 from replan.batch import BatchConfig
 
 __all__ = ["register"]
@@ -150,13 +152,13 @@ def query(
 
     if (batch is None) == (text is None):
         _fail("give either TEXT or --batch FILE")
-    config = settings.defaults_only()
+    config = settings.config()
     if batch is not None:
-        _batch(store, kind, batch, out, weights, goal.defaults_only(), config)
+        _batch(store, kind, batch, out, weights, goal.config(), config)
         return
     target = _resolve(store, kind, text, weights)
     cmap, match = target.cmap, target.match
-    goals = _goal_maker(store, goal.defaults_only())
+    goals = _goal_maker(store, goal.config())
     conf = target.confidence()
     order = rank_by_confidence(conf[None])[0][: config.top]
     rows = [
@@ -197,7 +199,7 @@ def query(
 
 
 @config_options("goal", GoalConfig, only=(_CLEARANCE,))
-@config_options("settings", BatchConfig, only=("k", "exclude_radius", "seed"), extra=_BATCH)
+@config_options("settings", ReplanConfig, extra={"k": _BATCH["k"]})
 def replan(
     store: StoreArg,
     text: TextArg,
@@ -209,13 +211,7 @@ def replan(
             "--exclude-radius of a position count as visited."
         ),
     ] = None,
-    strategy: Annotated[
-        Strategy, typer.Option(help=with_choices("Replan strategy.", Strategy))
-    ] = Strategy.MIN_STDERR,
-    criterion: Annotated[
-        Criterion, typer.Option(help=with_choices("Candidate set.", Criterion))
-    ] = Criterion.CONFIDENCE,
-    settings: Options[BatchConfig] = None,  # type: ignore[assignment]
+    settings: Options[ReplanConfig] = None,  # type: ignore[assignment]
     kind: MapOpt = MapKind.INSTANCES,
     goal: Options[GoalConfig] = None,  # type: ignore[assignment]
     weights: WeightsOpt = None,
@@ -229,12 +225,9 @@ def replan(
     ids, places = _visited(visited or [])
     target = _resolve(store, kind, text, weights)
     cmap, match = target.cmap, target.match
-    goals = _goal_maker(store, goal.defaults_only())
-    config = settings.defaults_only()
-    choice = next_goal(
-        cmap, target, ids, strategy=Strategy(strategy), criterion=Criterion(criterion),
-        k=config.k, exclude_radius=config.exclude_radius, seed=config.seed, visited_at=places,
-    )  # fmt: skip
+    goals = _goal_maker(store, goal.config())
+    config = settings.config()
+    choice = next_goal(cmap, target, ids, **dataclasses.asdict(config), visited_at=places)
     out = dataclasses.asdict(choice)
     found = choice.candidate >= 0
     out["position"] = [float(v) for v in cmap.positions[choice.candidate]] if found else None
@@ -338,7 +331,7 @@ def eval_(
     scannet, matterport, replica; see --gt and the README."""
     from evaluate.job import run_eval
 
-    config = settings.defaults_only()
+    config = settings.config()
     report = run_eval(
         dataset, config, out, workers=workers or None, ray_address=_ray_target(ray, ray_address),
         gt=tuple(gt or ()), gt_defaults=_gt_defaults(gt_format, gt_transform, gt_class_map),
@@ -369,6 +362,7 @@ _RUN = {
                                               "rrd_class"),
                 extra={**_RUN, "encoder": {"type": EncoderName}, "workers": {"min": 1},
                        "rrd_class": {"flags": ("--rrd-class",)}})  # fmt: skip
+@config_options("encoding", EncoderOptions, only=("weights", "precomputed"))
 def run(
     recording: Annotated[
         Path | None,
@@ -377,12 +371,7 @@ def run(
             "directory (index.json); default the bundled sample."
         ),
     ] = None,
-    weights: Annotated[
-        str | None, typer.Option(help="clip: weights directory (save_pretrained) or checkpoint id.")
-    ] = None,
-    precomputed: Annotated[
-        Path | None, typer.Option(help="precomputed: Parquet of per-view features.")
-    ] = None,
+    encoding: Options[EncoderOptions] = None,  # type: ignore[assignment]
     out: Annotated[Path, typer.Option(help="Output directory: stores, .rrd files, tables.")] = Path(
         "out"
     ),
@@ -400,12 +389,11 @@ def run(
     Ground truth: beside each recording by name, named in index.json, or --gt (formats:
     native, annotations, ply, scannet, matterport, replica; see `care eval --help`). A
     recording without any gets its maps and Rerun files, and is not evaluated."""
-    from care.encoders import EncoderOptions
     from evaluate.pipeline import run_all
 
     config = settings.config(
-        encoder_options=EncoderOptions(weights=weights, precomputed=precomputed),
-        evaluation=evaluation.defaults_only(),
+        encoder_options=encoding.config(),
+        evaluation=evaluation.config(),
         ray_address=_ray_target(ray, ray_address),
         gt=tuple(gt or ()),
         gt_defaults=_gt_defaults(gt_format, gt_transform, gt_class_map),
@@ -417,8 +405,7 @@ def run(
             "not evaluated (README: Evaluate on your own data)"
         )
     if result.report is not None:
-        md = result.report.markdown
-        typer.echo(md.split("## 95% bootstrap")[0].rstrip())
+        typer.echo(result.report.tables.rstrip())
         typer.echo(f"\nfull report: {out / 'eval' / 'results.md'}")
     typer.echo(f"stores: {', '.join(str(p) for p in result.stores)}")
     typer.echo(f"open the maps and every decision in Rerun:\n  {result.rerun_command()}")

@@ -94,15 +94,26 @@ def _vocabulary(value: str) -> tuple[str, ...]:
 _MAP_EXTRA = {"overwrite": {"help": "Rebuild even if an up-to-date map exists."}}
 
 
-def _recorded(store: Path, table: str, key: str) -> bytes | None:
-    """The settings a map in the store was built with (None: no such map, or none recorded)."""
+def _recompute_args(settings: Options, config: Any) -> tuple[Any, float | None]:
+    """``(vocabulary, logit_scale)`` of a ``--recompute``: None, the map's own, where not given."""
+    given = settings.given
+    return (
+        config.vocabulary if "vocabulary" in given else None,
+        config.logit_scale if "logit_scale" in given else None,
+    )
+
+
+def _recorded(store: Path, table: str, kind: str) -> bytes | None:
+    """The settings the store's ``kind`` map was built with (None: no such map, or none
+    recorded). Maps made before ``care.<kind>.settings`` existed have the same JSON as
+    their key, ``care.<kind>.config``."""
     import pyarrow.parquet as pq
 
-    path = store / f"{table}.parquet"
     try:
-        return (pq.read_schema(path).metadata or {}).get(key.encode())
+        md = pq.read_schema(store / f"{table}.parquet").metadata or {}
     except (OSError, ValueError):  # no map yet, or a damaged one that the build replaces
         return None
+    return md.get(f"care.{kind}.settings".encode()) or md.get(f"care.{kind}.config".encode())
 
 
 @fuse_app.command("grid")
@@ -138,16 +149,11 @@ def grid(
     from fuse.viz_grid import log_grid
 
     # options checked (GridConfig.__post_init__) before any work
-    config = settings.config(_recorded(store, "cells", "care.grid.settings"))
+    config = settings.config(_recorded(store, "cells", "grid"))
     with _writing(store, rrd):
         _map_frame(store, up_axis, floor_z)
-        if recompute:  # an option not given keeps the map's value (None)
-            given = settings.given
-            path = recompute_grid(
-                store,
-                config.vocabulary if "vocabulary" in given else None,
-                config.logit_scale if "logit_scale" in given else None,
-            )
+        if recompute:
+            path = recompute_grid(store, *_recompute_args(settings, config))
         else:
             path = build_grid(store, config)
         if rrd is not None:
@@ -202,18 +208,13 @@ def instances(
 
     # options checked (InstanceConfig.__post_init__) before any work
     config = settings.config(
-        _recorded(store, "instances", "care.instances.settings"),
+        _recorded(store, "instances", "instances"),
         **_field_values(InstanceConfig, set_ or []),
     )
     with _writing(store, rrd):
         _map_frame(store, up_axis, floor_z)
-        if recompute:  # an option not given keeps the map's value (None)
-            given = settings.given
-            path = recompute_instances(
-                store,
-                config.vocabulary if "vocabulary" in given else None,
-                config.logit_scale if "logit_scale" in given else None,
-            )
+        if recompute:
+            path = recompute_instances(store, *_recompute_args(settings, config))
             if rrd is not None:
                 from fuse.viz_instances import log_instances
 

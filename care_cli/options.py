@@ -80,10 +80,6 @@ class Options(typing.Generic[C]):
         given = {k: v for k, v in self.values.items() if k in self.given}
         return self.cls(**{**kept, **given, **fixed})
 
-    def defaults_only(self) -> C:
-        """The config from the options alone (every option not given at its default)."""
-        return self.cls(**{k: v for k, v in self.values.items() if k in self.given})
-
 
 def _optional(tp: Any) -> Any:
     """``X`` of ``X | None`` (``tp`` itself otherwise)."""

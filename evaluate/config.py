@@ -17,6 +17,7 @@ from enum import Enum, StrEnum
 from pathlib import Path
 
 from care.checks import check_numbers
+from care.config import member
 from care.encoders import EncoderOptions
 from care.errors import EvalError
 from evaluate.groundtruth import GtSource, UnknownClasses
@@ -38,12 +39,7 @@ class QueryProtocol(StrEnum):
 
 
 def _one(kind: type[Enum], value: object, option: str) -> Enum:
-    """``value`` as a member of ``kind``, or one line listing the choices."""
-    try:
-        return kind(value)
-    except ValueError as err:
-        msg = f"{option} {value!r}: choose from {', '.join(str(m.value) for m in kind)}"
-        raise EvalError(msg) from err
+    return member(kind, value, EvalError, f"invalid evaluation config: {option}")
 
 
 @dataclass(frozen=True)

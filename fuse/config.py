@@ -16,7 +16,7 @@ from enum import StrEnum
 from typing import ClassVar
 
 from care.checks import check_numbers
-from care.config import config_json
+from care.config import config_json, member
 from care.errors import FuseError
 
 __all__ = [
@@ -47,14 +47,6 @@ class InstanceFeatures(StrEnum):
     """Dense features pooled inside the projected mask."""
     CROPS = "crops"
     """Bounding-box crops re-encoded (encoders with crop support only)."""
-
-
-def _enum(cls: type[StrEnum], value: object, what: str) -> StrEnum:
-    try:
-        return cls(value)
-    except ValueError as err:
-        msg = f"unknown {what} {value!r}; choose one of {', '.join(m.value for m in cls)}"
-        raise FuseError(msg) from err
 
 
 @dataclass(frozen=True)
@@ -193,8 +185,14 @@ class InstanceConfig:
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
-        set_(self, "proposals", _enum(ProposalMethod, self.proposals, "proposals"))
-        set_(self, "features", _enum(InstanceFeatures, self.features, "features"))
+        set_(
+            self,
+            "proposals",
+            member(ProposalMethod, self.proposals, FuseError, "unknown proposals"),
+        )
+        set_(
+            self, "features", member(InstanceFeatures, self.features, FuseError, "unknown features")
+        )
         sizes = {
             "voxel_size": self.voxel_size,
             "stride": self.stride,

@@ -46,7 +46,7 @@ from tqdm import tqdm
 
 from care.errors import FuseError
 from care.malloc import resident_bytes
-from care.outputs import damaged, record_table
+from care.outputs import damaged, record_table, write_atomic
 from care.store import (
     SCHEMA_VERSION,
     Store,
@@ -315,12 +315,7 @@ def _cells_chunk(
 
 
 def _write_png(image: np.ndarray, path: Path) -> None:
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        Image.fromarray(image).save(tmp, format="PNG")
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    write_atomic(path, lambda tmp: Image.fromarray(image).save(tmp, format="PNG"))
 
 
 def write_grid_images(store: Store, cells: pa.Table) -> None:
