@@ -118,7 +118,7 @@ def csv_choices(item: type, name: str) -> Callable[[str | None], tuple[Any, ...]
         try:
             return tuple(item(v) for v in parts)
         except ValueError as err:
-            allowed = f"; choose from {', '.join(_text(list(item)))}" if _is_enum(item) else ""
+            allowed = f"; choose from {', '.join(_text(m) for m in item)}" if _is_enum(item) else ""
             msg = f"{value!r}: expected comma-separated {item.__name__} values{allowed}"
             raise typer.BadParameter(msg, param_hint=name) from err
 

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from care.checks import check_numbers
+from care.config import member
 from care.errors import ReplanError
 from query.map import MEASURES, CandidateMap
 from replan.strategies import (
@@ -60,6 +61,20 @@ class ReplanConfig:
     """Grid: metres around a failed cell skipped later; also the radius of a visited place."""
     seed: int = 0
     """Seed of the random strategies."""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(
+            self, "strategy", member(StrategyName, self.strategy, ReplanError, "unknown strategy")
+        )
+        object.__setattr__(
+            self, "criterion", member(Criterion, self.criterion, ReplanError, "unknown criterion")
+        )
+        check_numbers(
+            ReplanError,
+            "replan settings",
+            non_negative={"exclude_radius": self.exclude_radius},
+            at_least_one={"k": self.k},
+        )
 
 
 _REPLAN = ReplanConfig()
