@@ -20,7 +20,7 @@ import textwrap
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-__all__ = ["config_json", "field_docs", "from_recorded", "member", "recorded_fields"]
+__all__ = ["config_json", "field_docs", "member", "recorded_fields"]
 
 
 def member(kind: type[enum.Enum], value: object, error: type[Exception], what: str) -> Any:
@@ -98,8 +98,3 @@ def recorded_fields(cls: type, text: bytes | str | None) -> dict[str, Any]:
         return {}
     names = {f.name for f in dataclasses.fields(cls)}
     return {k: tuple(v) if isinstance(v, list) else v for k, v in values.items() if k in names}
-
-
-def from_recorded(cls: type, text: bytes | str | None, **given: Any) -> Any:
-    """``cls`` built from ``given`` values, then the recorded ones, then its defaults."""
-    return cls(**{**recorded_fields(cls, text), **given})
