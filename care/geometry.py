@@ -12,7 +12,6 @@ __all__ = [
     "matrix_to_quaternion",
     "project",
     "quaternion_to_matrix",
-    "slerp",
     "transform_points",
 ]
 
@@ -47,24 +46,6 @@ def matrix_to_quaternion(R: np.ndarray) -> np.ndarray:
     q = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_quat()
     q = np.where(q[:, 3:4] < 0, -q, q)
     return q.reshape(*R.shape[:-2], 4)
-
-
-def slerp(q0: np.ndarray, q1: np.ndarray, t: np.ndarray | float) -> np.ndarray:
-    """Spherical interpolation between xyzw quaternions, taking the short way round."""
-    q0 = np.asarray(q0, dtype=np.float64)
-    q1 = np.asarray(q1, dtype=np.float64)
-    t = np.asarray(t, dtype=np.float64)[..., None]
-    dot = np.sum(q0 * q1, axis=-1, keepdims=True)
-    q1 = np.where(dot < 0, -q1, q1)
-    dot = np.abs(dot)
-    theta = np.arccos(np.clip(dot, -1.0, 1.0))
-    sin_theta = np.sin(theta)
-    near = sin_theta < 1e-9
-    safe = np.where(near, 1.0, sin_theta)
-    w0 = np.where(near, 1 - t, np.sin((1 - t) * theta) / safe)
-    w1 = np.where(near, t, np.sin(t * theta) / safe)
-    q = w0 * q0 + w1 * q1
-    return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
 def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:

@@ -1,18 +1,21 @@
-"""Typed choices of the CLI, made from the registries so ``--help`` lists them and typer
-refuses anything else before a command runs (one source: the registry).
+"""Typed choices of the CLI: the registries' enums, so ``--help`` lists them and typer
+refuses anything else before a command runs (one source: the enum the registry is keyed by).
 
-The registries of proposals, instance features and perception presets live in modules that
-import torch or open3d; every ``care`` call would pay seconds for them, so their names are
-listed here and ``tests/faults/test_options.py`` checks they equal the registries.
+The enums live in light modules (configs, registries) so every ``care`` call can import
+them; the encoders' and perception presets' registries are dicts whose names become enums
+here.
 """
 
 from __future__ import annotations
 
-from enum import Enum
+from enum import Enum, StrEnum
 
 from care.encoders import ENCODERS
-from query.map import MAP_TABLES
-from replan import CRITERIA, STRATEGIES
+from evaluate.config import QueryProtocol
+from evaluate.groundtruth import UnknownClasses
+from fuse.config import InstanceFeatures, ProposalMethod
+from query.map import MapKind
+from replan.strategies import Criterion, StrategyName
 
 __all__ = [
     "Criterion",
@@ -21,28 +24,24 @@ __all__ = [
     "MapKind",
     "Perception",
     "ProposalMethod",
+    "QueryProtocol",
     "Strategy",
+    "UnknownClasses",
     "registry_enum",
 ]
 
+Strategy = StrategyName
+"""The CLI's name of :class:`replan.strategies.StrategyName`."""
 
 PERCEPTION_PRESETS = ("default", "ideal")
-"""Names of ``care.encoders.labels.PERCEPTION_PRESETS``."""
-PROPOSERS = ("geometric", "labels")
-"""Names of ``fuse.proposals.PROPOSERS``."""
-INSTANCE_FEATURES = ("masked", "crops")
-"""``fuse.instances.INSTANCE_FEATURES``."""
+"""Names of ``care.encoders.labels.PERCEPTION_PRESETS`` (that module imports torch; the
+fault suite checks the two agree)."""
 
 
 def registry_enum(name: str, keys: object) -> type[Enum]:
     """A ``str`` enum whose members are a registry's names (value = name)."""
-    return Enum(name, {str(k): str(k) for k in keys}, type=str)  # type: ignore[return-value]
+    return StrEnum(name, {str(k).upper(): str(k) for k in keys})  # type: ignore[return-value]
 
 
-Strategy = registry_enum("Strategy", STRATEGIES)
-Criterion = registry_enum("Criterion", CRITERIA)
-MapKind = registry_enum("MapKind", MAP_TABLES)
 EncoderName = registry_enum("EncoderName", ENCODERS)
 Perception = registry_enum("Perception", PERCEPTION_PRESETS)
-ProposalMethod = registry_enum("ProposalMethod", PROPOSERS)
-InstanceFeatures = registry_enum("InstanceFeatures", INSTANCE_FEATURES)

@@ -1,8 +1,11 @@
 """``care query``, ``care replan``, ``care eval`` and ``care run``: ask a map, replan, evaluate
 a dataset, and the main job that chains every stage.
 
-Stage modules are imported inside the commands so ``care --help`` stays fast. ``care eval``'s
-options mirror :class:`evaluate.job.EvalConfig`.
+The options are generated from the configs (:mod:`care_cli.options`):
+:class:`replan.batch.BatchConfig`, :class:`query.goals.GoalConfig`,
+:class:`evaluate.config.EvalConfig` and :class:`evaluate.config.RunConfig`, one default
+and one help text each. Stage modules are imported inside the commands so ``care --help``
+stays fast.
 """
 
 from __future__ import annotations
@@ -14,13 +17,19 @@ from typing import Annotated, Any, NoReturn
 
 import typer
 
-from care_cli.choices import Criterion, MapKind, Strategy
+from care.encoders.base import EncoderOptions
+from care_cli.choices import EncoderName, MapKind
+from care_cli.options import Options, config_options, with_choices
+from evaluate.config import EvalConfig, RunConfig
+from query.goals import GoalConfig
+from replan.attempts import ReplanConfig
+from replan.batch import BatchConfig
 
 __all__ = ["register"]
 
 StoreArg = Annotated[Path, typer.Argument(help="Store directory with fused maps (`care fuse`).")]
 TextArg = Annotated[str, typer.Argument(help="What to look for: a class name or free text.")]
-MapOpt = Annotated[MapKind, typer.Option("--map", help="Map to ask.")]
+MapOpt = Annotated[MapKind, typer.Option("--map", help=with_choices("Map to ask.", MapKind))]
 RayOpt = Annotated[
     bool,
     typer.Option("--ray", help="Evaluate scenes as Ray tasks (a local Ray unless --ray-address)."),
@@ -29,16 +38,6 @@ RayAddressOpt = Annotated[
     str | None,
     typer.Option(help="Address of a running Ray cluster, e.g. ray://head:10001 (implies --ray)."),
 ]
-
-ClearanceOpt = Annotated[
-    float | None,
-    typer.Option(
-        help="Metres a goal's approach point keeps from obstacles (the robot's radius; default "
-        "query.goals.GoalConfig's); the point is the nearest free grid cell within reach of the "
-        "object."
-    ),
-]
-
 
 GT_FORMATS_HELP = (
     "Ground truth formats (see the README): native (<rec>.gt.json + .gt.parquet), annotations "
@@ -76,32 +75,12 @@ GtClassMapOpt = Annotated[
         "TSV:FROM:TO, e.g. scannetv2-labels.combined.tsv:raw_category:nyu40class."
     ),
 ]
-GtUnknownOpt = Annotated[
-    str,
-    typer.Option(
-        help="Ground-truth classes the vocabulary lacks: refuse (one-line error) or ignore."
-    ),
-]
 
 
 def _gt_defaults(fmt: str | None, transform: str | None, class_map: str | None):
     from evaluate.groundtruth import GtSource
 
     return GtSource.of(None, fmt, transform, class_map)
-
-
-def _csv(value: str) -> tuple[str, ...]:
-    return tuple(v.strip() for v in value.split(",") if v.strip())
-
-
-def _ints(value: str) -> tuple[int, ...]:
-    try:
-        return tuple(int(v) for v in _csv(value))
-    except ValueError as err:
-        from care.errors import EvalError
-
-        msg = f"expected comma-separated integers, got {value!r}"
-        raise EvalError(msg) from err
 
 
 def _ray_target(ray: bool, address: str | None) -> str | bool | None:
@@ -131,16 +110,27 @@ def _resolve(store: Path, kind: str, text: str, weights: Path | None = None) -> 
     return target
 
 
+_BATCH = {
+    "k": {"flags": ("-k",), "min": 1},
+    "attempts": {"min": 1},
+    "top": {"min": 1},
+}
+_CLEARANCE = "clearance"
+
+
+@config_options("goal", GoalConfig, only=(_CLEARANCE,))
+@config_options("settings", BatchConfig, only=("top", "k", "attempts", "exclude_radius", "seed"),
+                extra=_BATCH)  # fmt: skip
 def query(
     store: StoreArg,
     text: Annotated[
         str | None,
         typer.Argument(help="What to look for: a class name or free text (not with --batch)."),
     ] = None,
-    kind: MapOpt = "instances",  # type: ignore[assignment]
-    top: Annotated[int, typer.Option(help="How many candidates to list (>= 1).", min=1)] = 10,
+    kind: MapOpt = MapKind.INSTANCES,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
-    clearance: ClearanceOpt = None,
+    settings: Options[BatchConfig] = None,  # type: ignore[assignment]
+    goal: Options[GoalConfig] = None,  # type: ignore[assignment]
     weights: WeightsOpt = None,
     batch: Annotated[
         Path | None,
@@ -153,12 +143,6 @@ def query(
         Path | None,
         typer.Option(help="Parquet table of a --batch run (default: BATCH.answers.parquet)."),
     ] = None,
-    k: Annotated[int, typer.Option("-k", help="--batch: size of the candidate sets.")] = 4,
-    attempts: Annotated[int, typer.Option(help="--batch: attempts per sequence.")] = 3,
-    exclude_radius: Annotated[
-        float, typer.Option(help="--batch: radius (m) skipped around a failure or a place.")
-    ] = 1.0,
-    seed: Annotated[int, typer.Option(help="--batch: seed of the random strategies.")] = 0,
 ) -> None:
     """Rank a map's candidates by confidence for TEXT, with their uncertainty measures and a
     goal pose for each (``geometry_msgs/PoseStamped`` JSON with --json); with --batch, every
@@ -168,14 +152,15 @@ def query(
 
     if (batch is None) == (text is None):
         _fail("give either TEXT or --batch FILE")
+    config = settings.config()
     if batch is not None:
-        _batch(store, kind, batch, out, weights, clearance, top, k, attempts, exclude_radius, seed)
+        _batch(store, kind, batch, out, weights, goal.config(), config)
         return
     target = _resolve(store, kind, text, weights)
     cmap, match = target.cmap, target.match
-    goals = _goal_maker(store, clearance)
+    goals = _goal_maker(store, goal.config())
     conf = target.confidence()
-    order = rank_by_confidence(conf[None])[0][:top]
+    order = rank_by_confidence(conf[None])[0][: config.top]
     rows = [
         {
             "rank": r + 1,
@@ -213,6 +198,8 @@ def query(
         )
 
 
+@config_options("goal", GoalConfig, only=(_CLEARANCE,))
+@config_options("settings", ReplanConfig, extra={"k": _BATCH["k"]})
 def replan(
     store: StoreArg,
     text: TextArg,
@@ -224,17 +211,9 @@ def replan(
             "--exclude-radius of a position count as visited."
         ),
     ] = None,
-    strategy: Annotated[Strategy, typer.Option(help="Replan strategy.")] = "min_stderr",  # type: ignore[assignment]
-    criterion: Annotated[Criterion, typer.Option(help="Candidate set.")] = "confidence",  # type: ignore[assignment]
-    k: Annotated[
-        int, typer.Option("-k", help="Size parameter of the candidate set (>= 1).", min=1)
-    ] = 4,
-    kind: MapOpt = "instances",  # type: ignore[assignment]
-    exclude_radius: Annotated[
-        float, typer.Option(help="Grid: skip cells within this distance (m) of failed ones.")
-    ] = 1.0,
-    seed: Annotated[int, typer.Option(help="Seed of the random strategies.")] = 0,
-    clearance: ClearanceOpt = None,
+    settings: Options[ReplanConfig] = None,  # type: ignore[assignment]
+    kind: MapOpt = MapKind.INSTANCES,
+    goal: Options[GoalConfig] = None,  # type: ignore[assignment]
     weights: WeightsOpt = None,
 ) -> None:
     """The next candidate to try for TEXT after the --visited ones (JSON on stdout), with its
@@ -246,12 +225,9 @@ def replan(
     ids, places = _visited(visited or [])
     target = _resolve(store, kind, text, weights)
     cmap, match = target.cmap, target.match
-    goals = _goal_maker(store, clearance)
-    choice = next_goal(
-        cmap, target, ids, strategy=Strategy(strategy).value,
-        criterion=Criterion(criterion).value,
-        k=k, exclude_radius=exclude_radius, seed=seed, visited_at=places,
-    )  # fmt: skip
+    goals = _goal_maker(store, goal.config())
+    config = settings.config()
+    choice = next_goal(cmap, target, ids, **dataclasses.asdict(config), visited_at=places)
     out = dataclasses.asdict(choice)
     found = choice.candidate >= 0
     out["position"] = [float(v) for v in cmap.positions[choice.candidate]] if found else None
@@ -267,28 +243,23 @@ def _batch(
     batch: Path,
     out: Path | None,
     weights: Path | None,
-    clearance: float | None,
-    top: int,
-    k: int,
-    attempts: int,
-    exclude_radius: float,
-    seed: int,
+    goal: GoalConfig,
+    config: BatchConfig,
 ) -> None:
     """``care query --batch``: read the queries, answer them all, write one table."""
     import time
 
     from care.store import write_table_atomic
     from query import load_map
-    from replan.batch import BatchConfig, plan_batch, read_queries
+    from replan.batch import plan_batch, read_queries
 
-    config = BatchConfig(k=k, attempts=attempts, top=top, exclude_radius=exclude_radius, seed=seed)
     queries = read_queries(batch)
     if not queries:
         _fail(f"{batch}: no queries in it")
     out = out or batch.with_name(f"{batch.stem}.answers.parquet")
     cmap = load_map(store, kind, weights=weights)  # type: ignore[arg-type]
     start = time.perf_counter()
-    table = plan_batch(cmap, queries, config, goals=_goal_maker(store, clearance), progress=True)
+    table = plan_batch(cmap, queries, config, goals=_goal_maker(store, goal), progress=True)
     elapsed = time.perf_counter() - start
     write_table_atomic(table, out)
     typer.echo(
@@ -316,11 +287,10 @@ def _visited(values: list[str]) -> tuple[list[int], list[tuple[float, float]]]:
     return ids, places
 
 
-def _goal_maker(store: Path, clearance: float | None) -> Any:
-    """The store's :class:`query.goals.GoalMaker` (imported here: ``care --help`` stays fast)."""
-    from query.goals import GoalConfig, GoalMaker
+def _goal_maker(store: Path, config: GoalConfig) -> Any:
+    """The store's :class:`query.goals.GoalMaker`."""
+    from query.goals import GoalMaker
 
-    config = GoalConfig() if clearance is None else GoalConfig(clearance=clearance)
     return GoalMaker.from_store(store, config)
 
 
@@ -330,6 +300,10 @@ def _fail(message: str) -> NoReturn:
     raise QueryError(message)
 
 
+_GT_UNKNOWN = {"unknown_classes": "gt_unknown_classes"}
+
+
+@config_options("settings", EvalConfig, names=_GT_UNKNOWN)
 def eval_(
     dataset: Annotated[
         list[Path],
@@ -341,23 +315,7 @@ def eval_(
     out: Annotated[
         Path, typer.Option(help="Output directory (results.md, Parquet, plots).")
     ] = Path("out/eval"),
-    maps: Annotated[str, typer.Option(help="Maps to evaluate: instances,grid.")] = "instances,grid",
-    strategies: Annotated[str, typer.Option(help="Comma-separated strategies; default all.")] = "",
-    criteria: Annotated[str, typer.Option(help="Selection criteria.")] = "confidence,category",
-    k_instances: Annotated[str, typer.Option(help="k values of the instance map.")] = "2,4,8,16,40",
-    k_grid: Annotated[str, typer.Option(help="k values of the grid map.")] = "4,8,16,40,100",
-    attempts: Annotated[int, typer.Option(help="Attempts per query (first + replans).")] = 2,
-    protocols: Annotated[
-        str, typer.Option(help="Instance query protocols: instance,class.")
-    ] = "instance,class",
-    rooms: Annotated[
-        bool, typer.Option(help="Evaluate room by room where the GT has rooms.")
-    ] = True,
-    seeds: Annotated[int, typer.Option(help="Seeds of the random strategies.")] = 10,
-    exclude_radius: Annotated[
-        float, typer.Option(help="Grid: radius (m) skipped around a failure.")
-    ] = 1.0,
-    bootstrap: Annotated[int, typer.Option(help="Bootstrap resamples for the 95% CIs.")] = 1000,
+    settings: Options[EvalConfig] = None,  # type: ignore[assignment]
     workers: Annotated[int, typer.Option(help="Local processes (0: one per CPU).", min=0)] = 0,
     ray: RayOpt = False,
     ray_address: RayAddressOpt = None,
@@ -365,30 +323,15 @@ def eval_(
     gt_format: GtFormatOpt = None,
     gt_transform: GtTransformOpt = None,
     gt_class_map: GtClassMapOpt = None,
-    gt_unknown_classes: GtUnknownOpt = "refuse",
 ) -> None:
     """Success of every strategy on every (scene, class) query; writes the paper's tables
     and the paired comparisons.
 
     Ground truth formats: native, annotations (JSON/YAML/CSV boxes), ply (labelled PLY),
     scannet, matterport, replica; see --gt and the README."""
-    from evaluate.job import EvalConfig, run_eval
-    from replan import STRATEGIES
+    from evaluate.job import run_eval
 
-    config = EvalConfig(
-        maps=_csv(maps),
-        strategies=_csv(strategies) or tuple(STRATEGIES),
-        criteria=_csv(criteria),
-        k_instances=_ints(k_instances),
-        k_grid=_ints(k_grid),
-        attempts=attempts,
-        protocols=_csv(protocols),
-        rooms=rooms,
-        seeds=seeds,
-        exclude_radius=exclude_radius,
-        bootstrap=bootstrap,
-        unknown_classes=gt_unknown_classes,  # type: ignore[arg-type]
-    )
+    config = settings.config()
     report = run_eval(
         dataset, config, out, workers=workers or None, ray_address=_ray_target(ray, ray_address),
         gt=tuple(gt or ()), gt_defaults=_gt_defaults(gt_format, gt_transform, gt_class_map),
@@ -405,6 +348,21 @@ def register(app: typer.Typer) -> None:
     app.command("run")(run)
 
 
+_RUN = {
+    "vocabulary": {
+        "help": "Class names to embed: a bundled vocabulary name, a file, or "
+        "comma-separated names (default: the recording's own class names)."
+    }
+}
+
+
+@config_options("evaluation", EvalConfig, only=("attempts", "seeds", "unknown_classes"),
+                names=_GT_UNKNOWN)  # fmt: skip
+@config_options("settings", RunConfig, only=("encoder", "vocabulary", "workers", "rrd_ingest",
+                                              "rrd_class"),
+                extra={**_RUN, "encoder": {"type": EncoderName}, "workers": {"min": 1},
+                       "rrd_class": {"flags": ("--rrd-class",)}})  # fmt: skip
+@config_options("encoding", EncoderOptions, only=("weights", "precomputed"))
 def run(
     recording: Annotated[
         Path | None,
@@ -413,68 +371,32 @@ def run(
             "directory (index.json); default the bundled sample."
         ),
     ] = None,
-    encoder: Annotated[
-        str, typer.Option(help="Encoder of the ingest: clip, labels (sample world) or precomputed.")
-    ] = "labels",
-    weights: Annotated[
-        str | None, typer.Option(help="clip: weights directory (save_pretrained) or checkpoint id.")
-    ] = None,
-    precomputed: Annotated[
-        Path | None, typer.Option(help="precomputed: Parquet of per-view features.")
-    ] = None,
-    vocabulary: Annotated[
-        str | None,
-        typer.Option(
-            help="Class names to embed: a bundled vocabulary name, a file, or comma-separated "
-            "names (default: the recording's own class names)."
-        ),
-    ] = None,
+    encoding: Options[EncoderOptions] = None,  # type: ignore[assignment]
     out: Annotated[Path, typer.Option(help="Output directory: stores, .rrd files, tables.")] = Path(
         "out"
     ),
-    attempts: Annotated[int, typer.Option(help="Attempts per query (first + replans).")] = 2,
-    seeds: Annotated[int, typer.Option(help="Seeds of the random strategies.")] = 10,
-    workers: Annotated[
-        int, typer.Option(help="Local processes of the evaluation (0: one per CPU).", min=0)
-    ] = 0,
+    settings: Options[RunConfig] = None,  # type: ignore[assignment]
+    evaluation: Options[EvalConfig] = None,  # type: ignore[assignment]
     ray: RayOpt = False,
     ray_address: RayAddressOpt = None,
     gt: GtOpt = None,
     gt_format: GtFormatOpt = None,
     gt_transform: GtTransformOpt = None,
     gt_class_map: GtClassMapOpt = None,
-    gt_unknown_classes: GtUnknownOpt = "refuse",
-    rrd_ingest: Annotated[
-        bool, typer.Option(help="Also write <name>.ingest.rrd (camera, depth, map building up).")
-    ] = True,
-    rrd_class: Annotated[
-        str | None,
-        typer.Option(
-            "--rrd-class",
-            help="Class of the grid recording's confidence layer (default: each query class).",
-        ),
-    ] = None,
 ) -> None:
     """The main job: ingest, fuse both maps, evaluate every strategy; print the table.
 
     Ground truth: beside each recording by name, named in index.json, or --gt (formats:
     native, annotations, ply, scannet, matterport, replica; see `care eval --help`). A
     recording without any gets its maps and Rerun files, and is not evaluated."""
-    from care.encoders import EncoderOptions
-    from evaluate.job import EvalConfig
-    from evaluate.pipeline import RunConfig, run_all
+    from evaluate.pipeline import run_all
 
-    config = RunConfig(
-        encoder=encoder,
-        encoder_options=EncoderOptions(weights=weights, precomputed=precomputed),
-        vocabulary=vocabulary,
-        evaluation=EvalConfig(attempts=attempts, seeds=seeds, unknown_classes=gt_unknown_classes),  # type: ignore[arg-type]
-        workers=workers or None,
+    config = settings.config(
+        encoder_options=encoding.config(),
+        evaluation=evaluation.config(),
         ray_address=_ray_target(ray, ray_address),
         gt=tuple(gt or ()),
         gt_defaults=_gt_defaults(gt_format, gt_transform, gt_class_map),
-        rrd_ingest=rrd_ingest,
-        rrd_class=rrd_class,
     )
     result = run_all(recording, out, config)
     if result.unevaluated:
@@ -483,8 +405,7 @@ def run(
             "not evaluated (README: Evaluate on your own data)"
         )
     if result.report is not None:
-        md = result.report.markdown
-        typer.echo(md.split("## 95% bootstrap")[0].rstrip())
+        typer.echo(result.report.tables.rstrip())
         typer.echo(f"\nfull report: {out / 'eval' / 'results.md'}")
     typer.echo(f"stores: {', '.join(str(p) for p in result.stores)}")
     typer.echo(f"open the maps and every decision in Rerun:\n  {result.rerun_command()}")

@@ -1,7 +1,10 @@
 """``care fuse grid`` and ``care fuse instances``: maps from a feature store.
 
-Options mirror the frozen config dataclasses of :mod:`fuse.grid` and :mod:`fuse.instances`;
-the stage modules are imported inside the commands so ``care --help`` stays fast.
+The map options are generated from :class:`fuse.config.GridConfig` and
+:class:`fuse.config.InstanceConfig` (:mod:`care_cli.options`): one default and one help
+text each. An option not given takes the value the store's map was built with (recorded in
+its table's metadata), so re-running a command does not rebuild a map another command
+made. The stage modules are imported inside the commands so ``care --help`` stays fast.
 """
 
 from __future__ import annotations
@@ -13,7 +16,8 @@ from typing import Annotated, Any
 import typer
 
 from care.mapframe import UpAxis
-from care_cli.choices import InstanceFeatures, ProposalMethod
+from care_cli.options import Options, config_options, with_choices
+from fuse.config import GridConfig, InstanceConfig
 
 __all__ = ["register"]
 
@@ -22,17 +26,6 @@ RrdOpt = Annotated[
     Path | None,
     typer.Option("--rrd", help="Also log the map to this Rerun file (open with `rerun FILE`)."),
 ]
-VocabOpt = Annotated[
-    str | None,
-    typer.Option(
-        "--vocabulary",
-        help="A bundled vocabulary name, a file, or comma-separated class names (default: "
-        "the store's cached names).",
-    ),
-]
-
-LogitScaleOpt = Annotated[float, typer.Option(help="Scale s of softmax(s * f . t).")]
-OverwriteOpt = Annotated[bool, typer.Option(help="Rebuild even if an up-to-date map exists.")]
 
 
 def _recompute_opt(views_table: str) -> Any:
@@ -52,8 +45,11 @@ fuse_app = typer.Typer(
 UpAxisOpt = Annotated[
     UpAxis | None,
     typer.Option(
-        help="Which world axis points up (auto: from the floor plane). Default: the frame the "
-        "store already has, found automatically at its first fusion.",
+        help=with_choices(
+            "Which world axis points up (auto: from the floor plane). Default: the frame the "
+            "store already has, found automatically at its first fusion.",
+            UpAxis,
+        ),
         case_sensitive=False,
     ),
 ]
@@ -70,12 +66,6 @@ def _map_frame(store: Path, up_axis: UpAxis | None, floor_z: float | None) -> No
     if up_axis is None and floor_z is not None:
         up_axis = UpAxis.AUTO
     typer.echo(ensure_map_frame(store, up_axis, floor_z).describe())
-
-
-def _vocabulary(value: str | None) -> tuple[str, ...] | None:
-    from care.vocab import vocabulary_option
-
-    return None if value is None else vocabulary_option(value)
 
 
 def _bytes(value: str) -> int:
@@ -95,36 +85,50 @@ def _bytes(value: str) -> int:
     return int(amount * units[unit])
 
 
+def _vocabulary(value: str) -> tuple[str, ...]:
+    from care.vocab import vocabulary_option
+
+    return vocabulary_option(value)
+
+
+_MAP_EXTRA = {"overwrite": {"help": "Rebuild even if an up-to-date map exists."}}
+
+
+def _recompute_args(settings: Options, config: Any) -> tuple[Any, float | None]:
+    """``(vocabulary, logit_scale)`` of a ``--recompute``: None, the map's own, where not given."""
+    given = settings.given
+    return (
+        config.vocabulary if "vocabulary" in given else None,
+        config.logit_scale if "logit_scale" in given else None,
+    )
+
+
+def _recorded(store: Path, table: str, kind: str) -> bytes | None:
+    """The settings the store's ``kind`` map was built with (None: no such map, or none
+    recorded). Maps made before ``care.<kind>.settings`` existed have the same JSON as
+    their key, ``care.<kind>.config``."""
+    import pyarrow.parquet as pq
+
+    try:
+        md = pq.read_schema(store / f"{table}.parquet").metadata or {}
+    except (OSError, ValueError):  # no map yet, or a damaged one that the build replaces
+        return None
+    return md.get(f"care.{kind}.settings".encode()) or md.get(f"care.{kind}.config".encode())
+
+
 @fuse_app.command("grid")
+@config_options(
+    "settings",
+    GridConfig,
+    skip=("cells_per_pass",),
+    parse={"vocabulary": _vocabulary, "memory_budget": _bytes},
+    extra=_MAP_EXTRA,
+)
 def grid(
     store: StoreArg,
-    cell_size: Annotated[float, typer.Option(help="Cell edge in metres.")] = 0.05,
-    stride: Annotated[
-        int, typer.Option(help="Use every stride-th depth pixel (1 = full resolution).")
-    ] = 1,
-    z_min: Annotated[float, typer.Option(help="Lowest world height (m) fused.")] = -0.2,
-    z_max: Annotated[
-        float, typer.Option(help="Highest world height (m) fused; keeps the ceiling out.")
-    ] = 2.0,
-    sigma_z: Annotated[float, typer.Option(help="Depth scale (m) of the distance weight.")] = 2.5,
-    distance_weighting: Annotated[
-        bool, typer.Option(help="Weight pixels by exp(-z^2 / (2 sigma_z^2)) (VLMaps).")
-    ] = True,
-    logit_scale: LogitScaleOpt = 100.0,
-    vocabulary: VocabOpt = None,
-    obstacle_height: Annotated[
-        float, typer.Option(help="Height (m) above which a cell is an obstacle.")
-    ] = 0.1,
-    overwrite: OverwriteOpt = False,
+    settings: Options[GridConfig],
     recompute: _recompute_opt("cell_views.parquet") = False,
     rrd: RrdOpt = None,
-    memory_budget: Annotated[
-        str | None,
-        typer.Option(
-            help="Memory the fusion may use, e.g. 8G or 512M (default: half of this machine's); "
-            "a floor too large for it is fused in several passes over the views."
-        ),
-    ] = None,
     up_axis: UpAxisOpt = None,
     floor_z: FloorOpt = None,
     rrd_class: Annotated[
@@ -136,28 +140,20 @@ def grid(
     ] = None,
 ) -> None:
     """Fuse every view's dense features into occupied top-down cells (cells.parquet), in
-    the store's gravity-aligned map frame (z up, floor at 0), also written as map.pgm/.yaml."""
-    from fuse.grid import GridConfig, build_grid
+    the store's gravity-aligned map frame (z up, floor at 0), also written as map.pgm/.yaml.
+
+    Settings not given are those the store's grid was built with (so a map made by
+    `care run` is not rebuilt), else the defaults shown."""
+    from fuse.grid import build_grid
     from fuse.recompute import recompute_grid
     from fuse.viz_grid import log_grid
 
-    config = GridConfig(  # options checked (GridConfig.__post_init__) before any work
-        cell_size=cell_size,
-        stride=stride,
-        z_min=z_min,
-        z_max=z_max,
-        sigma_z=sigma_z,
-        distance_weighting=distance_weighting,
-        logit_scale=logit_scale,
-        vocabulary=_vocabulary(vocabulary),
-        obstacle_height=obstacle_height,
-        overwrite=overwrite,
-        memory_budget=None if memory_budget is None else _bytes(memory_budget),
-    )
+    # options checked (GridConfig.__post_init__) before any work
+    config = settings.config(_recorded(store, "cells", "grid"))
     with _writing(store, rrd):
         _map_frame(store, up_axis, floor_z)
         if recompute:
-            path = recompute_grid(store, config.vocabulary, logit_scale)
+            path = recompute_grid(store, *_recompute_args(settings, config))
         else:
             path = build_grid(store, config)
         if rrd is not None:
@@ -187,32 +183,16 @@ def _summary(path: Path) -> None:
 
 
 @fuse_app.command("instances")
+@config_options("settings", InstanceConfig, parse={"vocabulary": _vocabulary}, extra=_MAP_EXTRA)
 def instances(
     store: StoreArg,
-    proposals: Annotated[
-        ProposalMethod,
-        typer.Option(
-            help="Proposal method: geometric (planes removed, DBSCAN) or labels (oracle)."
-        ),
-    ] = "geometric",  # type: ignore[assignment]
-    features: Annotated[
-        InstanceFeatures,
-        typer.Option(
-            help="Per-view feature: masked (pooled dense features) or crops (re-encoded)."
-        ),
-    ] = "masked",  # type: ignore[assignment]
-    voxel_size: Annotated[float, typer.Option(help="Voxel edge (m) of the scene cloud.")] = 0.03,
-    stride: Annotated[int, typer.Option(help="Back-project every stride-th depth pixel.")] = 2,
-    top_k: Annotated[int, typer.Option(help="Views kept per instance (OpenMask3D: 5).")] = 5,
-    logit_scale: LogitScaleOpt = 100.0,
-    vocabulary: VocabOpt = None,
-    overwrite: OverwriteOpt = False,
+    settings: Options[InstanceConfig],
     recompute: _recompute_opt("instance_views.parquet") = False,
     set_: Annotated[
         list[str] | None,
         typer.Option(
             "--set",
-            help="Any other InstanceConfig field as FIELD=VALUE (repeatable), e.g. --set cluster_eps=0.1.",
+            help="Any InstanceConfig field as FIELD=VALUE (repeatable), e.g. --set cluster_eps=0.1.",
         ),
     ] = None,
     rrd: RrdOpt = None,
@@ -220,24 +200,21 @@ def instances(
     floor_z: FloorOpt = None,
 ) -> None:
     """Build the OpenMask3D-style instance map (instances.parquet), in the store's
-    gravity-aligned map frame."""
-    from fuse.instances import InstanceConfig, build_instances, recompute_instances
+    gravity-aligned map frame.
 
-    config = InstanceConfig(  # options checked (InstanceConfig.__post_init__) before any work
-        proposals=ProposalMethod(proposals).value,
-        features=InstanceFeatures(features).value,
-        voxel_size=voxel_size,
-        stride=stride,
-        top_k=top_k,
-        logit_scale=logit_scale,
-        vocabulary=_vocabulary(vocabulary),
-        overwrite=overwrite,
+    Settings not given are those the store's instance map was built with, else the
+    defaults shown."""
+    from fuse.instances import build_instances, recompute_instances
+
+    # options checked (InstanceConfig.__post_init__) before any work
+    config = settings.config(
+        _recorded(store, "instances", "instances"),
         **_field_values(InstanceConfig, set_ or []),
     )
     with _writing(store, rrd):
         _map_frame(store, up_axis, floor_z)
         if recompute:
-            path = recompute_instances(store, config.vocabulary, logit_scale)
+            path = recompute_instances(store, *_recompute_args(settings, config))
             if rrd is not None:
                 from fuse.viz_instances import log_instances
 

@@ -1,189 +1,71 @@
-"""``care ingest`` (a recording into a feature store) and ``care topics`` (what is in it)."""
+"""``care ingest`` (a recording into a feature store) and ``care topics`` (what is in it).
+
+Their options are generated from :class:`ingest.pipeline.IngestConfig`,
+:class:`care.encoders.EncoderOptions`, :class:`ingest.source.ReadOptions` and
+:class:`ingest.select.FrameSelection` (:mod:`care_cli.options`).
+"""
 
 from __future__ import annotations
 
+from dataclasses import fields
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
+from care.encoders.base import EncoderOptions
 from care_cli.choices import EncoderName, Perception
+from care_cli.options import Options, config_options
+from ingest.pipeline import IngestConfig
+from ingest.select import FrameSelection
+from ingest.source import ReadOptions
 
 __all__ = ["register"]
 
 _READ = "Topics and frames"
+"""Help panel of the reading options, shared by ``care ingest`` and ``care topics``."""
+
+read_options = config_options(
+    "read", ReadOptions, extra={f.name: {"rich_help_panel": _READ} for f in fields(ReadOptions)}
+)
+"""The :class:`ingest.source.ReadOptions` options of both commands."""
 
 
-def _read_options(
-    rgb: str | None,
-    depth: str | None,
-    camera_info: str | None,
-    pose_source: str | None,
-    world_frame: str | None,
-    camera_frame: str | None,
-    max_dt: float,
-    static_pose: bool,
-):  # -> ReadOptions (imported lazily to keep `care --help` fast)
-    from ingest.source import ReadOptions
-
-    return ReadOptions(
-        rgb=rgb,
-        depth=depth,
-        camera_info=camera_info,
-        pose_source=pose_source,
-        world_frame=world_frame,
-        camera_frame=camera_frame,
-        max_dt=max_dt,
-        static_pose=static_pose,
-    )
-
-
-RgbOpt = Annotated[
-    str | None, typer.Option("--rgb", help="Colour image topic.", rich_help_panel=_READ)
-]
-DepthOpt = Annotated[
-    str | None,
-    typer.Option("--depth", help="Depth topic registered to colour.", rich_help_panel=_READ),
-]
-InfoOpt = Annotated[
-    str | None,
-    typer.Option(
-        "--camera-info", help="CameraInfo topic of the colour camera.", rich_help_panel=_READ
-    ),
-]
-PoseOpt = Annotated[
-    str | None,
-    typer.Option(
-        "--pose-source",
-        help="Odometry or PoseStamped topic giving the pose (default: TF).",
-        rich_help_panel=_READ,
-    ),
-]
-WorldOpt = Annotated[
-    str | None,
-    typer.Option(
-        "--world-frame",
-        help="TF world frame (default map/world/odom or the TF root).",
-        rich_help_panel=_READ,
-    ),
-]
-CameraOpt = Annotated[
-    str | None,
-    typer.Option(
-        "--camera-frame",
-        help="Optical frame of the colour camera (x right, y down, z forward).",
-        rich_help_panel=_READ,
-    ),
-]
-MaxDtOpt = Annotated[
-    float,
-    typer.Option(
-        "--max-dt", help="Seconds allowed between colour and depth stamps.", rich_help_panel=_READ
-    ),
-]
-StaticOpt = Annotated[
-    bool,
-    typer.Option(
-        "--static-pose",
-        help="Identity pose for every frame (recordings without poses).",
-        rich_help_panel=_READ,
-    ),
-]
-
-
+@config_options(
+    "job",
+    IngestConfig,
+    only=("out", "encoder", "vocabulary", "rrd", "rrd_every", "force"),
+    extra={
+        "out": {"flags": ("--out", "-o")},
+        "encoder": {"type": EncoderName},
+        "rrd_every": {"min": 1},
+        "vocabulary": {"help": "Class names whose text embeddings to cache: a bundled "
+                       "vocabulary name, a file, or comma-separated names."},
+    },
+)  # fmt: skip
+@config_options(
+    "encoding",
+    EncoderOptions,
+    extra={"batch_size": {"min": 1}, "perception": {"type": Perception}},
+)
+@read_options
+@config_options("selection", FrameSelection)
 def ingest(
     recording: Annotated[Path, typer.Argument(help="MCAP file, rosbag2 directory or ROS 1 .bag.")],
-    out: Annotated[Path, typer.Option("--out", "-o", help="Store directory to write.")],
-    encoder: Annotated[
-        EncoderName | None,
-        typer.Option("--encoder", help="Feature encoder; none = no features."),
-    ] = None,
-    weights: Annotated[
-        str | None, typer.Option("--weights", help="Encoder weights directory or checkpoint id.")
-    ] = None,
-    precomputed: Annotated[
-        Path | None,
-        typer.Option("--precomputed", help="Parquet of per-view features (precomputed encoder)."),
-    ] = None,
-    device: Annotated[
-        str | None, typer.Option("--device", help="torch device (default CUDA if available).")
-    ] = None,
-    batch_size: Annotated[
-        int, typer.Option("--batch-size", help="Views per encoder batch.", min=1)
-    ] = 8,
-    perception: Annotated[
-        Perception,
-        typer.Option("--perception", help="Perception preset of the labels encoder."),
-    ] = "default",  # type: ignore[assignment]
-    seed: Annotated[
-        int, typer.Option("--seed", help="Seed of the labels encoder's biases and noise.")
-    ] = 0,
-    vocabulary: Annotated[
-        str | None,
-        typer.Option(
-            "--vocabulary",
-            help="Class names whose text embeddings to cache: a bundled vocabulary name, a "
-            "file, or comma-separated names.",
-        ),
-    ] = None,
-    rrd: Annotated[
-        Path | None, typer.Option("--rrd", help="Write a Rerun recording of the ingest.")
-    ] = None,
-    rrd_every: Annotated[
-        int, typer.Option("--rrd-every", help="Log the point cloud of every Nth frame.", min=1)
-    ] = 10,
-    force: Annotated[
-        bool, typer.Option("--force", help="Rebuild even if the store is up to date.")
-    ] = False,
-    rgb: RgbOpt = None,
-    depth: DepthOpt = None,
-    camera_info: InfoOpt = None,
-    pose_source: PoseOpt = None,
-    world_frame: WorldOpt = None,
-    camera_frame: CameraOpt = None,
-    max_dt: MaxDtOpt = 0.02,
-    static_pose: StaticOpt = False,
-    start: Annotated[
-        float | None, typer.Option(help="Skip the frames of the first START seconds.")
-    ] = None,
-    end: Annotated[
-        float | None, typer.Option(help="Stop reading END seconds after the first frame.")
-    ] = None,
-    every: Annotated[int, typer.Option(help="Keep every Nth frame of the time range.")] = 1,
-    min_motion: Annotated[
-        float,
-        typer.Option(help="Skip frames that moved less than this (m) from the last one kept ..."),
-    ] = 0.0,
-    min_rotation: Annotated[
-        float, typer.Option(help="... and turned less than this (degrees).")
-    ] = 0.0,
+    job: Options[IngestConfig] = None,  # type: ignore[assignment]
+    encoding: Options[EncoderOptions] = None,  # type: ignore[assignment]
+    read: Options[ReadOptions] = None,  # type: ignore[assignment]
+    selection: Options[FrameSelection] = None,  # type: ignore[assignment]
 ) -> None:
     """Read a robot recording into a feature store (views, poses, features)."""
-    from care.encoders import EncoderOptions
     from care.store import Store
-    from ingest.pipeline import IngestConfig, run_ingest
-    from ingest.select import FrameSelection
+    from ingest.pipeline import run_ingest
 
-    config = IngestConfig(
+    config = job.config(
         recording=recording,
-        out=out,
-        read=_read_options(
-            rgb, depth, camera_info, pose_source, world_frame, camera_frame, max_dt, static_pose
-        ),
-        encoder=None if encoder is None else EncoderName(encoder).value,
-        encoder_options=EncoderOptions(
-            weights=weights,
-            device=device,
-            batch_size=batch_size,
-            precomputed=precomputed,
-            perception=Perception(perception).value,
-            seed=seed,
-        ),
-        select=FrameSelection(start, end, every, min_motion, min_rotation),
-        vocabulary=vocabulary,
-        rrd=rrd,
-        rrd_every=rrd_every,
-        force=force,
+        read=read.config(),
+        encoder_options=encoding.config(),
+        select=selection.config(),
     )
     path = run_ingest(config)
     store = Store(path)
@@ -197,16 +79,10 @@ def ingest(
     )
 
 
+@read_options
 def topics(
     recording: Annotated[Path, typer.Argument(help="MCAP file, rosbag2 directory or ROS 1 .bag.")],
-    rgb: RgbOpt = None,
-    depth: DepthOpt = None,
-    camera_info: InfoOpt = None,
-    pose_source: PoseOpt = None,
-    world_frame: WorldOpt = None,
-    camera_frame: CameraOpt = None,
-    max_dt: MaxDtOpt = 0.02,
-    static_pose: StaticOpt = False,
+    read: Options[ReadOptions] = None,  # type: ignore[assignment]
     stamps: Annotated[
         bool,
         typer.Option(
@@ -221,10 +97,8 @@ def topics(
     from ingest.readers import open_reader
     from ingest.source import RecordingFrames
 
+    options = read.config()
     if stamps:
-        options = _read_options(
-            rgb, depth, camera_info, pose_source, world_frame, camera_frame, max_dt, static_pose
-        )
         with RecordingFrames(recording, options) as frames:
             for frame in frames:
                 typer.echo(str(frame.stamp_ns))
@@ -235,9 +109,6 @@ def topics(
     width = max((len(n) for n in listed), default=0)
     for info in listed.values():
         typer.echo(f"{info.name:<{width}}  {info.msgtype:<36} {info.count:>7}")
-    options = _read_options(
-        rgb, depth, camera_info, pose_source, world_frame, camera_frame, max_dt, static_pose
-    )
     try:
         with RecordingFrames(recording, options) as frames:
             chosen = frames.describe()

@@ -15,7 +15,7 @@ import json
 import os
 import zlib
 from collections.abc import Iterator, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -24,18 +24,18 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 from tqdm import tqdm
 
-from care.checks import check_numbers
 from care.errors import CareError, EvalError
 from care.outputs import evaluation_output
 from care.store import read_table, write_table_atomic
-from evaluate.groundtruth import GtSource, UnknownClasses, check_ground_truth, gt_files
+from evaluate.config import EvalConfig
+from evaluate.groundtruth import GtSource, check_ground_truth, gt_files
 from evaluate.report import Report, write_report
-from evaluate.success import PROTOCOLS, QuerySet, grid_queries, instance_queries, scene_point_labels
+from evaluate.success import QuerySet, grid_queries, instance_queries, scene_point_labels
 from query.confidence import confidence
 from query.map import MAP_TABLES, MEASURES, load_map
 from replan.attempts import Attempts, run_attempts
 from replan.expected import expected_random_success
-from replan.strategies import STRATEGIES, get_strategy
+from replan.strategies import STRATEGIES
 from world.dataset_index import INDEX_NAME, read_index
 
 __all__ = [
@@ -81,86 +81,6 @@ ATTEMPT_SCHEMA = pa.schema(
 """One row per attempt made. ``candidate`` is the id in the scene's map table (-1: nothing
 left to choose); ``seed`` is -1 for deterministic strategies; ``expected`` is the closed-form
 success probability of the episode for the random strategies (NaN otherwise)."""
-
-
-@dataclass(frozen=True)
-class EvalConfig:
-    """What an evaluation runs (shared by ``care eval``, ``care run`` and the Python API)."""
-
-    maps: tuple[str, ...] = ("instances", "grid")
-    """Map kinds to evaluate: ``instances`` (OpenMask3D-like) and/or ``grid`` (VLMaps-like)."""
-    strategies: tuple[str, ...] = tuple(STRATEGIES)
-    """Replan strategies (names of ``replan.STRATEGIES``)."""
-    criteria: tuple[str, ...] = ("confidence", "category")
-    """Selection criteria of the set-based strategies."""
-    k_instances: tuple[int, ...] = (2, 4, 8, 16, 40)
-    """k of the candidate sets on the instance map (the paper's Table 1)."""
-    k_grid: tuple[int, ...] = (4, 8, 16, 40, 100)
-    """k of the candidate sets on the grid map (the paper's Table 2)."""
-    attempts: int = 2
-    """Attempts per query: the first by max confidence, then the strategy after each failure."""
-    protocols: tuple[str, ...] = PROTOCOLS
-    """Instance-map query protocols: ``instance`` (the paper's) and/or ``class``."""
-    iou_threshold: float = 0.25
-    """An instance attempt succeeds when its mask's point IoU with the GT mask exceeds this."""
-    success_radius: float = 1.0
-    """A grid attempt succeeds within this floor-plane distance (m) of an object of the class."""
-    exclude_radius: float = 1.0
-    """After a failed grid attempt, cells within this distance (m) of it are skipped."""
-    rooms: bool = True
-    """Evaluate room by room (each room its own candidate set) where the GT has rooms."""
-    seeds: int = 10
-    """Seeds the random strategies are averaged over."""
-    seed: int = 0
-    """Base seed of every random draw."""
-    label_distance: float = 0.05
-    """Scene points farther than this (m) from every GT point get no GT label."""
-    bootstrap: int = 1000
-    """Bootstrap resamples of the queries for the 95% confidence intervals."""
-    unknown_classes: UnknownClasses = UnknownClasses.REFUSE
-    """Ground-truth classes the map's vocabulary lacks: refuse the scene, or ignore them."""
-
-    def __post_init__(self) -> None:
-        try:
-            object.__setattr__(self, "unknown_classes", UnknownClasses(self.unknown_classes))
-        except ValueError as err:
-            msg = f"--gt-unknown-classes {self.unknown_classes!r}: choose refuse or ignore"
-            raise EvalError(msg) from err
-        check_numbers(
-            EvalError,
-            "evaluation config",
-            positive={"iou_threshold": self.iou_threshold, "success_radius": self.success_radius,
-                      "label_distance": self.label_distance},
-            non_negative={"exclude_radius": self.exclude_radius, "bootstrap": self.bootstrap},
-        )  # fmt: skip
-        for name in self.strategies:
-            get_strategy(name)
-        bad = [m for m in self.maps if m not in MAP_TABLES]
-        bad += [p for p in self.protocols if p not in PROTOCOLS]
-        bad += [c for c in self.criteria if c not in ("confidence", "category")]
-        bad += [f"k={k}" for k in (*self.k_grid, *self.k_instances) if not 1 <= k <= 32767]
-        bad += [
-            name
-            for name in ("strategies", "maps", "protocols", "criteria")
-            if not getattr(self, name)
-        ]
-        if bad or self.attempts < 1 or self.seeds < 1:
-            msg = (
-                f"invalid evaluation config: {bad} (unknown, out of range or empty), "
-                f"attempts={self.attempts}, seeds={self.seeds}; maps: {list(MAP_TABLES)}, "
-                f"protocols: {list(PROTOCOLS)}, criteria: confidence, category; k 1..32767; "
-                "attempts and seeds >= 1"
-            )
-            raise EvalError(msg)
-
-    def ks(self, kind: str) -> tuple[int, ...]:
-        return self.k_grid if kind == "grid" else self.k_instances
-
-    def fingerprint(self) -> str:
-        """Hash of everything that shapes a scene's attempts (not ``bootstrap``)."""
-        fields = asdict(self)
-        fields.pop("bootstrap")
-        return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:16]
 
 
 @dataclass(frozen=True)

@@ -9,21 +9,21 @@ runs on the bundled sample (``data/sample``).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from care.encoders import EncoderOptions
 from care.errors import EvalError
 from care.outputs import owned_output
+from evaluate.config import RunConfig
 from evaluate.groundtruth import GtSource
-from evaluate.job import EvalConfig, Scene, run_eval, with_ground_truth
+from evaluate.job import Scene, run_eval, with_ground_truth
 from evaluate.report import Report
 from evaluate.viz import write_evaluation_rrd
-from fuse.grid import GridConfig, build_grid
-from fuse.instances import InstanceConfig, build_instances
+from fuse.grid import build_grid
+from fuse.instances import build_instances
 from fuse.viz_grid import log_grid
 from ingest.pipeline import IngestConfig, run_ingest
 from ingest.readers import is_recording, recordings_in
@@ -34,39 +34,6 @@ __all__ = ["SAMPLE", "RunConfig", "RunResult", "recordings_of", "run_all"]
 
 SAMPLE = Path(__file__).resolve().parents[1] / "data" / "sample"
 """The bundled sample dataset (one sample-world recording with ground truth)."""
-
-
-@dataclass(frozen=True)
-class RunConfig:
-    """The main job's settings (the CLI's ``care run`` options)."""
-
-    encoder: str = "labels"
-    """Encoder of ``care ingest`` (``labels``: the sample world's perception model)."""
-    encoder_options: EncoderOptions = field(default_factory=EncoderOptions)
-    """Its options (``--weights`` for ``clip``, ...)."""
-    vocabulary: str | None = None
-    """Class names to cache at ingest (default: the recording's own class names)."""
-    grid: GridConfig = field(default_factory=lambda: GridConfig(stride=2))
-    """Grid map settings (every second depth pixel: the same map at a quarter of the work)."""
-    instances: InstanceConfig = field(default_factory=InstanceConfig)
-    """Instance map settings."""
-    evaluation: EvalConfig = field(default_factory=EvalConfig)
-    """What the evaluation runs."""
-    workers: int | None = None
-    """Local processes of the evaluation (default: one per CPU)."""
-    ray_address: str | bool | None = None
-    """Evaluate scenes as Ray tasks: True for a local Ray, an address for a cluster."""
-    progress: bool = True
-    """Show progress bars."""
-    gt: tuple[Path, ...] = ()
-    """Ground truth of each recording, in order (default: its index entry's, or beside it)."""
-    gt_defaults: GtSource = field(default_factory=GtSource)
-    """Format, frame transform and class map of ground truth that names none."""
-    rrd_ingest: bool = True
-    """Also write ``<name>.ingest.rrd`` (camera images, depth, the map building up)."""
-    rrd_class: str | None = None
-    """Class of the grid recording's confidence layer (default: one layer per query class of
-    the scene's evaluation)."""
 
 
 @dataclass(frozen=True)

@@ -16,12 +16,14 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from care.outputs import atomic_write_text, write_atomic
 from care.store import write_table_atomic
 from evaluate.paired_report import paired_markdown, paired_table
-from replan.strategies import STRATEGIES
+from replan.strategies import CRITERIA, STRATEGIES, StrategyName
 
 __all__ = [
     "AUROC_MEASURES",
+    "PER_SCENE",
     "Report",
     "auroc",
     "auroc_table",
@@ -37,6 +39,8 @@ AUROC_MEASURES = ("confidence", "entropy", "stderr", "pwkl", "num_views")
 
 QUERY_KEYS = ["scene", "map", "protocol", "unit", "query"]
 RULE_KEYS = ["strategy", "criterion", "k"]
+"""What a replan rule is in the attempt rows: its strategy, criterion and k (criterion
+``evaluate.job.NO_CRITERION`` and k 0 for the strategies without a candidate set)."""
 MAP_TITLES = {
     "instances": "Instance map (OpenMask3D-like): retrieval success (%)",
     "grid": "Grid map (VLMaps-like): subgoal success (%)",
@@ -65,17 +69,19 @@ def per_query(attempts: pa.Table) -> pa.Table:
 
 
 def _bootstrap(values: np.ndarray, n: int, rng: np.random.Generator) -> tuple[float, float]:
+    """95% percentile interval of the mean (``scipy.stats.bootstrap``, ``n`` resamples drawn
+    from ``rng``: the same generator state gives the same interval)."""
     if len(values) == 0 or n <= 0:
         return float("nan"), float("nan")
-    means = np.empty(n)
-    chunk = max(1, 2_000_000 // max(len(values), 1))
-    for start in range(0, n, chunk):
-        size = min(chunk, n - start)
-        means[start : start + size] = values[
-            rng.integers(0, len(values), (size, len(values)))
-        ].mean(1)
-    lo, hi = np.percentile(means, [2.5, 97.5])
-    return float(lo), float(hi)
+    if np.all(values == values[0]):  # every resample has the same mean
+        return float(values[0]), float(values[0])
+    from scipy.stats import bootstrap  # here: scipy.stats costs every scene worker ~2 s
+
+    ci = bootstrap(
+        (values,), np.mean, n_resamples=n, confidence_level=0.95, method="percentile",
+        vectorized=True, batch=max(1, 2_000_000 // len(values)), random_state=rng,
+    ).confidence_interval  # fmt: skip
+    return float(ci.low), float(ci.high)
 
 
 def _groups(table: pa.Table, keys: Sequence[str]) -> Iterator[tuple[dict, np.ndarray]]:
@@ -103,7 +109,8 @@ def summarise(
     queries: pa.Table, *, bootstrap: int = 1000, seed: int = 0, by_scene: bool = False
 ) -> pa.Table:
     """Success rate (%) with a 95% bootstrap CI per (map, protocol, strategy, criterion, k)
-    (and scene with ``by_scene``). Random strategies add an ``<name> (expected)`` row."""
+    (and scene with ``by_scene``). ``closed_form`` tells the random strategies' expected
+    success (their own rows, from the ``expected`` column) from the measured one."""
     rows = []
     keys = ["map", "protocol", *RULE_KEYS] + (["scene"] if by_scene else [])
     rng = np.random.default_rng(seed)
@@ -112,16 +119,17 @@ def summarise(
         for c in ("solved", "expected")
     }
     for key, idx in _groups(queries, keys):
-        for suffix, column in (("", "solved"), (" (expected)", "expected")):
+        for closed_form, column in ((False, "solved"), (True, "expected")):
             values = columns[column][idx]
-            if suffix and (not STRATEGIES[key["strategy"]].random or np.isnan(values).all()):
+            random = STRATEGIES[key["strategy"]].random
+            if closed_form and (not random or np.isnan(values).all()):
                 continue
             values = values[~np.isnan(values)]
             lo, hi = _bootstrap(values, 0 if by_scene else bootstrap, rng)
             rows.append(
                 {
                     **key,
-                    "strategy": key["strategy"] + suffix,
+                    "closed_form": closed_form,
                     "rate": 100 * float(values.mean()) if len(values) else float("nan"),
                     "lo": 100 * lo,
                     "hi": 100 * hi,
@@ -132,8 +140,9 @@ def summarise(
 
 
 def auroc(score: np.ndarray, positive: np.ndarray) -> float:
-    """Area under the ROC curve of ``score`` for the ``positive`` class (Mann-Whitney U with
-    midranks for ties; infinities rank last/first as they should; NaN scores are dropped)."""
+    """Area under the ROC curve of ``score`` for the ``positive`` class: the Mann-Whitney U
+    statistic of the positives' scores over the negatives' (``scipy.stats.mannwhitneyu``,
+    midranks for ties), divided by n_pos * n_neg; NaN scores are dropped."""
     score = np.asarray(score, dtype=np.float64)
     positive = np.asarray(positive, dtype=bool)
     keep = ~np.isnan(score)
@@ -141,10 +150,10 @@ def auroc(score: np.ndarray, positive: np.ndarray) -> float:
     n_pos, n_neg = int(positive.sum()), int((~positive).sum())
     if n_pos == 0 or n_neg == 0:
         return float("nan")
-    from scipy.stats import rankdata  # here: scipy.stats costs every scene worker ~2 s
+    from scipy.stats import mannwhitneyu  # here: scipy.stats costs every scene worker ~2 s
 
-    ranks = rankdata(score)
-    return float((ranks[positive].sum() - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg))
+    u = mannwhitneyu(score[positive], score[~positive], method="asymptotic").statistic
+    return float(u / (n_pos * n_neg))
 
 
 def auroc_table(attempts: pa.Table) -> pa.Table:
@@ -172,32 +181,52 @@ def auroc_table(attempts: pa.Table) -> pa.Table:
     return pa.Table.from_pylist(rows)
 
 
+Rule = tuple[str, bool, str]
+"""A table row: (strategy, closed form, criterion)."""
+
+
+def _uses_set(strategy: str) -> bool:
+    """Whether a strategy's rows have a criterion and k (the registry says, not the name)."""
+    return STRATEGIES[strategy].uses_set
+
+
+def _k_of(strategy: str, k: int) -> int:
+    """The k a summary row of ``strategy`` has at column k (0: it takes no candidate set)."""
+    return k if _uses_set(strategy) else 0
+
+
 def _rate_lookup(summary: pa.Table) -> dict[tuple, dict]:
     return {
-        (r["map"], r["protocol"], r["strategy"], r["criterion"], r["k"]): r
+        (r["map"], r["protocol"], r["strategy"], r["closed_form"], r["criterion"], r["k"]): r
         for r in summary.to_pylist()
     }
 
 
-def _row_order(summary: pa.Table, kind: str, protocol: str) -> list[tuple[str, str]]:
+def _row_order(summary: pa.Table, kind: str, protocol: str) -> list[Rule]:
+    """The rows of one table in the registry's order, each closed form after its strategy."""
     present = {
-        (r["strategy"], r["criterion"])
+        (r["strategy"], r["closed_form"], r["criterion"])
         for r in summary.to_pylist()
         if r["map"] == kind and r["protocol"] == protocol
     }
+    found = {c for _, _, c in present}
+    criteria = sorted(found - set(CRITERIA)) + [c for c in CRITERIA if c in found]
     return [
-        (strategy, criterion)
+        (name, closed, criterion)
         for name in STRATEGIES
-        for strategy in (name, f"{name} (expected)")
-        for criterion in ("-", "confidence", "category")
-        if (strategy, criterion) in present
+        for closed in (False, True)
+        for criterion in criteria
+        if (name, closed, criterion) in present
     ]
 
 
-def _label(strategy: str) -> str:
-    base, _, rest = strategy.partition(" (")
-    label = STRATEGIES[base].label if base in STRATEGIES else base
-    return f"{label} (closed form)" if rest else label
+def _label(strategy: str, closed_form: bool = False) -> str:
+    label = STRATEGIES[strategy].label
+    return f"{label} (closed form)" if closed_form else label
+
+
+def _criterion_cell(strategy: str, criterion: str) -> str:
+    return criterion if _uses_set(strategy) else "-"
 
 
 def markdown_tables(summary: pa.Table, ks: dict[str, Sequence[int]], *, ci: bool = False) -> str:
@@ -215,13 +244,15 @@ def markdown_tables(summary: pa.Table, ks: dict[str, Sequence[int]], *, ci: bool
         grid = np.array(
             [
                 [
-                    lookup.get((kind, protocol, s, c, 0 if c == "-" else k), {}).get("rate", np.nan)
+                    lookup.get((kind, protocol, s, cf, c, _k_of(s, k)), {}).get("rate", np.nan)
                     for k in kvals
                 ]
-                for s, c in rows
+                for s, cf, c in rows
             ]
         )
-        ranked = [i for i, (s, _) in enumerate(rows) if s != "oracle" and "(expected)" not in s]
+        ranked = [
+            i for i, (s, cf, _) in enumerate(rows) if not STRATEGIES[s].needs_truth and not cf
+        ]
         col_best = np.nanmax(grid[ranked], axis=0) if ranked else np.full(len(kvals), np.nan)
         n_q = max(
             (
@@ -239,56 +270,66 @@ def markdown_tables(summary: pa.Table, ks: dict[str, Sequence[int]], *, ci: bool
             "| Replan strategy | Selection criteria | " + " | ".join(f"k={k}" for k in kvals) + " |"
         )
         out.append("|---|---|" + "---:|" * len(kvals))
-        for i, (strategy, criterion) in enumerate(rows):
+        for i, (strategy, closed, criterion) in enumerate(rows):
             cells = []
             for j, k in enumerate(kvals):
                 value = grid[i, j]
                 if ci:
                     r = lookup.get(
-                        (kind, protocol, strategy, criterion, 0 if criterion == "-" else k)
+                        (kind, protocol, strategy, closed, criterion, _k_of(strategy, k))
                     )
                     cells.append("" if r is None else f"[{r['lo']:.1f}, {r['hi']:.1f}]")
                     continue
                 text = "" if np.isnan(value) else f"{value:.2f}"
-                if i in ranked and criterion != "-" and value == np.nanmax(grid[i]):
+                if i in ranked and _uses_set(strategy) and value == np.nanmax(grid[i]):
                     text = f"*{text}*"
                 if i in ranked and value == col_best[j]:
                     text = f"**{text}**"
                 cells.append(text)
-            out.append(f"| {_label(strategy)} | {criterion} | " + " | ".join(cells) + " |")
+            out.append(
+                f"| {_label(strategy, closed)} | {_criterion_cell(strategy, criterion)} | "
+                + " | ".join(cells)
+                + " |"
+            )
         out.append("")
     return "\n".join(out)
 
 
 def _best_k(summary: pa.Table) -> dict[tuple[str, str, str, str], int]:
-    """(map, protocol, strategy, criterion) -> the k of its best rate over all scenes."""
+    """(map, protocol, strategy, criterion) -> the k of its measured best rate over all scenes."""
     best: dict[tuple[str, str, str, str], tuple[float, int]] = {}
     for r in summary.to_pylist():
+        if r["closed_form"]:
+            continue
         key = (r["map"], r["protocol"], r["strategy"], r["criterion"])
         if key not in best or r["rate"] > best[key][0]:
             best[key] = (r["rate"], r["k"])
     return {key: k for key, (_, k) in best.items()}
 
 
+PER_SCENE = (
+    StrategyName.NO_REPLAN,
+    StrategyName.MAX_CONFIDENCE,
+    StrategyName.RANDOM,
+    StrategyName.ORACLE,
+    StrategyName.MAX_ENTROPY,
+    StrategyName.MIN_STDERR,
+    StrategyName.MIN_PWKL,
+)
+"""Strategies of the per-scene table: baselines, oracle and the paper's CARe rules."""
+
+
 def per_scene_markdown(summary: pa.Table, scenes: pa.Table) -> str:
     """Per-scene success (%): baselines, oracle and each CARe rule at its best k overall."""
     best = _best_k(summary)
-    shown = [
-        "no_replan",
-        "max_confidence",
-        "random",
-        "oracle",
-        "max_entropy",
-        "min_stderr",
-        "min_pwkl",
-    ]
-    rows = scenes.to_pylist()
+    rows = [r for r in scenes.to_pylist() if not r["closed_form"]]
     out = []
     for kind, protocol in sorted({(r["map"], r["protocol"]) for r in rows}):
+        criteria = sorted({c for (m, p, _, c) in best if (m, p) == (kind, protocol)})
         cols = [
-            (s, c, best.get((kind, protocol, s, c), 0))
-            for s in shown
-            for c in ("-", "confidence", "category")
+            (s, c, best[(kind, protocol, s, c)])
+            for s in PER_SCENE
+            for c in criteria
             if (kind, protocol, s, c) in best
         ]
         lookup = {
@@ -298,7 +339,7 @@ def per_scene_markdown(summary: pa.Table, scenes: pa.Table) -> str:
         }
         names = sorted({r["scene"] for r in rows if r["map"] == kind and r["protocol"] == protocol})
         out.append(f"### Per scene: {kind}, protocol `{protocol}`\n")
-        heads = [s if c == "-" else f"{s} ({c[:4]}, k={k})" for s, c, k in cols]
+        heads = [f"{s} ({c[:4]}, k={k})" if _uses_set(s) else str(s) for s, c, k in cols]
         out.append("| scene | " + " | ".join(heads) + " |")
         out.append("|---|" + "---:|" * len(cols))
         for name in names:
@@ -343,32 +384,33 @@ def plot_success(summary: pa.Table, ks: dict[str, Sequence[int]], out_dir: Path)
     out_dir.mkdir(parents=True, exist_ok=True)
     for kind, protocol in sorted({(r["map"], r["protocol"]) for r in summary.to_pylist()}):
         kvals = list(ks[kind])
-        rows = [(s, c) for s, c in _row_order(summary, kind, protocol) if "(" not in s]
-        criteria = [c for c in ("confidence", "category") if any(rc == c for _, rc in rows)]
+        rows = [(s, c) for s, cf, c in _row_order(summary, kind, protocol) if not cf]
+        criteria = [c for c in CRITERIA if any(rc == c for _, rc in rows)]
         fig, axes = plt.subplots(
             1, max(len(criteria), 1), figsize=(11, 4.5), sharey=True, squeeze=False
         )
-        for ax, panel in zip(axes[0], criteria or ["-"], strict=True):
+        for ax, panel in zip(axes[0], criteria or [None], strict=True):
             for strategy, criterion in rows:
-                if criterion not in ("-", panel):
+                reference = not _uses_set(strategy)  # no candidate set: in every panel
+                if not (reference or criterion == panel):
                     continue
                 values = [
                     lookup.get(
-                        (kind, protocol, strategy, criterion, 0 if criterion == "-" else k), {}
+                        (kind, protocol, strategy, False, criterion, _k_of(strategy, k)), {}
                     ).get("rate", np.nan)
                     for k in kvals
                 ]
                 ax.plot(
-                    kvals, values, "--" if criterion == "-" else "-",
-                    color=_COLOURS.get(strategy, "tab:gray"), marker=None if criterion == "-" else "o",
-                    markersize=4, linewidth=1.2 if criterion == "-" else 1.8,
+                    kvals, values, "--" if reference else "-",
+                    color=_COLOURS.get(strategy, "tab:gray"), marker=None if reference else "o",
+                    markersize=4, linewidth=1.2 if reference else 1.8,
                     label=_label(strategy),
                 )  # fmt: skip
             ax.set_xscale("log")
             ax.xaxis.set_minor_locator(mpl.ticker.NullLocator())
             ax.set_xticks(kvals, [str(k) for k in kvals])
             ax.set_xlabel("k")
-            ax.set_title(f"candidate set: top-k {panel}" if panel != "-" else "baselines")
+            ax.set_title(f"candidate set: top-k {panel}" if panel else "baselines")
             ax.grid(alpha=0.3)
         axes[0][0].set_ylabel("success (%)")
         handles, labels = axes[0][0].get_legend_handles_labels()
@@ -376,10 +418,8 @@ def plot_success(summary: pa.Table, ks: dict[str, Sequence[int]], out_dir: Path)
         fig.suptitle(f"{MAP_TITLES.get(kind, kind)}, protocol {protocol}", fontsize=11)
         fig.tight_layout(rect=(0, 0, 0.8, 1))
         path = out_dir / f"success_{kind}_{protocol}.png"
-        tmp = path.with_name(f".{path.name}.tmp.png")
-        fig.savefig(tmp, dpi=110)
+        write_atomic(path, lambda tmp, fig=fig: fig.savefig(tmp, dpi=110, format="png"))
         plt.close(fig)
-        tmp.replace(path)
         paths.append(path)
     return paths
 
@@ -389,6 +429,9 @@ class Report:
     """What :func:`write_report` wrote."""
 
     markdown: str
+    """The whole ``results.md``."""
+    tables: str
+    """Its success-rate tables (what ``care run`` prints)."""
     summary: pa.Table
     auroc: pa.Table
     paths: tuple[Path, ...]
@@ -434,12 +477,13 @@ def write_report(
     for table, path in zip((attempts, summary, scenes, aucs, paired), paths, strict=True):
         write_table_atomic(table, path)
     plots = plot_success(summary, ks, out / "plots")
+    tables = markdown_tables(summary, ks)
     md = "\n".join(
         [
             header,
             "## Success rates\n",
             "**Bold**: best of the column (oracle and closed-form rows excluded). *Italic*: best of the row over k.\n",
-            markdown_tables(summary, ks),
+            tables,
             "## 95% bootstrap confidence intervals (queries resampled)\n",
             markdown_tables(summary, ks, ci=True),
             paired_markdown(paired),
@@ -449,7 +493,5 @@ def write_report(
         ]
     )
     md_path = out / "results.md"
-    tmp = md_path.with_name(".results.md.tmp")
-    tmp.write_text(md)
-    tmp.replace(md_path)
-    return Report(md, summary, aucs, (*paths, md_path, *plots))
+    atomic_write_text(md_path, md)
+    return Report(md, tables, summary, aucs, (*paths, md_path, *plots))

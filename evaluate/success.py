@@ -23,6 +23,7 @@ from scipy.spatial import cKDTree
 
 from care.errors import EvalError
 from care.store import read_table
+from evaluate.config import QueryProtocol
 from query.map import CandidateMap
 from world.groundtruth import GroundTruth
 
@@ -36,9 +37,8 @@ __all__ = [
     "scene_point_labels",
 ]
 
-PROTOCOLS = ("instance", "class")
-"""``instance``: one query per GT instance that must match that very instance (the paper's);
-``class``: one query per class present, any instance of it succeeds (a robot's need)."""
+PROTOCOLS = tuple(QueryProtocol)
+"""The query protocols (:class:`evaluate.config.QueryProtocol` documents each)."""
 
 
 @dataclass(frozen=True, eq=False)

@@ -34,6 +34,7 @@ import rerun.blueprint as rrb
 from care.viz import open_scene_recording, panels
 from query.confidence import confidence
 from query.map import CandidateMap
+from replan.strategies import STRATEGIES, Criterion
 
 __all__ = [
     "CHART_ENTITY",
@@ -101,10 +102,6 @@ def _viridis(values: np.ndarray) -> np.ndarray:
     span = np.ptp(v) if len(v) else 0.0
     v = (v - v.min()) / span if span > 0 else np.zeros_like(v)
     return (mpl.colormaps["viridis"](v)[:, :3] * 255).astype(np.uint8)
-
-
-def _strategy_of(name: str) -> str:
-    return name.replace(" (expected)", "")
 
 
 def query_groups(attempts: pa.Table, scene: str, kinds: Sequence[str]) -> list[list[dict]]:
@@ -359,22 +356,25 @@ def _log_chart(
         ),
         static=True,
     )  # fmt: skip
-    series: dict[tuple[str, str], dict[int, float]] = {}
+    series: dict[tuple[str, bool, str], dict[int, float]] = {}
     for r in rates:
-        series.setdefault((r["strategy"], r["criterion"]), {})[r["k"]] = r["rate"]
+        key = (r["strategy"], r["closed_form"], r["criterion"])
+        series.setdefault(key, {})[r["k"]] = r["rate"]
     legend_y = 0.0
-    for (strategy, criterion), by_k in sorted(series.items()):
-        base_name = _strategy_of(strategy)
-        colour = np.array(COLOURS.get(base_name, GREY), float)
-        if criterion == "category":
+    for (strategy, closed, criterion), by_k in sorted(series.items()):
+        colour = np.array(COLOURS.get(strategy, GREY), float)
+        if criterion == Criterion.CATEGORY:
             colour = colour * 0.55
-        if "(expected)" in strategy:
+        if closed:
             colour = colour * 0.8 + 40
         values = [by_k.get(k, by_k.get(0)) for k in ks]
         pts = [xy(i, v) for i, v in enumerate(values) if v is not None]
-        name = SHORT.get(base_name, base_name) + (" exp." if "(expected)" in strategy else "")
-        label = name if criterion == "-" else f"{name} / {criterion}"
-        entity = f"{base}/{strategy.replace(' (expected)', '_expected')}/{criterion.replace('-', 'none')}"
+        name = SHORT.get(strategy, strategy) + (" exp." if closed else "")
+        uses_set = STRATEGIES[strategy].uses_set
+        label = f"{name} / {criterion}" if uses_set else name
+        entity = (
+            f"{base}/{strategy}{'_expected' if closed else ''}/{criterion if uses_set else 'none'}"
+        )
         c = colour.clip(0, 255).astype(np.uint8)
         rec.log(
             entity,

@@ -32,7 +32,6 @@ A finished grid whose config and store match is not rebuilt (``overwrite`` force
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 from dataclasses import dataclass
@@ -45,10 +44,9 @@ import pyarrow.parquet as pq
 from PIL import Image
 from tqdm import tqdm
 
-from care.checks import check_numbers
 from care.errors import FuseError
 from care.malloc import resident_bytes
-from care.outputs import damaged, record_table
+from care.outputs import damaged, record_table, write_atomic
 from care.store import (
     SCHEMA_VERSION,
     Store,
@@ -60,10 +58,10 @@ from care.store import (
 from fuse.accumulate import CandidateSums
 from fuse.budget import check_raster
 from fuse.cells import CellIndex, ViewSamples, unpack_cells, view_samples
+from fuse.config import GridConfig
 from fuse.frame import check_height_band, ensure_map_frame, store_stamp
 from fuse.layout import CELLS_TABLE, GridLayout
 from fuse.measures import (
-    DEFAULT_LOGIT_SCALE,
     MAX_TOP_CLASSES,
     candidate_metadata,
     to_float16,
@@ -113,64 +111,6 @@ def _open_views_writer(path: Path, dim: int) -> pq.ParquetWriter:
     options = parquet_options(schema)
     options["write_statistics"] = [f.name for f in schema if f.name != "feature"]
     return pq.ParquetWriter(path, schema, **options)
-
-
-@dataclass(frozen=True)
-class GridConfig:
-    """How a grid map is fused (shared by ``care fuse grid`` and :func:`build_grid`)."""
-
-    cell_size: float = 0.05
-    """Cell edge in metres."""
-    stride: int = 1
-    """Use every stride-th depth pixel in both image directions (1 = full resolution)."""
-    z_min: float = -0.2
-    """Lowest world height (m) of a fused point; the floor (z = 0) is kept."""
-    z_max: float = 2.0
-    """Highest world height (m) of a fused point; keeps the ceiling out of the top-down map."""
-    sigma_z: float = 2.5
-    """Depth scale (m) of the distance weight exp(-z^2 / (2 sigma_z^2))."""
-    distance_weighting: bool = True
-    """Weight pixels by depth (VLMaps); False gives every pixel weight 1."""
-    logit_scale: float = DEFAULT_LOGIT_SCALE
-    """Scale s of the class distributions softmax(s * f . t)."""
-    vocabulary: tuple[str, ...] | None = None
-    """Class names of the columns; default: the names cached in the store."""
-    obstacle_height: float = 0.1
-    """A cell whose highest point is above this height (m) is an obstacle."""
-    overwrite: bool = False
-    """Rebuild even if a finished grid with the same config exists."""
-    memory_budget: int | None = None
-    """Bytes the fusion may use (default: :func:`default_memory_budget`); sets how, not what."""
-    cells_per_pass: int | None = None
-    """Cells fused per pass, overriding what the budget allows (tests, benchmarks)."""
-
-    def __post_init__(self) -> None:
-        if self.cells_per_pass is not None and self.cells_per_pass < 1:
-            msg = f"invalid grid config: cells_per_pass={self.cells_per_pass}; need at least 1"
-            raise FuseError(msg)
-        check_numbers(
-            FuseError,
-            "grid config",
-            positive={"cell_size": self.cell_size, "sigma_z": self.sigma_z,
-                      "logit_scale": self.logit_scale},
-            finite={"z_min": self.z_min, "z_max": self.z_max,
-                    "obstacle_height": self.obstacle_height},
-            at_least_one={"stride": self.stride},
-        )  # fmt: skip
-        if self.cell_size <= 0 or self.stride < 1 or self.sigma_z <= 0 or self.z_min > self.z_max:
-            msg = (
-                f"invalid grid config: cell_size={self.cell_size}, stride={self.stride}, "
-                f"sigma_z={self.sigma_z}, z_min={self.z_min}, z_max={self.z_max}; need positive "
-                "sizes and z_min <= z_max"
-            )
-            raise FuseError(msg)
-
-    def fingerprint(self) -> str:
-        """JSON of everything that shapes the map (not how it is built: ``overwrite``, memory)."""
-        fields = dataclasses.asdict(self)
-        for how in ("overwrite", "memory_budget", "cells_per_pass"):
-            fields.pop(how)
-        return json.dumps(fields, sort_keys=True)
 
 
 def grid_image(
@@ -375,12 +315,7 @@ def _cells_chunk(
 
 
 def _write_png(image: np.ndarray, path: Path) -> None:
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        Image.fromarray(image).save(tmp, format="PNG")
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    write_atomic(path, lambda tmp: Image.fromarray(image).save(tmp, format="PNG"))
 
 
 def write_grid_images(store: Store, cells: pa.Table) -> None:
@@ -528,6 +463,7 @@ def build_grid(store_path: Path, config: GridConfig | None = None, rrd: Path | N
             metadata = {
                 **candidate_metadata(vocabulary, config.logit_scale, store.encoder.name),
                 b"care.grid.config": config.fingerprint().encode(),
+                b"care.grid.settings": config.settings().encode(),
                 b"care.store.created": store_stamp(store),
             }
             _write_cells(store, config, text, first, capacity, tmp_cells, metadata, cells_path)

@@ -20,24 +20,22 @@ logit scale from ``instance_views.parquet``.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from care.checks import check_numbers
 from care.encoders import Encoder
 from care.errors import FuseError
 from care.outputs import damaged, record_table
 from care.store import Store, write_table_atomic
+from fuse.config import InstanceConfig, InstanceFeatures
 from fuse.frame import ensure_map_frame, store_stamp
-from fuse.measures import DEFAULT_LOGIT_SCALE, candidate_metadata, list_column
+from fuse.measures import candidate_metadata, list_column
 from fuse.pointcloud import (
     SceneCloud,
     fuse_scene_points,
@@ -63,7 +61,7 @@ __all__ = [
 INSTANCES_TABLE = "instances"
 INSTANCE_VIEWS_TABLE = "instance_views"
 SCENE_POINTS_TABLE = "scene_points"
-INSTANCE_FEATURES = ("masked", "crops")
+INSTANCE_FEATURES = tuple(InstanceFeatures)
 """Ways to get a per-view instance feature (``InstanceConfig.features``)."""
 
 INSTANCE_VIEWS_SCHEMA = pa.schema(
@@ -77,107 +75,6 @@ INSTANCE_VIEWS_SCHEMA = pa.schema(
 )
 
 _CLOUD_FIELDS = ("voxel_size", "stride", "max_depth")
-
-
-@dataclass(frozen=True)
-class InstanceConfig:
-    """How an instance map is built (shared by ``care fuse instances`` and :func:`build_instances`)."""
-
-    proposals: str = "geometric"
-    """Proposal method: ``geometric`` (planes removed, then DBSCAN) or ``labels`` (oracle
-    masks from the recording's instance images)."""
-    features: str = "masked"
-    """Per-view feature: ``masked`` (dense features pooled inside the projected mask) or
-    ``crops`` (bounding-box crops re-encoded; encoders with crop support only)."""
-    voxel_size: float = 0.03
-    """Voxel edge (m) of the scene cloud."""
-    stride: int = 2
-    """Back-project every stride-th depth pixel in both image directions."""
-    max_depth: float = 8.0
-    """Depth (m) beyond which pixels are left out of the scene cloud."""
-    plane_distance: float = 0.03
-    """RANSAC inlier distance (m) of a structural plane (geometric)."""
-    max_planes: int = 20
-    """Most planes RANSAC looks for (geometric)."""
-    plane_min_points: int = 400
-    """Smallest plane (points) still considered; the plane search stops below it (geometric)."""
-    normal_radius: float = 0.1
-    """Neighbourhood radius (m) of the point normals (geometric)."""
-    normal_angle_deg: float = 30.0
-    """Angle (degrees) within which a normal counts as parallel (to the plane's, or to z)."""
-    wall_min_height: float = 1.2
-    """Vertical planes spanning at least this height (m) are walls (geometric)."""
-    floor_band: float = 0.15
-    """Horizontal planes within this height (m) of the lowest/highest points are floor/ceiling."""
-    cluster_eps: float = 0.08
-    """DBSCAN neighbourhood radius (m); about 2.5 voxels (geometric)."""
-    cluster_min_points: int = 10
-    """DBSCAN core-point neighbour count (geometric)."""
-    min_instance_points: int = 50
-    """Clusters with fewer points are dropped as noise (geometric)."""
-    min_label_points: int = 10
-    """Oracle masks with fewer points are dropped (labels); small, since a label is no noise."""
-    max_instance_extent: float = 4.0
-    """Clusters longer than this (m) on any axis are structure, not objects (geometric)."""
-    top_k: int = 5
-    """Views kept per instance (OpenMask3D keeps 5)."""
-    depth_tolerance: float = 0.1
-    """A point is visible in a view if its depth is within this (m) of the view's depth there."""
-    min_visible_points: int = 5
-    """A view with fewer visible points of an instance is not one of its views."""
-    crop_padding: float = 0.1
-    """Crops grow by this fraction of the box size on each side (``crops``)."""
-    logit_scale: float = DEFAULT_LOGIT_SCALE
-    """Scale s of the class distributions softmax(s * f . t)."""
-    vocabulary: tuple[str, ...] | None = None
-    """Class names of the columns; default: the names cached in the store."""
-    batch_size: int = 8
-    """Views projected (and crops encoded) at once."""
-    seed: int = 0
-    """Seed of RANSAC (open3d's global random seed)."""
-    overwrite: bool = False
-    """Rebuild even if an up-to-date map (or scene cloud) exists."""
-
-    def __post_init__(self) -> None:
-        if self.proposals not in PROPOSERS:
-            msg = f"unknown proposals {self.proposals!r}; choose one of {', '.join(PROPOSERS)}"
-            raise FuseError(msg)
-        if self.features not in INSTANCE_FEATURES:
-            msg = (
-                f"unknown features {self.features!r}; choose one of {', '.join(INSTANCE_FEATURES)}"
-            )
-            raise FuseError(msg)
-        sizes = {
-            "voxel_size": self.voxel_size,
-            "stride": self.stride,
-            "max_depth": self.max_depth,
-            "plane_distance": self.plane_distance,
-            "cluster_eps": self.cluster_eps,
-            "top_k": self.top_k,
-            "depth_tolerance": self.depth_tolerance,
-            "batch_size": self.batch_size,
-        }
-        bad = [f"{k}={v}" for k, v in sizes.items() if not v > 0]
-        check_numbers(
-            FuseError,
-            "instance config",
-            positive={f.name: getattr(self, f.name) for f in dataclasses.fields(self)
-                      if f.type in ("float", float) and f.name not in ("crop_padding",)},
-            non_negative={"crop_padding": self.crop_padding},
-        )  # fmt: skip
-        if bad:
-            msg = f"invalid instance config: {', '.join(bad)}; these must be positive"
-            raise FuseError(msg)
-
-    def fingerprint(self, names: Sequence[str] | None = None) -> str:
-        """JSON of the settings ``names`` (default: all that shape the map; ``overwrite`` and
-        ``batch_size`` only change how it is built)."""
-        fields = dataclasses.asdict(self)
-        fields.pop("overwrite")
-        fields.pop("batch_size")
-        if names is not None:
-            fields = {k: fields[k] for k in names}
-        return json.dumps(fields, sort_keys=True)
 
 
 def _scene_cloud(store: Store, config: InstanceConfig) -> tuple[SceneCloud, dict | None]:
@@ -334,6 +231,7 @@ def build_instances(
         meta = {
             **candidate_metadata(vocabulary, config.logit_scale, store.encoder.name),
             b"care.instances.config": config.fingerprint().encode(),
+            b"care.instances.settings": config.settings().encode(),
             b"care.store.created": store_stamp(store),
         }
         # Every table is staged and renamed into place at the end, the instances last: a

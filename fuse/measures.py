@@ -26,6 +26,8 @@ import numpy as np
 import pyarrow as pa
 from scipy.special import logsumexp
 
+from fuse.config import DEFAULT_LOGIT_SCALE
+
 __all__ = [
     "DEFAULT_LOGIT_SCALE",
     "MAX_TOP_CLASSES",
@@ -48,7 +50,6 @@ __all__ = [
     "weighted_stderr",
 ]
 
-DEFAULT_LOGIT_SCALE = 100.0
 """CLIP's learned logit scale; the paper's distributions use it."""
 
 PROB_FLOOR = 1e-12

@@ -20,19 +20,18 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
 
 import numpy as np
 from tqdm import tqdm
 
 from care.errors import FuseError
 from care.store import Store
+from fuse.config import InstanceConfig, ProposalMethod
 from fuse.pointcloud import SceneCloud
 from fuse.views import iter_view_batches, visible_hits
 
 __all__ = [
     "PROPOSERS",
-    "ProposalSettings",
     "Proposals",
     "geometric_proposals",
     "label_proposals",
@@ -43,41 +42,6 @@ _RANSAC_SAMPLE = 20_000
 """RANSAC fits each plane on at most this many random points of the pool; the inliers are
 then taken from the whole pool by their distance to the fitted plane (same result for the
 dominant planes, a fraction of the time on large clouds)."""
-
-
-class ProposalSettings(Protocol):
-    """The settings proposers read (``fuse.instances.InstanceConfig`` documents each)."""
-
-    @property
-    def plane_distance(self) -> float: ...
-    @property
-    def max_planes(self) -> int: ...
-    @property
-    def plane_min_points(self) -> int: ...
-    @property
-    def normal_radius(self) -> float: ...
-    @property
-    def normal_angle_deg(self) -> float: ...
-    @property
-    def wall_min_height(self) -> float: ...
-    @property
-    def floor_band(self) -> float: ...
-    @property
-    def cluster_eps(self) -> float: ...
-    @property
-    def cluster_min_points(self) -> int: ...
-    @property
-    def min_instance_points(self) -> int: ...
-    @property
-    def min_label_points(self) -> int: ...
-    @property
-    def max_instance_extent(self) -> float: ...
-    @property
-    def depth_tolerance(self) -> float: ...
-    @property
-    def batch_size(self) -> int: ...
-    @property
-    def seed(self) -> int: ...
 
 
 @dataclass(frozen=True)
@@ -117,7 +81,7 @@ def _pcd(points: np.ndarray):  # -> open3d.geometry.PointCloud
     return pcd
 
 
-def remove_structure(points: np.ndarray, settings: ProposalSettings) -> np.ndarray:
+def remove_structure(points: np.ndarray, settings: InstanceConfig) -> np.ndarray:
     """(N,) bool: True for points of floor, ceiling and wall planes.
 
     Planes are found in turn by RANSAC on the points not yet explained by a plane; every
@@ -198,7 +162,7 @@ def _corner_points(
 
 
 def geometric_proposals(
-    cloud: SceneCloud, store: Store | None, settings: ProposalSettings
+    cloud: SceneCloud, store: Store | None, settings: InstanceConfig
 ) -> Proposals:
     """Masks of the clusters left after removing floor, walls and ceiling (see module doc)."""
     points = np.asarray(cloud.points, np.float64)
@@ -227,7 +191,7 @@ def _compress_votes(keys: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, n
 
 
 def label_proposals(
-    cloud: SceneCloud, store: Store | None, settings: ProposalSettings, *, progress: bool = True
+    cloud: SceneCloud, store: Store | None, settings: InstanceConfig, *, progress: bool = True
 ) -> Proposals:
     """Oracle masks: each scene point takes the majority instance id over the views seeing it."""
     if store is None:
@@ -273,10 +237,10 @@ def label_proposals(
     return Proposals(masks, ids)
 
 
-Proposer = Callable[[SceneCloud, Store | None, ProposalSettings], Proposals]
+Proposer = Callable[[SceneCloud, Store | None, InstanceConfig], Proposals]
 
-PROPOSERS: dict[str, Proposer] = {
-    "geometric": geometric_proposals,
-    "labels": label_proposals,
+PROPOSERS: dict[ProposalMethod, Proposer] = {
+    ProposalMethod.GEOMETRIC: geometric_proposals,
+    ProposalMethod.LABELS: label_proposals,
 }
-"""Proposal method name -> function; the CLI's ``--proposals`` choices come from here."""
+"""Proposal method -> function; the CLI's ``--proposals`` choices are the enum's."""

@@ -110,10 +110,11 @@ def recompute_candidates(
         }
     )
     md.update(candidate_metadata(names, scale, store.encoder.name))
-    key = f"care.{kind}.config".encode()
-    config = json.loads(md.get(key, b"{}"))
-    config.update(vocabulary=None if vocabulary is None else list(names), logit_scale=scale)
-    md[key] = json.dumps(config, sort_keys=True).encode()
+    for key in (f"care.{kind}.config".encode(), f"care.{kind}.settings".encode()):
+        if key in md or key.endswith(b".config"):  # the settings of maps that record them
+            config = json.loads(md.get(key, b"{}"))
+            config.update(vocabulary=None if vocabulary is None else list(names), logit_scale=scale)
+            md[key] = json.dumps(config, sort_keys=True).encode()
     shutil.rmtree(sidecar_path(path), ignore_errors=True)  # it described the map before
     write_table_atomic(new, path, md)
     return path

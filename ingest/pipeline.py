@@ -38,7 +38,7 @@ INGEST_VERSION = "1"
 
 @dataclass(frozen=True)
 class IngestConfig:
-    """One ingest job; the CLI builds it from its flags."""
+    """One ingest job (``care ingest``'s options are generated from it)."""
 
     recording: Path
     """MCAP file, rosbag2 directory or ROS 1 bag."""
@@ -47,7 +47,8 @@ class IngestConfig:
     read: ReadOptions = field(default_factory=ReadOptions)
     """Topic, frame and synchronisation choices."""
     encoder: str | None = None
-    """Encoder name from ``care.encoders.ENCODERS``; None stores views without features."""
+    """Feature encoder (a name of ``care.encoders.ENCODERS``); none stores views without
+    features."""
     encoder_options: EncoderOptions = field(default_factory=EncoderOptions)
     """Weights, device, batch size, ... of the encoder."""
     select: FrameSelection = field(default_factory=FrameSelection)

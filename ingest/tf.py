@@ -3,7 +3,7 @@
 TF for a recording is small (a few transforms per frame), so ingest reads all of it in a
 first pass and resolves camera poses in the second. Like tf2: every frame has one parent,
 ``/tf_static`` transforms hold at all times, dynamic ones are interpolated between their
-stamps (linear translation, :func:`care.geometry.slerp` rotation) and not extrapolated
+stamps (linear translation, ``scipy.spatial.transform.Slerp`` rotation) and not extrapolated
 beyond ``tolerance_ns`` past the first or last stamp.
 """
 
@@ -12,9 +12,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
 
 from care.errors import IngestError
-from care.geometry import quaternion_to_matrix, slerp
 from ingest.decode import StampedTransform
 
 __all__ = ["TFBuffer", "check_transform"]
@@ -43,24 +43,39 @@ class _Edge:
     translations: list[np.ndarray] = field(default_factory=list)
     rotations: list[np.ndarray] = field(default_factory=list)
     _arrays: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    _slerp: Slerp | None = None
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Stamps, translations and rotations sorted by stamp (cached)."""
+        """Stamps, translations and rotations sorted by stamp (cached); of samples with the
+        same stamp the last one received holds."""
         if self._arrays is None:
-            order = np.argsort(np.asarray(self.stamps, np.int64), kind="stable")
+            stamps = np.asarray(self.stamps, np.int64)
+            order = np.argsort(stamps, kind="stable")
+            last = np.r_[stamps[order][1:] != stamps[order][:-1], True]  # last of each stamp
+            order = order[last]
             self._arrays = (
-                np.asarray(self.stamps, np.int64)[order],
+                stamps[order],
                 np.asarray(self.translations, np.float64)[order],
                 np.asarray(self.rotations, np.float64)[order],
             )
         return self._arrays
+
+    def rotations_at(self, t: np.ndarray) -> Rotation:
+        """The rotations at stamps ``t`` within the samples' span: scipy's ``Slerp`` between
+        the samples on either side (built once per edge)."""
+        stamps, _, rots = self.arrays()
+        if len(stamps) == 1:
+            return Rotation.from_quat(np.repeat(rots, len(t), axis=0))
+        if self._slerp is None:
+            self._slerp = Slerp((stamps - stamps[0]).astype(np.float64), Rotation.from_quat(rots))
+        return self._slerp((t - stamps[0]).astype(np.float64))
 
     def at(self, times: np.ndarray, tolerance_ns: int) -> tuple[np.ndarray, np.ndarray]:
         """(N, 4, 4) ``parent_from_child`` at ``times`` and an (N,) mask of those it covers."""
         stamps, trans, rots = self.arrays()
         n = len(times)
         if self.static:
-            T = _matrices(trans[-1:], rots[-1:])
+            T = _matrices(trans[-1:], Rotation.from_quat(rots[-1:]))
             return np.repeat(T, n, axis=0), np.ones(n, bool)
         valid = (times >= stamps[0] - tolerance_ns) & (times <= stamps[-1] + tolerance_ns)
         t = np.clip(times, stamps[0], stamps[-1])
@@ -71,13 +86,12 @@ class _Edge:
         span = (stamps[hi] - stamps[lo]).astype(np.float64)
         alpha = np.where(span > 0, (t - stamps[lo]) / np.where(span > 0, span, 1.0), 0.0)
         translation = trans[lo] + alpha[:, None] * (trans[hi] - trans[lo])
-        rotation = slerp(rots[lo], rots[hi], alpha)
-        return _matrices(translation, rotation), valid
+        return _matrices(translation, self.rotations_at(t)), valid
 
 
-def _matrices(translation: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+def _matrices(translation: np.ndarray, rotation: Rotation) -> np.ndarray:
     T = np.zeros((len(translation), 4, 4))
-    T[:, :3, :3] = quaternion_to_matrix(rotation)
+    T[:, :3, :3] = rotation.as_matrix()
     T[:, :3, 3] = translation
     T[:, 3, 3] = 1.0
     return T
@@ -104,7 +118,7 @@ class TFBuffer:
         edge.stamps.append(int(tf.stamp_ns))
         edge.translations.append(tf.translation)
         edge.rotations.append(tf.rotation)
-        edge._arrays = None
+        edge._arrays = edge._slerp = None
 
     def drop(self, child: str) -> None:
         """Forget the transform into ``child`` (a pose source replaces it)."""

@@ -13,9 +13,9 @@ import dataclasses
 import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from enum import StrEnum
 from functools import cached_property
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 import pyarrow as pa
@@ -36,9 +36,17 @@ __all__ = [
     "map_from_table",
 ]
 
-MapKind = Literal["instances", "grid"]
 
-MAP_TABLES: dict[str, str] = {"instances": "instances", "grid": "cells"}
+class MapKind(StrEnum):
+    """The two maps a store holds (:data:`MAP_TABLES` names each one's table)."""
+
+    INSTANCES = "instances"
+    """OpenMask3D-like instance map."""
+    GRID = "grid"
+    """VLMaps-like top-down grid map."""
+
+
+MAP_TABLES: dict[MapKind, str] = {MapKind.INSTANCES: "instances", MapKind.GRID: "cells"}
 """Map kind -> table name in the store directory."""
 
 MEASURES = ("entropy", "stderr", "pwkl")

@@ -2,7 +2,14 @@
 
 from __future__ import annotations
 
-from replan.attempts import DEFAULT_EXCLUDE_RADIUS, Attempts, Choice, next_goal, run_attempts
+from replan.attempts import (
+    DEFAULT_EXCLUDE_RADIUS,
+    Attempts,
+    Choice,
+    ReplanConfig,
+    next_goal,
+    run_attempts,
+)
 from replan.expected import expected_random_success
 from replan.strategies import CRITERIA, STRATEGIES, Pick, Situation, Strategy, candidate_set
 
@@ -13,6 +20,7 @@ __all__ = [
     "Attempts",
     "Choice",
     "Pick",
+    "ReplanConfig",
     "Situation",
     "Strategy",
     "candidate_set",

@@ -16,13 +16,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from care.checks import check_numbers
+from care.config import member
 from care.errors import ReplanError
 from query.map import MEASURES, CandidateMap
 from replan.strategies import (
     CRITERIA,
+    Criterion,
     Pick,
     Situation,
     Strategy,
+    StrategyName,
     best_of,
     candidate_set,
     get_strategy,
@@ -32,6 +35,7 @@ __all__ = [
     "DEFAULT_EXCLUDE_RADIUS",
     "Attempts",
     "Choice",
+    "ReplanConfig",
     "available_after",
     "candidates_near",
     "next_goal",
@@ -40,6 +44,40 @@ __all__ = [
 
 DEFAULT_EXCLUDE_RADIUS = 1.0
 """Metres around a failed grid cell that later attempts skip (the success radius)."""
+
+
+@dataclass(frozen=True)
+class ReplanConfig:
+    """How the next goal is chosen after a failed attempt (``care replan`` and
+    :func:`next_goal`; :class:`replan.batch.BatchConfig` shares k and the radius)."""
+
+    strategy: StrategyName = StrategyName.MIN_STDERR
+    """Replan strategy."""
+    criterion: Criterion = Criterion.CONFIDENCE
+    """Candidate set of the strategies that choose within one."""
+    k: int = 4
+    """Size parameter of the candidate set (>= 1)."""
+    exclude_radius: float = DEFAULT_EXCLUDE_RADIUS
+    """Grid: metres around a failed cell skipped later; also the radius of a visited place."""
+    seed: int = 0
+    """Seed of the random strategies."""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(
+            self, "strategy", member(StrategyName, self.strategy, ReplanError, "unknown strategy")
+        )
+        object.__setattr__(
+            self, "criterion", member(Criterion, self.criterion, ReplanError, "unknown criterion")
+        )
+        check_numbers(
+            ReplanError,
+            "replan settings",
+            non_negative={"exclude_radius": self.exclude_radius},
+            at_least_one={"k": self.k},
+        )
+
+
+_REPLAN = ReplanConfig()
 
 
 @dataclass(frozen=True)
@@ -221,11 +259,11 @@ def next_goal(
     query: str | int,
     visited: list[int] | np.ndarray = (),  # type: ignore[assignment]
     *,
-    strategy: str = "min_stderr",
-    criterion: str = "confidence",
-    k: int = 4,
+    strategy: str = _REPLAN.strategy,
+    criterion: str = _REPLAN.criterion,
+    k: int = _REPLAN.k,
     exclude_radius: float | None = None,
-    seed: int = 0,
+    seed: int = _REPLAN.seed,
     visited_at: np.ndarray | list[tuple[float, float]] = (),  # type: ignore[assignment]
 ) -> Choice:
     """The next candidate to try for ``query`` after the ``visited`` (failed) ones.

@@ -28,7 +28,7 @@ from query.confidence import rank_by_confidence
 from query.goals import Goal, GoalMaker
 from query.map import MEASURES, CandidateMap
 from query.openvocab import open_queries
-from replan.attempts import DEFAULT_EXCLUDE_RADIUS, candidates_near, run_attempts
+from replan.attempts import DEFAULT_EXCLUDE_RADIUS, ReplanConfig, candidates_near, run_attempts
 from replan.strategies import CRITERIA, STRATEGIES
 
 __all__ = [
@@ -88,7 +88,7 @@ class BatchConfig:
     strategies: tuple[str, ...] = tuple(s for s in STRATEGIES if not STRATEGIES[s].needs_truth)
     """Replan strategies whose attempt sequences are listed (the oracle needs ground truth)."""
     criteria: tuple[str, ...] = tuple(CRITERIA)
-    k: int = 4
+    k: int = ReplanConfig.k
     """Size parameter of the candidate sets."""
     attempts: int = 3
     """Attempts per sequence (the first and its replans)."""
@@ -96,7 +96,7 @@ class BatchConfig:
     """Ranked candidates listed per query."""
     exclude_radius: float = DEFAULT_EXCLUDE_RADIUS
     """Grid: metres around a failed cell skipped later; also the radius of a visited place."""
-    seed: int = 0
+    seed: int = ReplanConfig.seed
     """Seed of the random strategies' one generator."""
     chunk: int = 256
     """Queries played at once (bounds the (Q, N) confidence and availability arrays)."""

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from enum import StrEnum
 
 import numpy as np
 
@@ -25,9 +26,11 @@ from care.errors import ReplanError
 __all__ = [
     "CRITERIA",
     "STRATEGIES",
+    "Criterion",
     "Pick",
     "Situation",
     "Strategy",
+    "StrategyName",
     "best_of",
     "candidate_set",
     "get_strategy",
@@ -35,6 +38,31 @@ __all__ = [
     "topk_confidence",
     "uniform_of",
 ]
+
+
+class StrategyName(StrEnum):
+    """The registered replan strategies (:data:`STRATEGIES` has one :class:`Strategy` each,
+    in the paper's row order). A new strategy is a member here and an entry there."""
+
+    NO_REPLAN = "no_replan"
+    ORACLE = "oracle"
+    MAX_CONFIDENCE = "max_confidence"
+    RANDOM = "random"
+    RANDOM_TOPK = "random_topk"
+    MAX_ENTROPY = "max_entropy"
+    MIN_STDERR = "min_stderr"
+    MIN_PWKL = "min_pwkl"
+    MIN_ENTROPY = "min_entropy"
+    MAX_PWKL = "max_pwkl"
+
+
+class Criterion(StrEnum):
+    """Selection criteria of the candidate set (:data:`CRITERIA` has one function each)."""
+
+    CONFIDENCE = "confidence"
+    """The k candidates of highest confidence."""
+    CATEGORY = "category"
+    """Every candidate whose k highest classes contain the target class."""
 
 
 @dataclass(frozen=True)
@@ -183,9 +211,9 @@ def topk_category(
     return available & (rank < k)
 
 
-CRITERIA: dict[str, Callable[..., np.ndarray]] = {
-    "confidence": topk_confidence,
-    "category": topk_category,
+CRITERIA: dict[Criterion, Callable[..., np.ndarray]] = {
+    Criterion.CONFIDENCE: topk_confidence,
+    Criterion.CATEGORY: topk_category,
 }
 """Selection criterion name -> ``f(confidence, available, k, rank) -> (Q, N) bool``."""
 
@@ -273,7 +301,7 @@ def _oracle(s: Situation) -> Pick:
 class Strategy:
     """A named replan rule and how the evaluation treats it."""
 
-    name: str
+    name: StrategyName
     label: str
     """Row label of the paper's tables."""
     rule: Callable[[Situation], Pick] | None
@@ -287,19 +315,27 @@ class Strategy:
     ablation: bool = False
 
 
-STRATEGIES: dict[str, Strategy] = {
+STRATEGIES: dict[StrategyName, Strategy] = {
     s.name: s
     for s in (
-        Strategy("no_replan", "No replan (top1 acc)", None),
-        Strategy("oracle", "Oracle", _oracle, "confidence", needs_truth=True),
-        Strategy("max_confidence", "Max confidence (top2 acc)", _max_confidence, "confidence"),
-        Strategy("random", "Random replan", _random, random=True),
-        Strategy("random_topk", "Random from top-k", _random_topk, uses_set=True, random=True),
-        Strategy("max_entropy", "Max entropy", _by_measure("entropy", True), "entropy", True),
-        Strategy("min_stderr", "Min stderr", _by_measure("stderr", False), "stderr", True),
-        Strategy("min_pwkl", "Min pwKL", _by_measure("pwkl", False), "pwkl", True),
+        Strategy(StrategyName.NO_REPLAN, "No replan (top1 acc)", None),
+        Strategy(StrategyName.ORACLE, "Oracle", _oracle, "confidence", needs_truth=True),
         Strategy(
-            "min_entropy",
+            StrategyName.MAX_CONFIDENCE, "Max confidence (top2 acc)", _max_confidence, "confidence"
+        ),
+        Strategy(StrategyName.RANDOM, "Random replan", _random, random=True),
+        Strategy(
+            StrategyName.RANDOM_TOPK, "Random from top-k", _random_topk, uses_set=True, random=True
+        ),
+        Strategy(
+            StrategyName.MAX_ENTROPY, "Max entropy", _by_measure("entropy", True), "entropy", True
+        ),
+        Strategy(
+            StrategyName.MIN_STDERR, "Min stderr", _by_measure("stderr", False), "stderr", True
+        ),
+        Strategy(StrategyName.MIN_PWKL, "Min pwKL", _by_measure("pwkl", False), "pwkl", True),
+        Strategy(
+            StrategyName.MIN_ENTROPY,
             "Min entropy (ablation)",
             _by_measure("entropy", False),
             "entropy",
@@ -307,7 +343,7 @@ STRATEGIES: dict[str, Strategy] = {
             ablation=True,
         ),
         Strategy(
-            "max_pwkl",
+            StrategyName.MAX_PWKL,
             "Max pwKL (ablation)",
             _by_measure("pwkl", True),
             "pwkl",

@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 from care.geometry import (
     backproject,
     matrix_to_quaternion,
     project,
     quaternion_to_matrix,
-    slerp,
     transform_points,
 )
 
@@ -22,14 +21,6 @@ def test_quaternion_round_trip_matches_scipy() -> None:
     back = matrix_to_quaternion(rots.as_matrix())
     same = np.minimum(np.abs(back - q).max(axis=1), np.abs(back + q).max(axis=1))
     assert same.max() < 1e-9
-
-
-def test_slerp_matches_scipy() -> None:
-    rots = Rotation.random(2, random_state=1)
-    ts = np.linspace(0, 1, 11)
-    expected = Slerp([0, 1], rots)(ts).as_matrix()
-    q = slerp(np.repeat(rots.as_quat()[:1], 11, 0), np.repeat(rots.as_quat()[1:], 11, 0), ts)
-    np.testing.assert_allclose(quaternion_to_matrix(q), expected, atol=1e-9)
 
 
 def test_backproject_then_project_is_identity_on_valid_pixels() -> None:

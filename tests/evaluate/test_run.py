@@ -56,10 +56,17 @@ def test_care_run_on_the_bundled_sample(tmp_path: Path) -> None:
         [sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True
     )
     assert ran.returncode == 0, ran.stderr[-2000:]
+    # the stage commands share care run's settings: neither map is rebuilt, not a byte changes
+    store = out / "stores" / "scene_000"
+    maps = [store / "cells.parquet", store / "instances.parquet"]
+    before = [(p.read_bytes(), p.stat().st_mtime_ns) for p in maps]
+    for kind in ("grid", "instances"):
+        fused = subprocess.run([*cmd[:3], "fuse", kind, str(store)], capture_output=True, text=True)
+        assert fused.returncode == 0, fused.stderr[-2000:]
+    assert [(p.read_bytes(), p.stat().st_mtime_ns) for p in maps] == before
     # 1,000 class and free-text queries over the sample's grid, as one batch
     import polars as pl
 
-    store = out / "stores" / "scene_000"
     classes = ["chair", "bed", "sofa", "sink", "toilet", "refrigerator", "lamp", "table"]
     free = ["somewhere to sit", "a place to sleep", "where I wash my hands", "a cold box"]
     lines = [classes[i % 8] if i % 2 else f"{free[i % 4]} {i % 9}" for i in range(1000)]

@@ -64,7 +64,9 @@ def test_sample_recording_in_every_format(tmp_path: Path) -> None:
     keys = ("scene", "map", "protocol", "unit", "query", "strategy", "criterion", "k")
     ref = {tuple(r[k] for k in keys): r["solved"] for r in reference}
     ref_rate = {
-        tuple(r[k] for k in ("map", "protocol", "strategy", "criterion", "k")): r["rate"]
+        tuple(r[k] for k in ("map", "protocol", "strategy", "closed_form", "criterion", "k")): r[
+            "rate"
+        ]
         for r in native[True].to_pylist()
     }
     for name in BOX_FORMATS:
@@ -82,5 +84,5 @@ def test_sample_recording_in_every_format(tmp_path: Path) -> None:
         agree = np.mean([got[k] == ref[k] for k in ref])
         assert agree >= 0.9, (name, agree)  # the stated approximation: >= 90% of outcomes agree
         for r in report.summary.to_pylist():
-            key = (r["map"], r["protocol"], r["strategy"], r["criterion"], r["k"])
+            key = (r["map"], r["protocol"], r["strategy"], r["closed_form"], r["criterion"], r["k"])
             assert abs(r["rate"] - ref_rate[key]) <= 10.0, (name, key)  # and <= 10 points per cell

@@ -368,20 +368,22 @@ def test_eval_out_is_a_store(care, fx, copy_good, good: Path) -> None:
 
 
 @pytest.mark.parametrize(
-    ("flags", "pattern"),
+    ("flags", "pattern", "exit_code"),
     [
-        (("--k-grid", "0"), r"k=0"),
-        (("--k-grid", "4,x"), r"expected comma-separated integers"),
-        (("--exclude-radius", "nan"), r"exclude_radius=nan"),
-        (("--strategies", "psychic"), r"unknown replan strategy 'psychic'"),
-        (("--maps", "voxels"), r"voxels"),
-        (("--attempts", "0"), r"attempts=0"),
+        (("--k-grid", "0"), r"k=0", 1),
+        (("--k-grid", "4,x"), r"--k-grid: '4,x': expected comma-separated int values", 2),
+        (("--exclude-radius", "nan"), r"exclude_radius=nan", 1),
+        (("--strategies", "psychic"), r"'psychic'.*choose from no_replan, oracle, ", 2),
+        (("--maps", "voxels"), r"'voxels'.*choose from instances, grid", 2),
+        (("--attempts", "0"), r"attempts=0", 1),
     ],
     ids=["k-0", "k-not-int", "exclude-nan", "strategy-unknown", "map-unknown", "attempts-0"],
 )
-def test_eval_bad_option(care, fx, good: Path, tmp_path: Path, flags, pattern: str) -> None:
+def test_eval_bad_option(
+    care, fx, good: Path, tmp_path: Path, flags, pattern: str, exit_code: int
+) -> None:
     code, _, err = care("eval", good / "store", "--out", tmp_path / "eval", *fx.EVAL_FLAGS, *flags)
-    fx.assert_fault(code, err, pattern, clean=(tmp_path,))
+    fx.assert_fault(code, err, pattern, clean=(tmp_path,), exit_code=exit_code)
     assert not (tmp_path / "eval").exists()
 
 

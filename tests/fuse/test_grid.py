@@ -229,9 +229,9 @@ def test_bounded_memory_passes_give_the_same_map(tmp_path: Path, cells_per_pass:
     """Fused a few cells per pass (views read again for each later pass), the map equals the
     one-pass map: same rows, same values up to float32 rounding, same cell_views bytes."""
     whole = _store(tmp_path / "whole", n=5)
-    one = pq.read_table(build_grid(whole, GridConfig(cell_size=0.1)))
+    one = pq.read_table(build_grid(whole, GridConfig(cell_size=0.1, stride=1)))
     part = _store(tmp_path / "part", n=5)
-    config = GridConfig(cell_size=0.1, cells_per_pass=cells_per_pass)
+    config = GridConfig(cell_size=0.1, stride=1, cells_per_pass=cells_per_pass)
     passes = pq.read_table(build_grid(part, config))
     assert one.num_rows > 3 * cells_per_pass  # really several passes
     assert passes.schema.equals(one.schema)

@@ -13,13 +13,13 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 
 from care.errors import GroundTruthError
+from care.outputs import atomic_write_text
 from care.store import read_table, write_table_atomic
 from truth.model import BOX_COLUMNS, INSTANCE_COLUMNS, GroundTruth, Room, instances_table
 
@@ -87,12 +87,7 @@ def write_native(gt: GroundTruth, recording_path: Path) -> None:
     }
     if gt.frame != "world":
         doc["frame"] = gt.frame
-    tmp = json_path.with_name(f".{json_path.name}.tmp-{os.getpid()}")
-    try:
-        tmp.write_text(json.dumps(doc, indent=1, sort_keys=True))
-        tmp.replace(json_path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    atomic_write_text(json_path, json.dumps(doc, indent=1, sort_keys=True))
 
 
 def _finite(value: float) -> float | None:

@@ -1,0 +1,153 @@
+"""What an evaluation and the main job run: :class:`EvalConfig` and :class:`RunConfig`.
+
+They live apart from the job (:mod:`evaluate.job`, :mod:`evaluate.pipeline`, which import
+the whole pipeline) so the CLI can generate ``care eval``'s and ``care run``'s options from
+them on every call. Each field's default and docstring are the one source of the option's
+default and help; the registries' names are enums (:class:`QueryProtocol` here,
+:class:`query.map.MapKind`, :class:`replan.strategies.StrategyName`,
+:class:`replan.strategies.Criterion`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict, dataclass, field
+from enum import Enum, StrEnum
+from pathlib import Path
+
+from care.checks import check_numbers
+from care.config import member
+from care.encoders import EncoderOptions
+from care.errors import EvalError
+from evaluate.groundtruth import GtSource, UnknownClasses
+from fuse.config import GridConfig, InstanceConfig
+from query.map import MapKind
+from replan.attempts import DEFAULT_EXCLUDE_RADIUS
+from replan.strategies import Criterion, StrategyName
+
+__all__ = ["EvalConfig", "QueryProtocol", "RunConfig"]
+
+
+class QueryProtocol(StrEnum):
+    """How the instance map's queries are made."""
+
+    INSTANCE = "instance"
+    """One query per GT instance that must match that very instance (the paper's)."""
+    CLASS = "class"
+    """One query per class present; any instance of it succeeds (a robot's need)."""
+
+
+def _one(kind: type[Enum], value: object, option: str) -> Enum:
+    return member(kind, value, EvalError, f"invalid evaluation config: {option}")
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """What an evaluation runs (shared by ``care eval``, ``care run`` and the Python API)."""
+
+    maps: tuple[MapKind, ...] = (MapKind.INSTANCES, MapKind.GRID)
+    """Map kinds to evaluate: ``instances`` (OpenMask3D-like) and/or ``grid`` (VLMaps-like)."""
+    strategies: tuple[StrategyName, ...] = tuple(StrategyName)
+    """Replan strategies (default: all of ``replan.STRATEGIES``)."""
+    criteria: tuple[Criterion, ...] = tuple(Criterion)
+    """Selection criteria of the set-based strategies."""
+    k_instances: tuple[int, ...] = (2, 4, 8, 16, 40)
+    """k of the candidate sets on the instance map (the paper's Table 1)."""
+    k_grid: tuple[int, ...] = (4, 8, 16, 40, 100)
+    """k of the candidate sets on the grid map (the paper's Table 2)."""
+    attempts: int = 2
+    """Attempts per query: the first by max confidence, then the strategy after each failure."""
+    protocols: tuple[QueryProtocol, ...] = tuple(QueryProtocol)
+    """Instance-map query protocols: ``instance`` (the paper's) and/or ``class``."""
+    iou_threshold: float = 0.25
+    """An instance attempt succeeds when its mask's point IoU with the GT mask exceeds this."""
+    success_radius: float = 1.0
+    """A grid attempt succeeds within this floor-plane distance (m) of an object of the class."""
+    exclude_radius: float = DEFAULT_EXCLUDE_RADIUS
+    """After a failed grid attempt, cells within this distance (m) of it are skipped."""
+    rooms: bool = True
+    """Evaluate room by room (each room its own candidate set) where the GT has rooms."""
+    seeds: int = 10
+    """Seeds the random strategies are averaged over."""
+    seed: int = 0
+    """Base seed of every random draw."""
+    label_distance: float = 0.05
+    """Scene points farther than this (m) from every GT point get no GT label."""
+    bootstrap: int = 1000
+    """Bootstrap resamples of the queries for the 95% confidence intervals."""
+    unknown_classes: UnknownClasses = UnknownClasses.REFUSE
+    """Ground-truth classes the map's vocabulary lacks: refuse the scene, or ignore them."""
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        set_(
+            self,
+            "unknown_classes",
+            _one(UnknownClasses, self.unknown_classes, "--gt-unknown-classes"),
+        )
+        for name, kind in (("maps", MapKind), ("strategies", StrategyName),
+                           ("criteria", Criterion), ("protocols", QueryProtocol)):  # fmt: skip
+            set_(self, name, tuple(_one(kind, v, f"--{name}") for v in getattr(self, name)))
+        check_numbers(
+            EvalError,
+            "evaluation config",
+            positive={"iou_threshold": self.iou_threshold, "success_radius": self.success_radius,
+                      "label_distance": self.label_distance},
+            non_negative={"exclude_radius": self.exclude_radius, "bootstrap": self.bootstrap},
+        )  # fmt: skip
+        bad = [f"k={k}" for k in (*self.k_grid, *self.k_instances) if not 1 <= k <= 32767]
+        bad += [
+            name
+            for name in ("strategies", "maps", "protocols", "criteria")
+            if not getattr(self, name)
+        ]
+        if bad or self.attempts < 1 or self.seeds < 1:
+            msg = (
+                f"invalid evaluation config: {bad} (out of range or empty), "
+                f"attempts={self.attempts}, seeds={self.seeds}; k 1..32767; "
+                "attempts and seeds >= 1"
+            )
+            raise EvalError(msg)
+
+    def ks(self, kind: MapKind | str) -> tuple[int, ...]:
+        return self.k_grid if kind == "grid" else self.k_instances
+
+    def fingerprint(self) -> str:
+        """Hash of everything that shapes a scene's attempts (not ``bootstrap``)."""
+        fields = asdict(self)
+        fields.pop("bootstrap")
+        return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:16]
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """The main job's settings (the CLI's ``care run`` options)."""
+
+    encoder: str = "labels"
+    """Encoder of ``care ingest`` (``labels``: the sample world's perception model)."""
+    encoder_options: EncoderOptions = field(default_factory=EncoderOptions)
+    """Its options (``--weights`` for ``clip``, ...)."""
+    vocabulary: str | None = None
+    """Class names to cache at ingest (default: the recording's own class names)."""
+    grid: GridConfig = field(default_factory=GridConfig)
+    """Grid map settings (the defaults of ``care fuse grid``: neither rebuilds the other's map)."""
+    instances: InstanceConfig = field(default_factory=InstanceConfig)
+    """Instance map settings."""
+    evaluation: EvalConfig = field(default_factory=EvalConfig)
+    """What the evaluation runs."""
+    workers: int | None = None
+    """Local processes of the evaluation (default: one per CPU)."""
+    ray_address: str | bool | None = None
+    """Evaluate scenes as Ray tasks: True for a local Ray, an address for a cluster."""
+    progress: bool = True
+    """Show progress bars."""
+    gt: tuple[Path, ...] = ()
+    """Ground truth of each recording, in order (default: its index entry's, or beside it)."""
+    gt_defaults: GtSource = field(default_factory=GtSource)
+    """Format, frame transform and class map of ground truth that names none."""
+    rrd_ingest: bool = True
+    """Also write ``<name>.ingest.rrd`` (camera images, depth, the map building up)."""
+    rrd_class: str | None = None
+    """Class of the grid recording's confidence layer (default: one layer per query class of
+    the scene's evaluation)."""

@@ -1,0 +1,52 @@
+"""The report's statistics come from scipy and its rows are typed, not display strings."""
+
+from __future__ import annotations
+
+import numpy as np
+import pyarrow as pa
+
+from evaluate.report import markdown_tables, summarise
+from replan.strategies import STRATEGIES, StrategyName
+
+
+def _queries(n: int = 400) -> pa.Table:
+    rng = np.random.default_rng(7)
+    rows = []
+    for name in (StrategyName.MAX_CONFIDENCE, StrategyName.RANDOM):
+        solved = (rng.random(n) < 0.3).astype(float)
+        expected = np.full(n, 0.31) if STRATEGIES[name].random else np.full(n, np.nan)
+        rows += [
+            {"scene": "s", "map": "grid", "protocol": "class", "unit": "u", "query": str(i),
+             "strategy": name.value, "criterion": "-", "k": 0,
+             "solved": solved[i], "expected": expected[i]}
+            for i in range(n)
+        ]  # fmt: skip
+    return pa.Table.from_pylist(rows)
+
+
+def test_bootstrap_interval_is_the_normal_one_and_seeded() -> None:
+    """A 95% percentile bootstrap of a Bernoulli mean is, at n = 400, within a point of the
+    normal approximation p +- 1.96 sqrt(p (1 - p) / n); the same seed gives the same bytes."""
+    queries = _queries()
+    summary = summarise(queries, bootstrap=2000, seed=3)
+    again = summarise(queries, bootstrap=2000, seed=3)
+    assert summary.equals(again)
+    for r in summary.to_pylist():
+        p = r["rate"] / 100
+        half = 196 * np.sqrt(p * (1 - p) / r["n_queries"])
+        if r["closed_form"]:  # a constant: every resample has the same mean
+            assert r["lo"] == r["hi"] == r["rate"]
+            continue
+        assert abs(r["lo"] - (r["rate"] - half)) < 1.0
+        assert abs(r["hi"] - (r["rate"] + half)) < 1.0
+
+
+def test_rows_are_typed_columns() -> None:
+    summary = summarise(_queries(50), bootstrap=50)
+    assert summary.schema.field("closed_form").type == pa.bool_()
+    assert set(summary.column("strategy").to_pylist()) == {"max_confidence", "random"}
+    assert summary.filter(summary.column("closed_form")).column("strategy").to_pylist() == [
+        "random"
+    ]
+    md = markdown_tables(summary, {"grid": [4, 8]})
+    assert "| Random replan (closed form) | - | 31.00 | 31.00 |" in md
