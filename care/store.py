@@ -20,7 +20,6 @@ import contextlib
 import io
 import json
 import os
-import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -67,6 +66,7 @@ __all__ = [
     "open_writer",
     "read_schema",
     "read_table",
+    "source_recording",
     "write_table_atomic",
 ]
 
@@ -453,14 +453,13 @@ class StoreWriter:
                 "version": self.encoder.version,
                 "dim": self.encoder.dim,
             },
-            "created_unix": time.time(),
             **meta,
         }
         # the store's fingerprint on disk: every table's size and checksum, so a deleted,
         # truncated or altered table is found (``care check``, the next ingest)
         full["tables"] = {p.name: file_digest(p) for p in sorted(self.tmp.glob("*.parquet"))}
         (self.tmp / "meta.json").write_text(json.dumps(full, indent=2, default=str))
-        source = meta.get("source")
+        source = full.get("source")
         write_marker(
             self.tmp, "store", source=source.get("path") if isinstance(source, dict) else None
         )
@@ -491,6 +490,16 @@ class StoreWriter:
             remove_path(self.tmp)
         if exc is not None and is_disk_full(exc):
             raise disk_full(self.path, written, exc) from exc  # type: ignore[arg-type]
+
+
+def source_recording(store: Path, meta: dict[str, Any]) -> Path | None:
+    """The recording a store was ingested from: ``meta.json``'s ``source.path``, which is
+    relative to the store (stores of older versions: absolute); None when it names none."""
+    source = meta.get("source")
+    path = source.get("path") if isinstance(source, dict) else None
+    if not path:
+        return None
+    return Path(os.path.normpath(Path(store).absolute() / path))
 
 
 def _in_frame(to_map: np.ndarray | None, cam_to_world: list[float]) -> np.ndarray:

@@ -253,12 +253,12 @@ def instances(
 def _proposal_quality(store: Path) -> None:
     """Print how well the masks match the ground truth, when the source recording has one
     (sample-world recordings): the figure to check before trusting any retrieval result."""
-    from care.store import Store
+    from care.store import Store, source_recording
     from fuse.evaluate_proposals import instance_map_iou
     from world.groundtruth import gt_paths
 
-    source = (Store(store).meta.get("source") or {}).get("path")
-    if not source or not gt_paths(Path(source))[1].is_file():
+    source = source_recording(store, Store(store).meta)
+    if source is None or not gt_paths(source)[1].is_file():
         return
     ids, iou = instance_map_iou(store)
     typer.echo(
