@@ -23,7 +23,11 @@ TextArg = Annotated[str, typer.Argument(help="What to look for: a class name or 
 MapOpt = Annotated[MapKind, typer.Option("--map", help="Map to ask.")]
 RayOpt = Annotated[
     bool,
-    typer.Option("--ray", help="Evaluate scenes as Ray tasks (a local Ray unless --ray-address)."),
+    typer.Option(
+        "--ray",
+        help="Run as Ray tasks (care run: each recording's ingest and maps, then the "
+        "evaluation; care eval: the scenes), on a local Ray unless --ray-address.",
+    ),
 ]
 RayAddressOpt = Annotated[
     str | None,
@@ -435,7 +439,12 @@ def run(
     attempts: Annotated[int, typer.Option(help="Attempts per query (first + replans).")] = 2,
     seeds: Annotated[int, typer.Option(help="Seeds of the random strategies.")] = 10,
     workers: Annotated[
-        int, typer.Option(help="Local processes of the evaluation (0: one per CPU).", min=0)
+        int,
+        typer.Option(
+            help="Local processes: each recording's ingest and maps, then the evaluation "
+            "(0: one per CPU; 1: one after another in this process).",
+            min=0,
+        ),
     ] = 0,
     ray: RayOpt = False,
     ray_address: RayAddressOpt = None,
@@ -488,3 +497,7 @@ def run(
         typer.echo(f"\nfull report: {out / 'eval' / 'results.md'}")
     typer.echo(f"stores: {', '.join(str(p) for p in result.stores)}")
     typer.echo(f"open the maps and every decision in Rerun:\n  {result.rerun_command()}")
+    if result.failed:  # each was reported in one line as it failed; the others completed
+        names = ", ".join(name for name, _ in result.failed)
+        typer.echo(f"error: {len(result.failed)} recording(s) failed: {names}", err=True)
+        raise typer.Exit(1)

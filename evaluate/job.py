@@ -10,7 +10,6 @@ criterion, k, seed index) alone, so results are bit-identical whichever way they
 
 from __future__ import annotations
 
-import json
 import os
 import zlib
 from collections.abc import Sequence
@@ -28,7 +27,7 @@ from care.errors import CareError, EvalError
 from care.fingerprint import config_fields, content_digest, fingerprint
 from care.outputs import evaluation_output, read_marker
 from care.parallel import Runner, run_tasks
-from care.store import read_table, source_recording, write_table_atomic
+from care.store import META_FILE, read_table, source_recording, write_table_atomic
 from evaluate.groundtruth import GtSource, UnknownClasses, check_ground_truth, gt_files
 from evaluate.report import Report, write_report
 from evaluate.success import PROTOCOLS, QuerySet, grid_queries, instance_queries, scene_point_labels
@@ -176,13 +175,12 @@ class Scene:
 
 
 def _store_recording(store: Path) -> Path:
-    meta_path = store / "meta.json"
-    if not meta_path.is_file():
+    if not (store / META_FILE).is_file():
         msg = f"{store}: not a feature store (no meta.json); run `care ingest` and `care fuse`"
         raise EvalError(msg)
-    path = source_recording(store, json.loads(meta_path.read_text()))
+    path = source_recording(store)
     if path is None:
-        msg = f"{meta_path}: no source recording recorded; the ground truth cannot be found"
+        msg = f"{store / META_FILE}: no source recording recorded; the ground truth cannot be found"
         raise EvalError(msg)
     return path
 

@@ -10,6 +10,7 @@ resumes. With no recording it runs on the bundled sample (``data/sample``).
 from __future__ import annotations
 
 import os
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -241,7 +242,7 @@ def map_recordings(
         for task, outcome in run_tasks(_run_task, tasks, runner):
             outcomes[task.name] = outcome
             if outcome.error is not None:
-                bar.write(f"error: {task.name}: {outcome.error}")
+                bar.write(f"error: {task.name}: {outcome.error}", file=sys.stderr)
             bar.set_postfix_str(task.name)
             bar.update(1)
     return outcomes

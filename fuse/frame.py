@@ -120,7 +120,7 @@ def store_stamp(store: Store) -> bytes:
     (their recorded sizes and checksums) and its map frame. An ingest that changes the
     views or features, or another frame, makes every map stale; the same store copied to
     another directory or machine, or rebuilt to the same bytes, does not."""
-    content = fingerprint(store.meta.get("tables") or {}, length=16)
+    content = fingerprint(store.meta.tables, length=16)
     frame = store.map_frame
     if frame.is_identity:
         return content.encode()

@@ -10,7 +10,6 @@ options rebuilds it.
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -22,12 +21,12 @@ from tqdm import tqdm
 from care.checks import check_numbers
 from care.encoders import Encoder, EncoderOptions, RecordingContext, make_encoder
 from care.encoders.record import RECORD_KEY, EncoderRecord
-from care.errors import IngestError
+from care.errors import IngestError, StoreError
 from care.fingerprint import config_fields, content_digest
 from care.fingerprint import fingerprint as content_fingerprint
 from care.frames import Frame
 from care.outputs import check_file_output, check_output, damaged, output_lock
-from care.store import SCHEMA_VERSION, StoreWriter
+from care.store import META_FILE, SCHEMA_VERSION, StoreMeta, StoreWriter
 from care.threads import Work, threads_for
 from ingest.select import FrameSelection, FrameSelector
 from ingest.source import ReadOptions, RecordingFrames
@@ -146,23 +145,17 @@ def request_fingerprint(config: IngestConfig, source: dict[str, Any]) -> str:
 
 
 def _up_to_date(config: IngestConfig, fp: str, key: str = "fingerprint") -> bool:
-    meta_path = config.out / "meta.json"
-    if config.force or not meta_path.is_file():
+    if config.force or not (config.out / META_FILE).is_file():
         return False
     if config.rrd is not None and not config.rrd.is_file():
         return False
     try:
-        meta = json.loads(meta_path.read_text())
-    except (OSError, ValueError):
+        meta = StoreMeta.read(config.out)
+    except StoreError:
         return False
     # same inputs, and every table as it was committed (size and checksum): a damaged
     # store is rebuilt, not trusted
-    return (
-        isinstance(meta, dict)
-        and meta.get(key) == fp
-        and bool(meta.get("tables"))
-        and not damaged(config.out)
-    )
+    return getattr(meta, key) == fp and bool(meta.tables) and not damaged(config.out)
 
 
 def _vocabulary(config: IngestConfig, label_names: tuple[str, ...]) -> list[str]:
