@@ -12,8 +12,10 @@ committed last. Building one always goes the same way, and only here:
 3. an up-to-date map (every table present and whole, the same config, store and
    vocabulary) is returned as it is (:meth:`MapSpec.is_current`);
 4. otherwise the builder writes each table to a staged temporary (:class:`StagedMap`), and
-   the skeleton renames them into place in the declared order, the main table last, so an
-   interrupted build leaves the previous map whole.
+   the skeleton checks the main table against its declared columns
+   (:data:`fuse.schemas.MAP_SCHEMAS`, which :func:`query.map.load_map` checks too) and
+   renames them into place in the declared order, the main table last, so an interrupted
+   build leaves the previous map whole.
 """
 
 from __future__ import annotations
@@ -23,16 +25,19 @@ import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from types import TracebackType
 from typing import Any, Protocol
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
 
+from care.errors import FuseError
 from care.fingerprint import canonical_json, config_json, fingerprint
 from care.outputs import damaged, record_table
 from care.store import Store, read_schema
 from fuse.frame import ensure_map_frame, store_stamp
 from fuse.measures import candidate_metadata
+from fuse.schemas import MAP_SCHEMAS, schema_problems
 from fuse.vocabulary import vocabulary_text
 
 __all__ = [
@@ -97,6 +102,11 @@ class MapSpec:
     def table(self) -> str:
         return self.tables[-1]
 
+    @property
+    def schema(self) -> pa.Schema:
+        """The declared columns of the main table (:data:`fuse.schemas.MAP_SCHEMAS`)."""
+        return MAP_SCHEMAS[self.kind]
+
     def config_json(self, config: Any) -> str:
         return config_json(config, self.how)
 
@@ -123,7 +133,10 @@ class MapSpec:
             return False
         if damaged(store.path, [p.name for p in paths]):  # a damaged map is rebuilt
             return False
-        found = read_schema(paths[-1]).metadata or {}
+        schema = read_schema(paths[-1])
+        if schema_problems(schema, self.kind, paths[-1]) is not None:  # an older layout
+            return False
+        found = schema.metadata or {}
         keys = (config_key(self.kind), STORE_KEY, VOCABULARY_KEY)
         return all(found.get(k) == metadata[k] for k in keys)
 
@@ -147,7 +160,18 @@ class StagedMap:
         return tmp
 
     def commit(self) -> None:
-        """Rename every staged table that was written into place, in commit order."""
+        """Rename every staged table that was written into place, in commit order, once
+        the main table is checked against its declared columns."""
+        main = self._staged.get(self.spec.table)
+        if main is None or not main.is_file():
+            msg = f"{self.store.path}: the {self.spec.kind} build wrote no {self.spec.table} table"
+            raise FuseError(msg)
+        problem = schema_problems(
+            pq.read_schema(main), self.spec.kind, self.store.table_path(self.spec.table)
+        )
+        if problem is not None:  # a writer out of step with the declaration: a bug
+            msg = f"{problem}; the {self.spec.kind} writer does not match fuse.schemas"
+            raise FuseError(msg)
         for table in self.spec.tables:
             tmp = self._staged.pop(table, None)
             if tmp is None or not tmp.is_file():
@@ -159,12 +183,7 @@ class StagedMap:
     def __enter__(self) -> StagedMap:
         return self
 
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
+    def __exit__(self, *exc: object) -> None:
         for tmp in self._staged.values():
             tmp.unlink(missing_ok=True)
         self._staged.clear()

@@ -13,17 +13,8 @@
 
 from __future__ import annotations
 
-from typing import Any
+from care.lazy import lazy_exports
 
 __all__ = ["ingest"]
 
-
-def __getattr__(name: str) -> Any:
-    """The stage function(s) (``ingest``), imported on first use: the
-    package's light modules stay light to import."""
-    if name in __all__:
-        from ingest.api import ingest  # noqa: F401
-
-        return locals()[name]
-    msg = f"module {__name__!r} has no attribute {name!r}"
-    raise AttributeError(msg)
+__getattr__ = lazy_exports(__name__, {"ingest": "ingest.api"})
