@@ -4,7 +4,7 @@ the values a map recorded with it.
 A config's defaults and help exist once, in the dataclass: the default is the field's, the
 help is the docstring written under the field (the habit of nerfstudio's and tyro's
 configs). The CLI (:mod:`care_cli.options`) builds its options from both, and a map table
-stores the config it was built with as JSON (:func:`config_json`) so that a later command
+stores the config it was built with as JSON (:func:`care.fingerprint.config_json`) so that a later command
 given no options reuses it (:func:`recorded_fields`).
 """
 
@@ -17,10 +17,9 @@ import functools
 import inspect
 import json
 import textwrap
-from collections.abc import Iterable, Mapping
 from typing import Any
 
-__all__ = ["config_json", "field_docs", "member", "recorded_fields"]
+__all__ = ["field_docs", "member", "recorded_fields"]
 
 
 def member(kind: type[enum.Enum], value: object, error: type[Exception], what: str) -> Any:
@@ -58,35 +57,8 @@ def field_docs(cls: type) -> dict[str, str]:
     return {f.name: docs.get(f.name, "") for f in dataclasses.fields(cls)}
 
 
-def _plain(value: Any) -> Any:
-    """A JSON-able form of a config value: enums by value, tuples as lists, nested configs
-    as dicts, paths as text."""
-    if isinstance(value, enum.Enum):
-        return value.value
-    if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return {f.name: _plain(getattr(value, f.name)) for f in dataclasses.fields(value)}
-    if isinstance(value, tuple | list):
-        return [_plain(v) for v in value]
-    if isinstance(value, Mapping):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, int | float | str | bool) or value is None:
-        return value
-    return str(value)
-
-
-def config_json(config: object, *, leave_out: Iterable[str] = ()) -> str:
-    """The config as sorted JSON (every field but ``leave_out``): what a map records."""
-    skip = set(leave_out)
-    fields = {
-        f.name: _plain(getattr(config, f.name))
-        for f in dataclasses.fields(config)  # type: ignore[arg-type]
-        if f.name not in skip
-    }
-    return json.dumps(fields, sort_keys=True)
-
-
 def recorded_fields(cls: type, text: bytes | str | None) -> dict[str, Any]:
-    """The fields of ``cls`` a recorded :func:`config_json` holds (lists back to tuples);
+    """The fields of ``cls`` a recorded :func:`care.fingerprint.config_json` holds (lists back to tuples);
     an absent or unreadable record gives ``{}`` (then the defaults apply)."""
     if not text:
         return {}

@@ -189,10 +189,13 @@ def estimate_map_frame(
             "(the world axis that points up, e.g. +z for REP 103 frames) and --floor-z"
         )
         raise FloorNotFoundError(msg)
-    normal, offset, fraction = found
+    normal, offset, _ = found
     up = _snap(normal, snap)
     if up is not normal:  # snapped: measure the floor's height along the exact axis
         offset = _floor_along(points, centres, up, distance, seed)
+    # the share of points on the floor, measured on the final plane: open3d's RANSAC
+    # counts its inliers in threads, so its own count differs from run to run by a point
+    fraction = float(np.mean(np.abs(points @ up - offset) <= distance)) if len(points) else 0.0
     return _frame(up, offset if floor is None else floor, "floor plane", fraction, floor_tolerance)
 
 

@@ -312,6 +312,8 @@ def rebuild_hint(store: Path, table: str) -> str:
     meta = Path(store) / "meta.json"
     with contextlib.suppress(OSError, ValueError, AttributeError, KeyError, TypeError):
         recording = json.loads(meta.read_text())["source"]["path"]
+    if recording != "RECORDING":  # recorded relative to the store
+        recording = os.path.normpath(Path(store) / recording)
     template = REBUILD.get(name, "care ingest {recording} --out {store} --force")
     return "`" + template.format(store=store, recording=recording) + "`"
 

@@ -17,12 +17,12 @@ leaves a store that looks complete; single tables added later go through
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import io
 import json
 import os
-import time
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -52,11 +52,15 @@ __all__ = [
     "EXTRA_IMAGES",
     "FEATURES_SCHEMA",
     "MAP_FRAME_FILE",
+    "META_FILE",
+    "META_VERSION",
     "SCHEMA_VERSION",
     "TEXT_SCHEMA",
     "VIEWS_SCHEMA",
     "EncoderInfo",
+    "SourceRecord",
     "Store",
+    "StoreMeta",
     "StoreWriter",
     "append_rows",
     "damaged_table",
@@ -67,6 +71,7 @@ __all__ = [
     "open_writer",
     "read_schema",
     "read_table",
+    "source_recording",
     "write_table_atomic",
 ]
 
@@ -323,6 +328,124 @@ _MAX_BUFFERED_VALUES = 1 << 26
 bounds the memory (128 MiB of float16) and keeps the list column's int32 offsets valid."""
 
 
+META_FILE = "meta.json"
+"""The store's metadata (:class:`StoreMeta`), written last: its presence marks a complete
+store."""
+
+META_VERSION = 2
+"""Layout of ``meta.json``: 2 = source by content and relative path, no creation time
+(version 1 stores are read as they are)."""
+
+
+@dataclass(frozen=True)
+class SourceRecord:
+    """The recording a store was made from: where it lies *relative to the store* (no
+    absolute machine path inside a store) and what it is (size and checksum)."""
+
+    path: str | None = None
+    """Relative to the store directory (version 1 stores: absolute)."""
+    name: str | None = None
+    size: int | None = None
+    blake2b: str | None = None
+
+    def resolve(self, store: Path) -> Path | None:
+        """The recording's path as seen from ``store`` (None when none is recorded)."""
+        if not self.path:
+            return None
+        return Path(os.path.normpath(Path(store).absolute() / self.path))
+
+
+@dataclass(frozen=True)
+class StoreMeta:
+    """``meta.json``: the one typed record of a store's metadata, read and written here only
+    (:meth:`read`, :meth:`to_json`); versioned by :data:`META_VERSION`."""
+
+    num_views: int
+    encoder: EncoderInfo | None = None
+    """Name, version and dimension of the features' encoder; None: views only."""
+    encoder_record: dict[str, Any] | None = None
+    """Every option that shapes the encoder (:class:`care.encoders.record.EncoderRecord`)."""
+    fingerprint: str | None = None
+    """Hash of the recording's content and the ingest options the store depends on."""
+    request_fingerprint: str | None = None
+    """The same, known before the encoder is built (a re-run matching it loads no model)."""
+    source: SourceRecord = dataclasses.field(default_factory=SourceRecord)
+    topics: dict[str, Any] = dataclasses.field(default_factory=dict)
+    world_frame: str | None = None
+    camera_frame: str | None = None
+    label_names: tuple[str, ...] = ()
+    vocabulary: tuple[str, ...] = ()
+    counts: dict[str, Any] = dataclasses.field(default_factory=dict)
+    """Frames read, written and dropped (by reason)."""
+    config: dict[str, Any] = dataclasses.field(default_factory=dict)
+    """The ingest options that shape the store (not where its inputs and outputs lie)."""
+    tables: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
+    """Each table's size and BLAKE2b checksum at commit."""
+    schema_version: int = SCHEMA_VERSION
+    meta_version: int = META_VERSION
+
+    def to_json(self) -> str:
+        data = asdict(self)
+        data["encoder"] = None if self.encoder is None else {
+            "name": self.encoder.name, "version": self.encoder.version, "dim": self.encoder.dim
+        }  # fmt: skip
+        return json.dumps(data, indent=2, default=str)
+
+    @classmethod
+    def from_json(cls, data: Any, where: Path) -> StoreMeta:
+        """Parse ``meta.json``'s content; one line naming ``where`` when it is not a store's."""
+        if not isinstance(data, dict):
+            msg = f"{where}: not a JSON object; rebuild the store with {rebuild_hint(where.parent, 'meta')}"
+            raise StoreError(msg)
+        if data.get("schema_version") != SCHEMA_VERSION:
+            msg = (
+                f"{where.parent}: store schema version {data.get('schema_version')}, this "
+                f"program reads {SCHEMA_VERSION}; re-run `care ingest`."
+            )
+            raise StoreError(msg)
+        try:
+            enc = data.get("encoder")
+            source = data.get("source")
+            known = {f.name for f in dataclasses.fields(cls)}
+            values = {k: v for k, v in data.items() if k in known}
+            values.update(
+                num_views=int(data["num_views"]),
+                encoder=None if not enc else EncoderInfo(enc["name"], enc["version"], int(enc["dim"])),
+                source=SourceRecord(**{k: source.get(k) for k in ("path", "name", "size", "blake2b")})
+                if isinstance(source, dict) else SourceRecord(),
+                label_names=tuple(data.get("label_names") or ()),
+                vocabulary=tuple(data.get("vocabulary") or ()),
+                topics=data.get("topics") or {},
+                counts=data.get("counts") or {},
+                config=data.get("config") or {},
+                tables=data.get("tables") or {},
+                meta_version=int(data.get("meta_version", 1)),
+            )  # fmt: skip
+            return cls(**values)
+        except (KeyError, TypeError, ValueError) as err:
+            msg = f"{where}: malformed store metadata ({err}); rebuild the store with {rebuild_hint(where.parent, 'meta')}"
+            raise StoreError(msg) from err
+
+    @classmethod
+    def read(cls, store: Path) -> StoreMeta:
+        """The metadata of the store ``store``; one line when it is missing or unreadable."""
+        path = Path(store) / META_FILE
+        if not path.is_file():
+            msg = f"{store}: not a complete feature store (no meta.json); run `care ingest` first."
+            raise StoreError(msg)
+        try:
+            data = json.loads(path.read_text())
+        except (ValueError, UnicodeDecodeError) as err:
+            msg = f"{path}: not valid JSON ({err}); rebuild the store with {rebuild_hint(Path(store), 'meta')}"
+            raise StoreError(msg) from err
+        return cls.from_json(data, path)
+
+
+def source_recording(store: Path, meta: StoreMeta | None = None) -> Path | None:
+    """The recording the store ``store`` was ingested from (None when it names none)."""
+    return (meta or StoreMeta.read(store)).source.resolve(store)
+
+
 class StoreWriter:
     """Streams views and features into a new store, committing it atomically on success.
 
@@ -443,27 +566,18 @@ class StoreWriter:
         self._views_writer = self._features_writer = None
         if self._text is not None:
             write_table_atomic(self._text, self.tmp / "text.parquet")
-        full = {
-            "schema_version": SCHEMA_VERSION,
-            "num_views": self.num_views,
-            "encoder": None
-            if self.encoder is None
-            else {
-                "name": self.encoder.name,
-                "version": self.encoder.version,
-                "dim": self.encoder.dim,
-            },
-            "created_unix": time.time(),
-            **meta,
-        }
+        full: dict[str, Any] = {"num_views": self.num_views, "encoder": self.encoder, **meta}
         # the store's fingerprint on disk: every table's size and checksum, so a deleted,
         # truncated or altered table is found (``care check``, the next ingest)
         full["tables"] = {p.name: file_digest(p) for p in sorted(self.tmp.glob("*.parquet"))}
-        (self.tmp / "meta.json").write_text(json.dumps(full, indent=2, default=str))
-        source = meta.get("source")
-        write_marker(
-            self.tmp, "store", source=source.get("path") if isinstance(source, dict) else None
-        )
+        full["schema_version"] = SCHEMA_VERSION
+        full["meta_version"] = META_VERSION
+        if isinstance(full["encoder"], EncoderInfo):
+            info = full["encoder"]
+            full["encoder"] = {"name": info.name, "version": info.version, "dim": info.dim}
+        record = StoreMeta.from_json(full, self.tmp / META_FILE)
+        (self.tmp / META_FILE).write_text(record.to_json())
+        write_marker(self.tmp, "store", source=record.source.path)
         old = self.path.with_name(f".{self.path.name}.old-{os.getpid()}")
         if self.path.exists():
             self.path.rename(old)
@@ -507,31 +621,14 @@ class Store:
 
     def __init__(self, path: Path) -> None:
         self.path = Path(path)
-        meta_path = self.path / "meta.json"
-        if not meta_path.is_file():
-            msg = f"{self.path}: not a complete feature store (no meta.json); run `care ingest` first."
-            raise StoreError(msg)
-        try:
-            self.meta: dict[str, Any] = json.loads(meta_path.read_text())
-            if not isinstance(self.meta, dict):
-                raise ValueError("not a JSON object")
-        except (ValueError, UnicodeDecodeError) as err:
-            msg = f"{meta_path}: not valid JSON ({err}); rebuild the store with {rebuild_hint(self.path, 'meta')}"
-            raise StoreError(msg) from err
-        if self.meta.get("schema_version") != SCHEMA_VERSION:
-            msg = (
-                f"{self.path}: store schema version {self.meta.get('schema_version')}, this "
-                f"program reads {SCHEMA_VERSION}; re-run `care ingest`."
-            )
-            raise StoreError(msg)
-
-        bad = damaged(self.path, self.meta.get("tables") or {}, checksum=False)
+        self.meta = StoreMeta.read(self.path)
+        bad = damaged(self.path, self.meta.tables, checksum=False)
         if bad:
             raise damaged_table(self.path / bad[0])
 
     @property
     def num_views(self) -> int:
-        return int(self.meta["num_views"])
+        return self.meta.num_views
 
     def verify(self) -> list[str]:
         """Messages about every damaged table of the store and its maps (empty: all whole).
@@ -674,7 +771,7 @@ class Store:
         names = table.column("name").to_pylist()
         emb = table.column("embedding").combine_chunks().values.to_numpy()
         emb = emb.reshape(len(names), -1).astype(np.float32)
-        dim = (self.meta.get("encoder") or {}).get("dim")
+        dim = None if self.meta.encoder is None else self.meta.encoder.dim
         if dim is not None and names and emb.shape[1] != dim:
             msg = (
                 f"{path}: text embeddings of dimension {emb.shape[1]}, but the store's features "

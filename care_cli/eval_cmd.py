@@ -32,7 +32,11 @@ TextArg = Annotated[str, typer.Argument(help="What to look for: a class name or 
 MapOpt = Annotated[MapKind, typer.Option("--map", help=with_choices("Map to ask.", MapKind))]
 RayOpt = Annotated[
     bool,
-    typer.Option("--ray", help="Evaluate scenes as Ray tasks (a local Ray unless --ray-address)."),
+    typer.Option(
+        "--ray",
+        help="Run as Ray tasks (care run: each recording's ingest and maps, then the "
+        "evaluation; care eval: the scenes), on a local Ray unless --ray-address.",
+    ),
 ]
 RayAddressOpt = Annotated[
     str | None,
@@ -409,3 +413,7 @@ def run(
         typer.echo(f"\nfull report: {out / 'eval' / 'results.md'}")
     typer.echo(f"stores: {', '.join(str(p) for p in result.stores)}")
     typer.echo(f"open the maps and every decision in Rerun:\n  {result.rerun_command()}")
+    if result.failed:  # each was reported in one line as it failed; the others completed
+        names = ", ".join(name for name, _ in result.failed)
+        typer.echo(f"error: {len(result.failed)} recording(s) failed: {names}", err=True)
+        raise typer.Exit(1)

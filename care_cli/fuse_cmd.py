@@ -105,7 +105,7 @@ def _recompute_args(settings: Options, config: Any) -> tuple[Any, float | None]:
 
 def _recorded(store: Path, table: str, kind: str) -> bytes | None:
     """The settings the store's ``kind`` map was built with (None: no such map, or none
-    recorded). Maps made before ``care.<kind>.settings`` existed have the same JSON as
+    recorded). Maps made before ``care.<kind>.config_json`` existed have the same JSON as
     their key, ``care.<kind>.config``."""
     import pyarrow.parquet as pq
 
@@ -113,7 +113,7 @@ def _recorded(store: Path, table: str, kind: str) -> bytes | None:
         md = pq.read_schema(store / f"{table}.parquet").metadata or {}
     except (OSError, ValueError):  # no map yet, or a damaged one that the build replaces
         return None
-    return md.get(f"care.{kind}.settings".encode()) or md.get(f"care.{kind}.config".encode())
+    return md.get(f"care.{kind}.config_json".encode()) or md.get(f"care.{kind}.config".encode())
 
 
 @fuse_app.command("grid")
@@ -230,12 +230,12 @@ def instances(
 def _proposal_quality(store: Path) -> None:
     """Print how well the masks match the ground truth, when the source recording has one
     (sample-world recordings): the figure to check before trusting any retrieval result."""
-    from care.store import Store
+    from care.store import Store, source_recording
     from fuse.evaluate_proposals import instance_map_iou
     from world.groundtruth import gt_paths
 
-    source = (Store(store).meta.get("source") or {}).get("path")
-    if not source or not gt_paths(Path(source))[1].is_file():
+    source = source_recording(store, Store(store).meta)
+    if source is None or not gt_paths(source)[1].is_file():
         return
     ids, iou = instance_map_iou(store)
     typer.echo(

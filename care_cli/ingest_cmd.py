@@ -69,7 +69,7 @@ def ingest(
     )
     path = run_ingest(config)
     store = Store(path)
-    counts = store.meta.get("counts", {})
+    counts = store.meta.counts
     dropped = counts.get("dropped") or {}
     skipped = counts.get("skipped") or {}
     typer.echo(

@@ -1,1 +1,9 @@
 """evaluate stage."""
+
+from __future__ import annotations
+
+from care.lazy import lazy_exports
+
+__all__ = ["evaluate"]
+
+__getattr__ = lazy_exports(__name__, {"evaluate": "evaluate.api"})

@@ -10,9 +10,7 @@ default and help; the registries' names are enums (:class:`QueryProtocol` here,
 
 from __future__ import annotations
 
-import hashlib
-import json
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from enum import Enum, StrEnum
 from pathlib import Path
 
@@ -20,6 +18,7 @@ from care.checks import check_numbers
 from care.config import member
 from care.encoders import EncoderOptions
 from care.errors import EvalError
+from care.fingerprint import config_fields, fingerprint
 from evaluate.groundtruth import GtSource, UnknownClasses
 from fuse.config import GridConfig, InstanceConfig
 from query.map import MapKind
@@ -115,9 +114,7 @@ class EvalConfig:
 
     def fingerprint(self) -> str:
         """Hash of everything that shapes a scene's attempts (not ``bootstrap``)."""
-        fields = asdict(self)
-        fields.pop("bootstrap")
-        return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:16]
+        return fingerprint(config_fields(self, ("bootstrap",)), length=16)
 
 
 @dataclass(frozen=True)
@@ -137,9 +134,11 @@ class RunConfig:
     evaluation: EvalConfig = field(default_factory=EvalConfig)
     """What the evaluation runs."""
     workers: int | None = None
-    """Local processes of the evaluation (default: one per CPU)."""
+    """Local processes of the recordings' tasks and the evaluation (default: one per CPU;
+    1: one after another in this process)."""
     ray_address: str | bool | None = None
-    """Evaluate scenes as Ray tasks: True for a local Ray, an address for a cluster."""
+    """Run the recordings' tasks and the evaluation on Ray: True for a local Ray, an
+    address for a cluster."""
     progress: bool = True
     """Show progress bars."""
     gt: tuple[Path, ...] = ()
@@ -151,3 +150,7 @@ class RunConfig:
     rrd_class: str | None = None
     """Class of the grid recording's confidence layer (default: one layer per query class of
     the scene's evaluation)."""
+    task_cpus: float = 1.0
+    """CPUs each recording's Ray task declares."""
+    task_memory: int | None = 2 << 30
+    """Bytes of memory each recording's Ray task declares (None: none)."""

@@ -10,11 +10,9 @@ criterion, k, seed index) alone, so results are bit-identical whichever way they
 
 from __future__ import annotations
 
-import hashlib
-import json
 import os
 import zlib
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -25,8 +23,10 @@ import pyarrow.parquet as pq
 from tqdm import tqdm
 
 from care.errors import CareError, EvalError
-from care.outputs import evaluation_output
-from care.store import read_table, write_table_atomic
+from care.fingerprint import content_digest, fingerprint
+from care.outputs import evaluation_output, read_marker
+from care.parallel import Runner, run_tasks
+from care.store import META_FILE, read_table, source_recording, write_table_atomic
 from evaluate.config import EvalConfig
 from evaluate.groundtruth import GtSource, check_ground_truth, gt_files
 from evaluate.report import Report, write_report
@@ -97,16 +97,14 @@ class Scene:
 
 
 def _store_recording(store: Path) -> Path:
-    meta_path = store / "meta.json"
-    if not meta_path.is_file():
+    if not (store / META_FILE).is_file():
         msg = f"{store}: not a feature store (no meta.json); run `care ingest` and `care fuse`"
         raise EvalError(msg)
-    source = json.loads(meta_path.read_text()).get("source") or {}
-    path = source.get("path") if isinstance(source, dict) else source
-    if not path:
-        msg = f"{meta_path}: no source recording recorded; the ground truth cannot be found"
+    path = source_recording(store)
+    if path is None:
+        msg = f"{store / META_FILE}: no source recording recorded; the ground truth cannot be found"
         raise EvalError(msg)
-    return Path(path)
+    return path
 
 
 def _find_stores(root: Path) -> dict[Path, Path]:
@@ -331,14 +329,21 @@ with height bands), so caches written by older code are recomputed."""
 
 def _scene_key(scene: Scene, config: EvalConfig) -> bytes:
     """What a cached scene's attempts depend on: the config, the evaluation code's version,
-    and the size and mtime of the scene's map tables and ground-truth files (a re-fused map
-    or a regenerated scene must not be served from the cache)."""
-
+    and the content (size and checksum) of the scene's map tables and ground-truth files:
+    a re-fused map or a regenerated scene is not served from the cache, and a dataset moved
+    to another directory or machine keeps it."""
     files = [scene.store / f"{MAP_TABLES[kind]}.parquet" for kind in config.maps]
     files += [scene.store / "scene_points.parquet", *gt_files(scene.gt, scene.recording)]
-    stats = [(p.name, p.stat().st_size, p.stat().st_mtime_ns) for p in files if p.is_file()]
-    doc = json.dumps([config.fingerprint(), EVAL_VERSION, stats, repr(scene.gt)], sort_keys=True)
-    return hashlib.sha256(doc.encode()).hexdigest()[:16].encode()
+    recorded = (read_marker(scene.store) or {}).get("tables") or {}
+    contents = [
+        (p.name, (recorded.get(p.name) if p.parent == scene.store else None) or content_digest(p))
+        for p in files
+        if p.is_file()
+    ]
+    gt = scene.gt  # how it is read; its files are in ``contents``, wherever they lie
+    how = (gt.fmt, gt.transform, None if gt.class_map is None else Path(gt.class_map).name)
+    key = fingerprint(config.fingerprint(), EVAL_VERSION, contents, how)
+    return key[:16].encode()
 
 
 def _cached(out: Path, scene: Scene, config: EvalConfig) -> bool:
@@ -349,68 +354,14 @@ def _cached(out: Path, scene: Scene, config: EvalConfig) -> bool:
     return md.get(b"care.eval.scene_key") == _scene_key(scene, config)
 
 
-def _scene_task(scene: Scene, config: EvalConfig) -> pa.Table:
-    return evaluate_scene(scene, config)
+@dataclass(frozen=True)
+class _SceneTask:
+    """One scene's evaluation as a task of :func:`care.parallel.run_tasks` (picklable)."""
 
+    config: EvalConfig
 
-def _run_local(
-    todo: list[Scene], config: EvalConfig, workers: int
-) -> Iterator[tuple[Scene, pa.Table]]:
-    if workers <= 1 or len(todo) <= 1:
-        for scene in todo:
-            yield scene, evaluate_scene(scene, config)
-        return
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-
-    with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as pool:
-        futures = {pool.submit(_scene_task, scene, config): scene for scene in todo}
-        for fut in as_completed(futures):
-            yield futures[fut], fut.result()
-
-
-def _run_ray(
-    todo: list[Scene], config: EvalConfig, address: str | None
-) -> Iterator[tuple[Scene, pa.Table]]:
-    try:
-        import ray
-    except ImportError as err:
-        msg = "--ray needs Ray: pip install 'care-maps[ray]'"
-        raise EvalError(msg) from err
-    if not ray.is_initialized():
-        if address:
-            _check_reachable(address)
-        ray.init(address=address or None, include_dashboard=False, log_to_driver=False)
-    task = ray.remote(_scene_task)
-    refs = {task.remote(scene, config): scene for scene in todo}
-    pending = list(refs)
-    while pending:
-        done, pending = ray.wait(pending, num_returns=1)
-        try:
-            result = ray.get(done[0])
-        except ray.exceptions.RayTaskError as err:  # the task's own one-line error, not Ray's
-            if isinstance(err.cause, CareError):
-                raise err.cause from None
-            raise
-        yield refs[done[0]], result
-
-
-def _check_reachable(address: str) -> None:
-    """Fail at once on a cluster address nothing listens on: ``ray.init`` would retry for
-    minutes, printing warnings, before giving up."""
-    import socket
-
-    host, _, port = address.split("://")[-1].rpartition(":")
-    if not host or not port.isdigit():
-        return  # "auto" and the like: Ray resolves them itself
-    try:
-        socket.create_connection((host, int(port)), timeout=5).close()
-    except OSError as err:
-        msg = (
-            f"cannot reach a Ray cluster at {address} ({err.strerror or err}); start one with "
-            "`ray start --head` or drop --ray-address to use a local Ray"
-        )
-        raise EvalError(msg) from err
+    def __call__(self, scene: Scene) -> pa.Table:
+        return evaluate_scene(scene, self.config)
 
 
 def run_scenes(
@@ -434,11 +385,8 @@ def run_scenes(
         msg = f"scene names must be unique, got {sorted(n for n in names if names.count(n) > 1)}"
         raise EvalError(msg)
     todo = [s for s in scenes if not _cached(out, s, config)]
-    if ray_address is not None and ray_address is not False:
-        address = None if ray_address is True else str(ray_address)
-        results = _run_ray(todo, config, address)
-    else:
-        results = _run_local(todo, config, workers or os.cpu_count() or 1)
+    runner = Runner(workers=workers or os.cpu_count() or 1, ray_address=ray_address)
+    results = run_tasks(_SceneTask(config), todo, runner)
     for scene, table in tqdm(results, total=len(todo), desc="scenes", disable=not progress):
         md = {
             b"care.eval.fingerprint": config.fingerprint().encode(),

@@ -1,36 +1,51 @@
 """``care run``: recording(s) in, maps, the success table and Rerun files out, in one call.
 
-Chains ingest (:func:`ingest.pipeline.run_ingest`), both maps (:func:`fuse.grid.build_grid`,
-:func:`fuse.instances.build_instances`) and the evaluation (:func:`evaluate.job.run_eval`).
-Every stage skips work that is already done, so re-running is cheap. With no recording it
-runs on the bundled sample (``data/sample``).
+Chains the stage functions: :func:`ingest.ingest`, :func:`fuse.fuse_grid` and
+:func:`fuse.fuse_instances` for each recording (one task a recording, run serially, in a
+local process pool or on Ray: :mod:`care.parallel`), then :func:`evaluate.evaluate`. Every
+stage skips work that is already done, so re-running is cheap and an interrupted run
+resumes. With no recording it runs on the bundled sample (``data/sample``).
 """
 
 from __future__ import annotations
 
+import os
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
+from tqdm import tqdm
 
-from care.errors import EvalError
+from care.errors import CareError, EvalError
 from care.outputs import owned_output
+from care.parallel import Runner, run_tasks
+from evaluate.api import evaluate
 from evaluate.config import RunConfig
 from evaluate.groundtruth import GtSource
-from evaluate.job import Scene, run_eval, with_ground_truth
+from evaluate.job import Scene, with_ground_truth
 from evaluate.report import Report
 from evaluate.viz import write_evaluation_rrd
-from fuse.grid import build_grid
-from fuse.instances import build_instances
+from fuse.api import fuse_grid, fuse_instances
 from fuse.viz_grid import log_grid
-from ingest.pipeline import IngestConfig, run_ingest
+from ingest.api import ingest
+from ingest.pipeline import IngestConfig
 from ingest.readers import is_recording, recordings_in
 from query.map import load_map
 from world.dataset_index import INDEX_NAME, read_index
 
-__all__ = ["SAMPLE", "RunConfig", "RunResult", "recordings_of", "run_all"]
+__all__ = [
+    "SAMPLE",
+    "RecordingOutcome",
+    "RecordingTask",
+    "RunConfig",
+    "RunResult",
+    "map_recordings",
+    "recordings_of",
+    "run_all",
+]
 
 SAMPLE = Path(__file__).resolve().parents[1] / "data" / "sample"
 """The bundled sample dataset (one sample-world recording with ground truth)."""
@@ -46,6 +61,8 @@ class RunResult:
     rrds: tuple[Path, ...]
     unevaluated: tuple[str, ...] = ()
     """Recordings mapped but not evaluated: no ground truth named or beside them."""
+    failed: tuple[tuple[str, str], ...] = ()
+    """``(name, one-line error)`` of every recording whose ingest or maps failed."""
 
     def rerun_command(self) -> str:
         return "rerun " + " ".join(str(p) for p in self.rrds)
@@ -113,51 +130,132 @@ def _scenes_with_gt(
     return out_scenes
 
 
+@dataclass(frozen=True)
+class RecordingTask:
+    """One recording's ingest and both maps: a task of :func:`care.parallel.run_tasks`,
+    with everything it needs in its fields (no global state), so it runs the same in this
+    process, a pool worker or a Ray worker on another node."""
+
+    name: str
+    recording: Path
+    out: Path
+    """The run's output folder: the store goes to ``out/stores/<name>``."""
+    config: RunConfig
+    progress: bool = False
+    """Stage progress bars (serial runs only: parallel ones show the dataset's)."""
+
+    @property
+    def store(self) -> Path:
+        return self.out / "stores" / self.name
+
+    def __call__(self) -> RecordingOutcome:
+        try:
+            return self._run()
+        except Exception as err:
+            first = str(err).splitlines()[0] if str(err) else ""
+            why = first if isinstance(err, CareError) else f"{type(err).__name__}: {first}"
+            return RecordingOutcome(self.name, error=why)
+
+    def _run(self) -> RecordingOutcome:
+        config, out, name = self.config, self.out, self.name
+        ingest_rrd = out / f"{name}.ingest.rrd" if config.rrd_ingest else None
+        store = ingest(
+            self.recording,
+            IngestConfig(
+                recording=self.recording, out=self.store, encoder=config.encoder,
+                encoder_options=config.encoder_options, vocabulary=config.vocabulary,
+                progress=self.progress, rrd=ingest_rrd,
+            ),
+        )  # fmt: skip
+        grid_rrd, inst_rrd = out / f"{name}.grid.rrd", out / f"{name}.instances.rrd"
+        grid_fresh = not (store.path / "cells.parquet").is_file() or not grid_rrd.is_file()
+        fuse_grid(store, config.grid)
+        fresh = not (store.path / "instances.parquet").is_file() or not inst_rrd.is_file()
+        fuse_instances(store, config.instances, rrd=inst_rrd if fresh else None)
+        return RecordingOutcome(name, grid_due=grid_fresh)
+
+
+@dataclass(frozen=True)
+class RecordingOutcome:
+    """What a :class:`RecordingTask` left: its grid still to log, or its one-line error."""
+
+    name: str
+    grid_due: bool = False
+    """The grid map is new (or has no Rerun file yet): log it after the evaluation."""
+    error: str | None = None
+
+
+def _run_task(task: RecordingTask) -> RecordingOutcome:
+    return task()
+
+
+def map_recordings(
+    tasks: Sequence[RecordingTask], runner: Runner, *, progress: bool = True
+) -> dict[str, RecordingOutcome]:
+    """Run every recording's task on ``runner``; a failure is one line, the others go on.
+
+    A dataset progress bar counts finished recordings; finished stores and maps are not
+    redone (each stage's up-to-date check), so an interrupted run resumes.
+    """
+    outcomes: dict[str, RecordingOutcome] = {}
+    with tqdm(total=len(tasks), desc="recordings", unit="rec", disable=not progress) as bar:
+        for task, outcome in run_tasks(_run_task, tasks, runner):
+            outcomes[task.name] = outcome
+            if outcome.error is not None:
+                bar.write(f"error: {task.name}: {outcome.error}", file=sys.stderr)
+            bar.set_postfix_str(task.name)
+            bar.update(1)
+    return outcomes
+
+
 def run_all(source: Path | None, out: Path, config: RunConfig | None = None) -> RunResult:
     """Ingest, fuse and evaluate every recording of ``source`` (default the bundled sample)
     into ``out``: ``out/stores/<name>``, ``out/<name>.{ingest,grid,instances,eval}.rrd`` (one
     Rerun recording id per scene, so they open together) and the evaluation outputs
     (``results.md``, Parquet, plots) in ``out/eval``. Recordings without ground truth get
-    their maps and Rerun files and are listed in ``unevaluated``."""
+    their maps and Rerun files and are listed in ``unevaluated``.
+
+    Each recording's ingest and maps are one task (:class:`RecordingTask`), run one after
+    another, in a local process pool (``config.workers``) or on Ray (``config.ray_address``,
+    each task declaring ``config.task_cpus`` and ``config.task_memory``); then the
+    evaluation runs the same way. A recording that fails is reported in one line and left
+    out (:attr:`RunResult.failed`); the others complete."""
     config = config or RunConfig()
     out = Path(out)
     recordings = recordings_of(source or SAMPLE)
     planned = _scenes_with_gt(recordings, gt_sources_of(source or SAMPLE), config, out)
+    runner = Runner(
+        workers=config.workers or os.cpu_count() or 1,
+        ray_address=config.ray_address,
+        num_cpus=config.task_cpus,
+        memory=config.task_memory,
+    )
     with owned_output(out, "run", [rec for _, rec in recordings]):
-        scenes, unevaluated, grid_due = [], [], {}
-        for (name, recording), (plan, has_gt) in zip(recordings, planned, strict=True):
-            store = out / "stores" / name
-            ingest_rrd = out / f"{name}.ingest.rrd" if config.rrd_ingest else None
-            run_ingest(
-                IngestConfig(
-                    recording=recording, out=store, encoder=config.encoder,
-                    encoder_options=config.encoder_options, vocabulary=config.vocabulary,
-                    progress=config.progress, rrd=ingest_rrd,
-                )
-            )  # fmt: skip
-            grid_rrd, inst_rrd = out / f"{name}.grid.rrd", out / f"{name}.instances.rrd"
-            fresh = not (store / "cells.parquet").is_file() or not grid_rrd.is_file()
-            build_grid(store, config.grid)
-            grid_due[name] = fresh or config.rrd_class is not None  # logged after the evaluation
-            fresh = not (store / "instances.parquet").is_file() or not inst_rrd.is_file()
-            build_instances(store, config.instances, rrd=inst_rrd if fresh else None)
-            if has_gt:
-                scenes.append(plan)
-            else:
-                unevaluated.append(name)
+        serial = not runner.uses_ray and (runner.workers <= 1 or len(recordings) <= 1)
+        tasks = [
+            RecordingTask(name, Path(rec), out, config, progress=config.progress and serial)
+            for name, rec in recordings
+        ]
+        outcomes = map_recordings(tasks, runner, progress=config.progress and not serial)
+        failed = tuple((n, o.error) for n, o in outcomes.items() if o.error is not None)
+        done = [(n, r) for n, r in recordings if outcomes[n].error is None]
+        scenes = [plan for (n, _), (plan, has) in zip(recordings, planned, strict=True)
+                  if has and outcomes[n].error is None]  # fmt: skip
+        unevaluated = [n for (n, _), (_, has) in zip(recordings, planned, strict=True)
+                       if not has and outcomes[n].error is None]  # fmt: skip
         report, attempts = None, None
         if scenes:
-            report = run_eval(
+            report = evaluate(
                 scenes, config.evaluation, out / "eval",
-                workers=config.workers, ray_address=config.ray_address, progress=config.progress,
+                workers=runner.workers, ray_address=config.ray_address, progress=config.progress,
             )  # fmt: skip
             attempts = pq.read_table(out / "eval" / "attempts.parquet")
         evaluated = {scene.name: scene for scene in scenes}
         rrds: list[Path] = []
-        for name, _ in recordings:
+        for name, _ in done:
             store = out / "stores" / name
-            if grid_due[name]:  # the confidence of the scene's query classes (or --rrd-class)
-                target = config.rrd_class
+            if outcomes[name].grid_due or config.rrd_class is not None:
+                target = config.rrd_class  # the scene's query classes' confidence by default
                 if target is None and name in evaluated:
                     mine = attempts.filter(pc.equal(attempts.column("scene"), name))
                     target = list(dict.fromkeys(mine.column("target").to_pylist())) or None
@@ -171,5 +269,5 @@ def run_all(source: Path | None, out: Path, config: RunConfig | None = None) -> 
                 )  # fmt: skip
             stages = ("ingest", "grid", "instances", "eval")
             rrds += [p for p in (out / f"{name}.{s}.rrd" for s in stages) if p.is_file()]
-        stores = tuple(out / "stores" / name for name, _ in recordings)
-        return RunResult(report, stores, tuple(rrds), tuple(unevaluated))
+        stores = tuple(out / "stores" / name for name, _ in done)
+        return RunResult(report, stores, tuple(rrds), tuple(unevaluated), failed)

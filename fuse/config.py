@@ -9,15 +9,15 @@ are the one source of the default and ``--help`` of ``care fuse grid``/``instanc
 from __future__ import annotations
 
 import dataclasses
-import json
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import StrEnum
 from typing import ClassVar
 
 from care.checks import check_numbers
-from care.config import config_json, member
+from care.config import member
 from care.errors import FuseError
+from care.fingerprint import config_json, fingerprint
 
 __all__ = [
     "DEFAULT_LOGIT_SCALE",
@@ -107,16 +107,14 @@ class GridConfig:
             raise FuseError(msg)
 
     def fingerprint(self) -> str:
-        """JSON of everything that shapes the map (not how it is built: ``overwrite``, memory)."""
-        fields = dataclasses.asdict(self)
-        for how in self.HOW:
-            fields.pop(how)
-        return json.dumps(fields, sort_keys=True)
+        """The map's cache key: a hash of everything that shapes it (not how it is built:
+        ``overwrite``, memory)."""
+        return fingerprint(self.settings(), length=16)
 
     def settings(self) -> str:
-        """The config as JSON (``care.grid.settings``), what a later command reuses: every
+        """The config as JSON (``care.grid.config_json``), what a later command reuses: every
         field but :attr:`HOW` (so a map's bytes do not depend on how it was built)."""
-        return config_json(self, leave_out=self.HOW)
+        return config_json(self, self.HOW)
 
 
 @dataclass(frozen=True)
@@ -216,16 +214,13 @@ class InstanceConfig:
             raise FuseError(msg)
 
     def fingerprint(self, names: Sequence[str] | None = None) -> str:
-        """JSON of the settings ``names`` (default: all that shape the map; ``overwrite`` and
+        """Hash of the settings ``names`` (default: all that shape the map; ``overwrite`` and
         ``batch_size`` only change how it is built)."""
-        fields = dataclasses.asdict(self)
-        for how in self.HOW:
-            fields.pop(how)
-        if names is not None:
-            fields = {k: fields[k] for k in names}
-        return json.dumps(fields, sort_keys=True)
+        if names is None:
+            return fingerprint(self.settings(), length=16)
+        return fingerprint({k: getattr(self, k) for k in names}, length=16)
 
     def settings(self) -> str:
-        """The config as JSON (``care.instances.settings``), what a later command reuses:
+        """The config as JSON (``care.instances.config_json``), what a later command reuses:
         every field but :attr:`HOW`."""
-        return config_json(self, leave_out=self.HOW)
+        return config_json(self, self.HOW)

@@ -9,7 +9,7 @@ from typing import Protocol
 import numpy as np
 
 from care.errors import FuseError
-from care.store import Store, read_table
+from care.store import Store, read_table, source_recording
 
 __all__ = ["PointLabeller", "best_iou", "instance_map_iou", "proposal_iou"]
 
@@ -84,8 +84,8 @@ def instance_map_iou(
 
     store = Store(store_path)
     if recording is None:
-        source = (store.meta.get("source") or {}).get("path")
-        if not source:
+        source = source_recording(store.path, store.meta)
+        if source is None:
             msg = f"{store.path}: meta.json names no source recording; pass the recording path"
             raise FuseError(msg)
         recording = Path(source)

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 
+from care.fingerprint import fingerprint
 from care.geometry import backproject, transform_points
 from care.mapframe import MapFrame, UpAxis, estimate_map_frame
 from care.outputs import atomic_write_text
@@ -115,10 +116,13 @@ def check_height_band(store: Store, z_min: float, z_max: float) -> float:
 
 
 def store_stamp(store: Store) -> bytes:
-    """What a map records of the store it was built from: the store's creation and its map
-    frame (a new ingest or another frame makes every map stale)."""
+    """What a map records of the store it was built from: the content of the store's tables
+    (their recorded sizes and checksums) and its map frame. An ingest that changes the
+    views or features, or another frame, makes every map stale; the same store copied to
+    another directory or machine, or rebuilt to the same bytes, does not."""
+    content = fingerprint(store.meta.tables, length=16)
     frame = store.map_frame
     if frame.is_identity:
-        return str(store.meta.get("created_unix")).encode()
+        return content.encode()
     matrix = ",".join(repr(float(v)) for v in frame.map_from_world.reshape(-1))
-    return f"{store.meta.get('created_unix')}|{matrix}".encode()
+    return f"{content}|{matrix}".encode()

@@ -32,7 +32,6 @@ A finished grid whose config and store match is not rebuilt (``overwrite`` force
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass
 from itertools import zip_longest
@@ -46,7 +45,7 @@ from tqdm import tqdm
 
 from care.errors import FuseError
 from care.malloc import resident_bytes
-from care.outputs import damaged, record_table, write_atomic
+from care.outputs import write_atomic
 from care.store import (
     SCHEMA_VERSION,
     Store,
@@ -57,22 +56,22 @@ from care.store import (
 )
 from fuse.accumulate import CandidateSums
 from fuse.budget import check_raster
+from fuse.build import MapBuild, MapSpec, build_map
 from fuse.cells import CellIndex, ViewSamples, unpack_cells, view_samples
 from fuse.config import GridConfig
-from fuse.frame import check_height_band, ensure_map_frame, store_stamp
+from fuse.frame import check_height_band
 from fuse.layout import CELLS_TABLE, GridLayout
 from fuse.measures import (
     MAX_TOP_CLASSES,
-    candidate_metadata,
     to_float16,
 )
 from fuse.rosmap import occupancy_image, write_ros_map
 from fuse.sidecar import SidecarWriter, sidecar_path
-from fuse.vocabulary import vocabulary_text
 
 __all__ = [
     "CELLS_TABLE",
     "CELL_VIEWS_TABLE",
+    "GRID_MAP",
     "GridConfig",
     "GridLayout",
     "build_grid",
@@ -158,20 +157,6 @@ def _view_rows(view_id: int, ids: np.ndarray, samples: ViewSamples) -> pa.Table:
             "feature": feature,
         },
         schema=cell_views_schema(dim),
-    )
-
-
-def _is_current(store: Store, config: GridConfig, vocabulary: tuple[str, ...]) -> bool:
-    cells, views = store.table_path(CELLS_TABLE), store.table_path(CELL_VIEWS_TABLE)
-    if config.overwrite or not (cells.is_file() and views.is_file()):
-        return False
-    if damaged(store.path, [cells.name, views.name]):  # a damaged map is rebuilt, not trusted
-        return False
-    md = pq.read_schema(cells).metadata or {}
-    return (
-        md.get(b"care.grid.config") == config.fingerprint().encode()
-        and md.get(b"care.store.created") == store_stamp(store)
-        and md.get(b"care.vocabulary") == json.dumps(list(vocabulary)).encode()
     )
 
 
@@ -427,6 +412,10 @@ def _write_cells(
             writer.close()
 
 
+GRID_MAP = MapSpec("grid", (CELL_VIEWS_TABLE, CELLS_TABLE), how=GridConfig.HOW)
+"""The grid's tables (the per-view samples first: a current ``cells.parquet`` implies them)."""
+
+
 def build_grid(store_path: Path, config: GridConfig | None = None, rrd: Path | None = None) -> Path:
     """Fuse the store's views into ``cells.parquet`` (and siblings); returns its path.
 
@@ -435,50 +424,43 @@ def build_grid(store_path: Path, config: GridConfig | None = None, rrd: Path | N
     and notes which views see the others; each further block of cells is then fused in a
     pass over just those views. Every cell gets the same samples in the same view order
     either way, so the map is the same whatever the budget (``tests/fuse/test_grid.py``).
+    The up-to-date check and the staged commit are the skeleton's (:mod:`fuse.build`).
 
     ``rrd``: also log the grid layers to this Rerun file (:mod:`fuse.viz_grid`).
     """
     config = config or GridConfig()
-    ensure_map_frame(store_path)  # the gravity-aligned frame every pose is read in
-    store = Store(store_path)
-    vocabulary, text = vocabulary_text(store, config.vocabulary)
-    cells_path = store.table_path(CELLS_TABLE)
-    if not _is_current(store, config, vocabulary):
-        check_height_band(store, config.z_min, config.z_max)  # before any work
-        views_path = store.table_path(CELL_VIEWS_TABLE)
-        tmp = views_path.with_name(f".{views_path.name}.tmp-{os.getpid()}")
-        tmp_cells = cells_path.with_name(f".{cells_path.name}.tmp-{os.getpid()}")
-        try:
-            dim = store.encoder.dim
-            capacity = cells_per_pass(config, dim, len(text))
-            sums = CandidateSums(dim, text, config.logit_scale, limit=capacity)
-            first = _fuse_views(store, config, sums, tmp, capacity)
-            del sums  # first.sums holds it, until _write_cells lets it go
-            if first.index.size == 0:
-                msg = (
-                    f"{store.path}: no depth pixel fell between z_min={config.z_min} and "
-                    f"z_max={config.z_max} m; check the poses or widen the band"
-                )
-                raise FuseError(msg)
-            metadata = {
-                **candidate_metadata(vocabulary, config.logit_scale, store.encoder.name),
-                b"care.grid.config": config.fingerprint().encode(),
-                b"care.grid.settings": config.settings().encode(),
-                b"care.store.created": store_stamp(store),
-            }
-            _write_cells(store, config, text, first, capacity, tmp_cells, metadata, cells_path)
-            del first
-            tmp.replace(views_path)  # per-view table first: a current cells.parquet implies it
-            tmp_cells.replace(cells_path)
-            record_table(views_path)
-            record_table(cells_path)
-        finally:
-            tmp.unlink(missing_ok=True)
-            tmp_cells.unlink(missing_ok=True)
-        columns = ["ix", "iy", "r", "g", "b", "obstacle"]
-        write_grid_images(store, read_table(cells_path, columns))
+    path = build_map(
+        store_path,
+        GRID_MAP,
+        config,
+        lambda build: _fuse_grid(build, config),
+        after=lambda store: write_grid_images(
+            store,
+            read_table(store.table_path(CELLS_TABLE), ["ix", "iy", "r", "g", "b", "obstacle"]),
+        ),
+    )
     if rrd is not None:
         from fuse.viz_grid import log_grid
 
-        log_grid(store.path, rrd)
-    return cells_path
+        log_grid(Path(store_path), rrd)
+    return path
+
+
+def _fuse_grid(build: MapBuild, config: GridConfig) -> None:
+    """Stage ``cell_views`` and ``cells`` (and commit the query sidecar) of a new grid."""
+    store, text = build.store, build.text
+    check_height_band(store, config.z_min, config.z_max)  # before any work
+    dim = store.encoder.dim
+    capacity = cells_per_pass(config, dim, len(text))
+    sums = CandidateSums(dim, text, config.logit_scale, limit=capacity)
+    first = _fuse_views(store, config, sums, build.staged.path(CELL_VIEWS_TABLE), capacity)
+    del sums  # first.sums holds it, until _write_cells lets it go
+    if first.index.size == 0:
+        msg = (
+            f"{store.path}: no depth pixel fell between z_min={config.z_min} and "
+            f"z_max={config.z_max} m; check the poses or widen the band"
+        )
+        raise FuseError(msg)
+    cells = build.staged.path(CELLS_TABLE)
+    final = store.table_path(CELLS_TABLE)
+    _write_cells(store, config, text, first, capacity, cells, build.metadata, final)

@@ -20,8 +20,6 @@ logit scale from ``instance_views.parquet``.
 
 from __future__ import annotations
 
-import json
-import os
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -31,11 +29,12 @@ import pyarrow.parquet as pq
 
 from care.encoders import Encoder
 from care.errors import FuseError
-from care.outputs import damaged, record_table
+from care.outputs import damaged
 from care.store import Store, write_table_atomic
+from fuse.build import MapBuild, MapSpec, build_map
 from fuse.config import InstanceConfig, InstanceFeatures
-from fuse.frame import ensure_map_frame, store_stamp
-from fuse.measures import candidate_metadata, list_column
+from fuse.frame import store_stamp
+from fuse.measures import list_column
 from fuse.pointcloud import (
     SceneCloud,
     fuse_scene_points,
@@ -45,11 +44,11 @@ from fuse.pointcloud import (
 from fuse.proposals import PROPOSERS, Proposals
 from fuse.recompute import recompute_candidates, sums_from_views
 from fuse.views import ViewSelection, crop_features, require_crops, select_views
-from fuse.vocabulary import vocabulary_text
 
 __all__ = [
     "INSTANCES_TABLE",
     "INSTANCE_FEATURES",
+    "INSTANCE_MAP",
     "INSTANCE_VIEWS_SCHEMA",
     "INSTANCE_VIEWS_TABLE",
     "SCENE_POINTS_TABLE",
@@ -94,22 +93,6 @@ def _scene_cloud(store: Store, config: InstanceConfig) -> tuple[SceneCloud, dict
         store, voxel_size=config.voxel_size, stride=config.stride, max_depth=config.max_depth
     )
     return cloud, meta
-
-
-def _is_current(store: Store, config: InstanceConfig, vocabulary: tuple[str, ...]) -> bool:
-    paths = [
-        store.table_path(n) for n in (INSTANCES_TABLE, INSTANCE_VIEWS_TABLE, SCENE_POINTS_TABLE)
-    ]
-    if config.overwrite or not all(p.is_file() for p in paths):
-        return False
-    if damaged(store.path, [p.name for p in paths]):  # a damaged map is rebuilt, not trusted
-        return False
-    md = pq.read_schema(paths[0]).metadata or {}
-    return (
-        md.get(b"care.instances.config") == config.fingerprint().encode()
-        and md.get(b"care.store.created") == store_stamp(store)
-        and md.get(b"care.vocabulary") == json.dumps(list(vocabulary)).encode()
-    )
 
 
 def _store_encoder(store: Store, config: InstanceConfig) -> Encoder:
@@ -174,6 +157,15 @@ def _geometry_columns(points: np.ndarray, proposals: Proposals) -> dict[str, pa.
     }
 
 
+INSTANCE_MAP = MapSpec(
+    "instances",
+    (SCENE_POINTS_TABLE, INSTANCE_VIEWS_TABLE, INSTANCES_TABLE),
+    how=InstanceConfig.HOW,
+)
+"""The instance map's tables: the cloud, the per-view rows and the masks that index into
+them belong together, committed in this order."""
+
+
 def build_instances(
     store_path: Path,
     config: InstanceConfig | None = None,
@@ -190,75 +182,62 @@ def build_instances(
         encoder: the encoder for ``features="crops"``; default: the store's own model,
             rebuilt from its record (:func:`care.encoders.record.encoder_for_store`).
 
-    Returns the path of ``instances.parquet``.
+    Returns the path of ``instances.parquet``. The up-to-date check and the staged commit
+    are the skeleton's (:mod:`fuse.build`).
     """
     config = config or InstanceConfig()
-    ensure_map_frame(store_path)  # the gravity-aligned frame every pose is read in
-    store = Store(store_path)
-    vocabulary, text = vocabulary_text(store, config.vocabulary)
-    out = store.table_path(INSTANCES_TABLE)
-    if not _is_current(store, config, vocabulary):
-        if config.features == "crops":  # before any work, not after the views are chosen
-            encoder = encoder or _store_encoder(store, config)
-            require_crops(encoder)
-        cloud, cloud_meta = _scene_cloud(store, config)
-        proposals = PROPOSERS[config.proposals](cloud, store, config)
-        if len(proposals) == 0:
-            msg = (
-                f"{store.path}: the {config.proposals} proposals found no instance in "
-                f"{len(cloud.points)} scene points; check the recording or the proposal "
-                "settings (--set)"
-            )
-            raise FuseError(msg)
-        selection = select_views(
-            store,
-            cloud.points,
-            proposals.masks,
-            top_k=config.top_k,
-            depth_tolerance=config.depth_tolerance,
-            min_visible_points=config.min_visible_points,
-            pool_features=config.features == "masked",
-            batch_size=config.batch_size,
-        )
-        if not (selection.view_ids >= 0).any():
-            msg = (
-                f"{store.path}: no view sees any of the {len(proposals)} proposals with "
-                f"{config.min_visible_points}+ visible points; lower it with "
-                "--set min_visible_points=N"
-            )
-            raise FuseError(msg)
-        views = _views_table(selection, _per_view_features(store, config, selection, encoder))
-        meta = {
-            **candidate_metadata(vocabulary, config.logit_scale, store.encoder.name),
-            b"care.instances.config": config.fingerprint().encode(),
-            b"care.instances.settings": config.settings().encode(),
-            b"care.store.created": store_stamp(store),
-        }
-        # Every table is staged and renamed into place at the end, the instances last: a
-        # failed build leaves the previous map whole (the cloud, the per-view rows and the
-        # masks that index into them belong together).
-        views_path = store.table_path(INSTANCE_VIEWS_TABLE)
-        staged_views = views_path.with_name(f".{views_path.name}.building-{os.getpid()}")
-        try:
-            write_table_atomic(views, staged_views, meta)
-            sums = sums_from_views(
-                staged_views, "instance_id", text, config.logit_scale, num_candidates=len(proposals)
-            )
-            table = sums.columns()
-            for name, col in _geometry_columns(cloud.points, proposals).items():
-                table = table.append_column(name, col)
-            if cloud_meta is not None:
-                write_scene_points(cloud, store.table_path(SCENE_POINTS_TABLE), cloud_meta)
-            staged_views.replace(views_path)
-            record_table(views_path)
-            write_table_atomic(table, out, meta)
-        finally:
-            staged_views.unlink(missing_ok=True)
+    out = build_map(store_path, INSTANCE_MAP, config, lambda build: _build(build, config, encoder))
     if rrd is not None:
         from fuse.viz_instances import log_instances
 
-        log_instances(store.path, rrd)
+        log_instances(Path(store_path), rrd)
     return out
+
+
+def _build(build: MapBuild, config: InstanceConfig, encoder: Encoder | None) -> None:
+    """Stage the tables of a new instance map (the cloud only when it is not current)."""
+    store = build.store
+    if config.features == "crops":  # before any work, not after the views are chosen
+        encoder = encoder or _store_encoder(store, config)
+        require_crops(encoder)
+    cloud, cloud_meta = _scene_cloud(store, config)
+    proposals = PROPOSERS[config.proposals](cloud, store, config)
+    if len(proposals) == 0:
+        msg = (
+            f"{store.path}: the {config.proposals} proposals found no instance in "
+            f"{len(cloud.points)} scene points; check the recording or the proposal "
+            "settings (--set)"
+        )
+        raise FuseError(msg)
+    selection = select_views(
+        store,
+        cloud.points,
+        proposals.masks,
+        top_k=config.top_k,
+        depth_tolerance=config.depth_tolerance,
+        min_visible_points=config.min_visible_points,
+        pool_features=config.features == "masked",
+        batch_size=config.batch_size,
+    )
+    if not (selection.view_ids >= 0).any():
+        msg = (
+            f"{store.path}: no view sees any of the {len(proposals)} proposals with "
+            f"{config.min_visible_points}+ visible points; lower it with "
+            "--set min_visible_points=N"
+        )
+        raise FuseError(msg)
+    views = _views_table(selection, _per_view_features(store, config, selection, encoder))
+    staged_views = build.staged.path(INSTANCE_VIEWS_TABLE)
+    write_table_atomic(views, staged_views, build.metadata)
+    sums = sums_from_views(
+        staged_views, "instance_id", build.text, config.logit_scale, num_candidates=len(proposals)
+    )
+    table = sums.columns()
+    for name, col in _geometry_columns(cloud.points, proposals).items():
+        table = table.append_column(name, col)
+    if cloud_meta is not None:
+        write_scene_points(cloud, build.staged.path(SCENE_POINTS_TABLE), cloud_meta)
+    write_table_atomic(table, build.staged.path(INSTANCES_TABLE), build.metadata)
 
 
 def recompute_instances(

@@ -8,7 +8,6 @@ record batch at a time.
 
 from __future__ import annotations
 
-import json
 import shutil
 from collections.abc import Sequence
 from pathlib import Path
@@ -19,6 +18,7 @@ import pyarrow as pa
 from care.errors import FuseError
 from care.store import Store, iter_batches, read_table, write_table_atomic
 from fuse.accumulate import CandidateSums
+from fuse.build import update_config
 from fuse.measures import candidate_metadata
 from fuse.sidecar import sidecar_path
 from fuse.vocabulary import vocabulary_text
@@ -110,11 +110,9 @@ def recompute_candidates(
         }
     )
     md.update(candidate_metadata(names, scale, store.encoder.name))
-    for key in (f"care.{kind}.config".encode(), f"care.{kind}.settings".encode()):
-        if key in md or key.endswith(b".config"):  # the settings of maps that record them
-            config = json.loads(md.get(key, b"{}"))
-            config.update(vocabulary=None if vocabulary is None else list(names), logit_scale=scale)
-            md[key] = json.dumps(config, sort_keys=True).encode()
+    update_config(
+        md, kind, vocabulary=None if vocabulary is None else list(names), logit_scale=scale
+    )
     shutil.rmtree(sidecar_path(path), ignore_errors=True)  # it described the map before
     write_table_atomic(new, path, md)
     return path

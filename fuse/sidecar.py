@@ -28,6 +28,8 @@ from typing import BinaryIO
 import numpy as np
 import pyarrow as pa
 
+from care.fingerprint import fingerprint as content_fingerprint
+
 __all__ = ["FINGERPRINT_KEYS", "SidecarWriter", "fingerprint", "read_sidecar", "sidecar_path"]
 
 FINGERPRINT_KEYS = (
@@ -49,10 +51,8 @@ def sidecar_path(table_path: Path) -> Path:
 
 
 def fingerprint(metadata: dict[bytes, bytes]) -> str:
-    """The map table metadata a sidecar must match, as one string."""
-    return "\n".join(
-        f"{k.decode()}={metadata.get(k, b'').decode(errors='replace')}" for k in FINGERPRINT_KEYS
-    )
+    """The map table metadata a sidecar must match, as one hash (:mod:`care.fingerprint`)."""
+    return content_fingerprint({k.decode(): metadata.get(k, b"") for k in FINGERPRINT_KEYS})
 
 
 def _npy(path: Path, dtype: str, shape: tuple[int, ...]) -> BinaryIO:

@@ -10,3 +10,11 @@
 - :mod:`ingest.pipeline`: ``run_ingest(IngestConfig)`` into a store,
 - :mod:`ingest.viz`: Rerun logging of an ingest.
 """
+
+from __future__ import annotations
+
+from care.lazy import lazy_exports
+
+__all__ = ["ingest"]
+
+__getattr__ = lazy_exports(__name__, {"ingest": "ingest.api"})

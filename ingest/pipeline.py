@@ -10,8 +10,7 @@ options rebuilds it.
 
 from __future__ import annotations
 
-import hashlib
-import json
+import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -22,15 +21,20 @@ from tqdm import tqdm
 from care.checks import check_numbers
 from care.encoders import Encoder, EncoderOptions, RecordingContext, make_encoder
 from care.encoders.record import RECORD_KEY, EncoderRecord
-from care.errors import IngestError
+from care.errors import IngestError, StoreError
+from care.fingerprint import config_fields, content_digest
+from care.fingerprint import fingerprint as content_fingerprint
 from care.frames import Frame
 from care.outputs import check_file_output, check_output, damaged, output_lock
-from care.store import SCHEMA_VERSION, StoreWriter
+from care.store import META_FILE, SCHEMA_VERSION, StoreMeta, StoreWriter
 from care.threads import Work, threads_for
 from ingest.select import FrameSelection, FrameSelector
 from ingest.source import ReadOptions, RecordingFrames
 
 __all__ = ["INGEST_VERSION", "IngestConfig", "fingerprint", "request_fingerprint", "run_ingest"]
+
+_WHERE_AND_HOW = ("recording", "out", "rrd", "force", "progress")
+"""Ingest settings the store does not record: where things are and how the job ran."""
 
 INGEST_VERSION = "1"
 """Bumped when ingest's output for the same input changes; part of the fingerprint."""
@@ -75,20 +79,10 @@ class IngestConfig:
 
 
 def _source_identity(path: Path) -> dict[str, Any]:
-    """Size and mtime of a recording (every file of a bag directory)."""
-    files = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
-    return {
-        "path": str(path.resolve()),
-        "size": sum(p.stat().st_size for p in files),
-        "mtime_ns": max((p.stat().st_mtime_ns for p in files), default=0),
-        "files": [
-            [str(p.relative_to(path)) if path.is_dir() else p.name, p.stat().st_size] for p in files
-        ],
-    }
-
-
-def _jsonable(obj: Any) -> Any:
-    return json.loads(json.dumps(obj, default=str))
+    """What a recording *is*: its size and checksum (every file of a bag directory, with
+    their relative names), not where it lies or when it was touched, so a dataset copied to
+    another directory or machine keeps its stores (:func:`care.fingerprint.content_digest`)."""
+    return content_digest(path)
 
 
 def _digest(config: IngestConfig, source: dict[str, Any], encoder_key: dict[str, Any]) -> str:
@@ -97,17 +91,18 @@ def _digest(config: IngestConfig, source: dict[str, Any], encoder_key: dict[str,
     options = asdict(config.encoder_options)
     options.pop("device", None)
     options.pop("batch_size", None)
-    key = {
-        "ingest_version": INGEST_VERSION,
-        "schema_version": SCHEMA_VERSION,
-        "source": source,
-        "read": asdict(config.read),
-        "select": asdict(config.select),
-        "encoder_options": options if encoder_key["encoder"] is not None else None,
-        "vocabulary": config.vocabulary,
-        **encoder_key,
-    }
-    return hashlib.sha256(json.dumps(_jsonable(key), sort_keys=True).encode()).hexdigest()
+    return content_fingerprint(
+        {
+            "ingest_version": INGEST_VERSION,
+            "schema_version": SCHEMA_VERSION,
+            "source": source,
+            "read": config.read,
+            "select": config.select,
+            "encoder_options": options if encoder_key["encoder"] is not None else None,
+            "vocabulary": config.vocabulary,
+            **encoder_key,
+        }
+    )
 
 
 def fingerprint(config: IngestConfig, encoder: Encoder | None, source: dict[str, Any]) -> str:
@@ -151,23 +146,17 @@ def request_fingerprint(config: IngestConfig, source: dict[str, Any]) -> str:
 
 
 def _up_to_date(config: IngestConfig, fp: str, key: str = "fingerprint") -> bool:
-    meta_path = config.out / "meta.json"
-    if config.force or not meta_path.is_file():
+    if config.force or not (config.out / META_FILE).is_file():
         return False
     if config.rrd is not None and not config.rrd.is_file():
         return False
     try:
-        meta = json.loads(meta_path.read_text())
-    except (OSError, ValueError):
+        meta = StoreMeta.read(config.out)
+    except StoreError:
         return False
     # same inputs, and every table as it was committed (size and checksum): a damaged
     # store is rebuilt, not trusted
-    return (
-        isinstance(meta, dict)
-        and meta.get(key) == fp
-        and bool(meta.get("tables"))
-        and not damaged(config.out)
-    )
+    return getattr(meta, key) == fp and bool(meta.tables) and not damaged(config.out)
 
 
 def _vocabulary(config: IngestConfig, label_names: tuple[str, ...]) -> list[str]:
@@ -326,12 +315,17 @@ def _meta(
     return {
         RECORD_KEY: record,
         "fingerprint": fp,
-        "source": {k: source[k] for k in ("path", "size", "mtime_ns")},
+        "source": {
+            # relative to the store: no machine's absolute path inside a store
+            "path": os.path.relpath(Path(config.recording).resolve(), Path(config.out).resolve()),
+            "name": Path(config.recording).name,
+            **source,
+        },
         "topics": described["topics"],
         "world_frame": described["world_frame"],
         "camera_frame": described["camera_frame"],
         "label_names": described["label_names"],
         "vocabulary": vocab,
         "counts": frames.stats.as_dict(),
-        "config": _jsonable(asdict(config)),
+        "config": config_fields(config, _WHERE_AND_HOW),
     }

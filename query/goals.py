@@ -32,7 +32,7 @@ import pyarrow.parquet as pq
 
 from care.errors import QueryError
 from care.mapframe import MapFrame
-from care.store import MAP_FRAME_FILE, read_table
+from care.store import MAP_FRAME_FILE, META_FILE, StoreMeta, read_table
 from fuse.layout import CELLS_TABLE, GridLayout
 from query.map import CandidateMap
 
@@ -234,13 +234,12 @@ class GoalMaker:
         """Frame from the store's ``meta.json`` (``map`` when it names none), stamp of its last
         view (0, ROS's "latest", for a directory that holds maps without views)."""
         store = Path(store)
-        meta_path = store / "meta.json"
-        meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
+        meta = StoreMeta.read(store) if (store / META_FILE).is_file() else None
         views = store / "views.parquet"
         stamps = (
             read_table(views, ["stamp_ns"]).column("stamp_ns").to_numpy() if views.is_file() else []
         )
-        world = str(meta.get("world_frame") or "map")
+        world = str((meta and meta.world_frame) or "map")
         frame = _map_frame(store)
         return cls(
             frame_id=world if frame is None else MAP_FRAME_ID,

@@ -22,6 +22,7 @@ import pyarrow as pa
 
 from care.errors import QueryError
 from care.store import read_schema, read_table
+from fuse.schemas import schema_problems
 from fuse.sidecar import read_sidecar
 
 __all__ = [
@@ -405,6 +406,10 @@ def load_map(
         raise QueryError(msg)
     path = store / f"{MAP_TABLES[kind]}.parquet"
     schema = read_schema(path)
+    problem = schema_problems(schema, kind, path)
+    if problem is not None:
+        msg = f"{problem}; rebuild it with `care fuse {kind} {store} --overwrite`"
+        raise QueryError(msg)
     sidecar = read_sidecar(path, schema.metadata or {})
     # with a sidecar the wide columns stay on disk, memory-mapped (fuse.sidecar)
     wide = ("feature", "top_classes", "top_probs")

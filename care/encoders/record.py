@@ -16,7 +16,6 @@ store-metadata record as it is.
 from __future__ import annotations
 
 import hashlib
-import json
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
@@ -25,7 +24,8 @@ from typing import Any
 import numpy as np
 
 from care.encoders.base import Encoder, EncoderOptions
-from care.errors import EncoderError
+from care.errors import EncoderError, StoreError
+from care.store import StoreMeta
 
 __all__ = [
     "RECORD_KEY",
@@ -170,19 +170,19 @@ def _without_checkpoint(version: str) -> str:
     return version.split("+", 1)[-1]
 
 
-def _record_of(meta: dict[str, Any], where: Path) -> EncoderRecord:
-    if RECORD_KEY in meta:
-        return EncoderRecord.from_json(meta[RECORD_KEY], where)
-    enc = meta.get("encoder")
-    if not enc:
+def _record_of(meta: StoreMeta, where: Path) -> EncoderRecord:
+    if meta.encoder_record is not None:
+        return EncoderRecord.from_json(meta.encoder_record, where)
+    enc = meta.encoder
+    if enc is None:
         msg = f"{where}: the store has no encoder; re-run `care ingest` with --encoder"
         raise EncoderError(msg)
     # stores of the first release: the options are in the ingest config
-    opts = (meta.get("config") or {}).get("encoder_options") or {}
+    opts = meta.config.get("encoder_options") or {}
     return EncoderRecord(
-        name=enc["name"],
-        version=enc["version"],
-        dim=int(enc["dim"]),
+        name=enc.name,
+        version=enc.version,
+        dim=enc.dim,
         weights=opts.get("weights"),
         precomputed=opts.get("precomputed"),
         perception=opts.get("perception", "default"),
@@ -190,16 +190,12 @@ def _record_of(meta: dict[str, Any], where: Path) -> EncoderRecord:
     )
 
 
-def _read_meta(store: Path) -> dict[str, Any]:
-    path = Path(store) / "meta.json"
+def _read_meta(store: Path) -> StoreMeta:
+    """The store's typed metadata (:class:`care.store.StoreMeta`), where the record lives."""
     try:
-        return json.loads(path.read_text())
-    except FileNotFoundError as err:
-        msg = f"{store}: not a feature store (no meta.json); run `care ingest` first"
-        raise EncoderError(msg) from err
-    except (OSError, json.JSONDecodeError) as err:
-        msg = f"{path}: unreadable ({err}); re-run `care ingest --force`"
-        raise EncoderError(msg) from err
+        return StoreMeta.read(Path(store))
+    except StoreError as err:
+        raise EncoderError(str(err)) from err
 
 
 def store_record(store: Path, *, weights: Path | None = None) -> EncoderRecord:

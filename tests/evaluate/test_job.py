@@ -14,6 +14,7 @@ from scipy.special import softmax
 from sklearn.metrics import roc_auc_score
 
 from care.errors import CareError, EvalError
+from care.store import read_table, write_table_atomic
 from evaluate.job import EvalConfig, evaluate_scene, run_eval, run_scenes, scenes_of
 from evaluate.report import auroc, per_query
 from query import load_map
@@ -141,6 +142,10 @@ def test_run_resumes_and_writes_every_output(dataset, tmp_path) -> None:
     table = dataset / "stores" / "scene_1" / "instances.parquet"
     st = table.stat()
     os.utime(table, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000_000))
+    run_eval(dataset, SMALL, out, workers=1, progress=False)
+    now = {p.name: p.stat().st_mtime_ns for p in (out / "scenes").glob("*.parquet")}
+    assert now == cached  # touched, not changed: the cache key is the content
+    write_table_atomic(read_table(table), table, {b"care.test": b"rewritten"})
     run_eval(dataset, SMALL, out, workers=1, progress=False)
     now = {p.name: p.stat().st_mtime_ns for p in (out / "scenes").glob("*.parquet")}
     assert now["scene_1.parquet"] != cached["scene_1.parquet"]

@@ -419,7 +419,7 @@ def test_cli_grid_and_recompute(tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     md = pq.read_schema(store / "cells.parquet").metadata
     assert md[b"care.vocabulary"] == b'["bed", "sofa"]'
-    assert json.loads(md[b"care.grid.config"])["stride"] == 2
+    assert json.loads(md[b"care.grid.config_json"])["stride"] == 2
     assert runner.invoke(app, ["fuse", "grid", "--help"]).exit_code == 0
     assert runner.invoke(app, ["fuse", "instances", "--help"]).exit_code == 0
     bad = runner.invoke(app, ["fuse", "instances", str(store), "--set", "no_such_field=1"])

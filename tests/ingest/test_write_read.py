@@ -119,10 +119,10 @@ def test_pipeline_store_meta_and_idempotence(tmp_path: Path, h) -> None:
     store = Store(out)
     assert enc.prepared_with == ("void", "a", "b")
     meta = store.meta
-    assert meta["counts"] == {"rgb_messages": 4, "frames": 4, "dropped": {}, "skipped": {}}
-    assert meta["topics"]["rgb"] == TOPICS["rgb"]
-    assert meta["source"]["size"] == rec.stat().st_size
-    assert meta["label_names"] == ["void", "a", "b"]
+    assert meta.counts == {"rgb_messages": 4, "frames": 4, "dropped": {}, "skipped": {}}
+    assert meta.topics["rgb"] == TOPICS["rgb"]
+    assert meta.source.size == rec.stat().st_size
+    assert meta.label_names == ("void", "a", "b")
     # Features equal the encoder applied to the original frames (float16 storage).
     expected = enc.encode_views(frames)
     for view_id, feat in store.iter_features():

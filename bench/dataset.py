@@ -1,0 +1,114 @@
+"""Dataset benchmark: ``care run`` on a sample-world dataset, serial vs process pool vs Ray.
+
+Run ``python bench/dataset.py`` (``--quick`` for small images). Makes an 8-recording
+sample-world dataset (``--scenes``), then times the whole ``care run`` (ingest, both maps,
+the evaluation, the Rerun files) three ways, each a fresh process into a fresh output
+folder, as a user would type it:
+
+1. serial: ``--workers 1``;
+2. a local process pool: ``--workers N`` (default 2);
+3. a local Ray started by the run itself: ``--ray`` (its start-up is in the figure).
+
+It prints each wall time, the speed-up over serial (target: close to the worker count),
+the load average around the runs (the machine may be shared), and checks that the stores
+and ``eval/attempts.parquet`` are byte-identical across the three.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from world.record import DatasetConfig, make_dataset  # noqa: E402
+
+
+def _outputs(out: Path) -> dict[str, bytes]:
+    """Every file of the stores and the attempts table, by path relative to ``out``."""
+    files = [p for p in (out / "stores").rglob("*") if p.is_file()]
+    files.append(out / "eval" / "attempts.parquet")
+    return {str(p.relative_to(out)): p.read_bytes() for p in files}
+
+
+def _run(dataset: Path, out: Path, seeds: int, how: list[str]) -> float:
+    cmd = [sys.executable, "-m", "care_cli.main", "run", str(dataset), "--out", str(out)]
+    cmd += ["--seeds", str(seeds), *how]
+    t0 = time.perf_counter()
+    done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
+    wall = time.perf_counter() - t0
+    if done.returncode != 0:
+        sys.exit(f"{' '.join(how)}: care run failed:\n{done.stderr[-3000:]}")
+    return wall
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--scenes", type=int, default=8)
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--width", type=int, default=320)
+    parser.add_argument("--height", type=int, default=240)
+    parser.add_argument("--rooms", type=int, default=2)
+    parser.add_argument("--frames", type=int, default=None, help="default 25 per room")
+    parser.add_argument("--seeds", type=int, default=2)
+    parser.add_argument("--quick", action="store_true", help="160x120, 1 room, 12 frames")
+    parser.add_argument("--keep", type=Path, default=None, help="keep the outputs here")
+    args = parser.parse_args()
+    if args.quick:
+        args.width, args.height, args.rooms, args.frames = 160, 120, 1, 12
+    tmp = args.keep or Path(tempfile.mkdtemp(prefix="care-bench-dataset-"))
+    try:
+        dataset = tmp / "data"
+        make_dataset(
+            DatasetConfig(
+                out=dataset, scenes=args.scenes, width=args.width, height=args.height,
+                frames=args.frames, num_rooms=args.rooms, workers=args.workers, progress=False,
+            )
+        )  # fmt: skip
+        print(
+            f"dataset: {args.scenes} sample-world recordings, {args.width}x{args.height}, "
+            f"{args.rooms} room(s), {args.frames or 25 * args.rooms} frames each; "
+            f"care run --seeds {args.seeds}"
+        )
+        ways = {
+            "serial": ["--workers", "1"],
+            f"process pool ({args.workers})": ["--workers", str(args.workers)],
+            "local Ray": ["--ray"],
+        }
+        load_before = os.getloadavg()
+        walls = {name: _run(dataset, tmp / name.split()[0], args.seeds, how)
+                 for name, how in ways.items()}  # fmt: skip
+        load_after = os.getloadavg()
+        serial = walls["serial"]
+        for name, wall in walls.items():
+            print(f"  {name:<20} {wall:7.1f} s   x{serial / wall:.2f} vs serial")
+        print(
+            f"  load average (1 min) {load_before[0]:.2f} before, {load_after[0]:.2f} after "
+            f"({os.cpu_count()} CPUs)"
+        )
+        expected = _outputs(tmp / "serial")
+        for name in list(ways)[1:]:
+            got = _outputs(tmp / name.split()[0])
+            bad = sorted(set(got) ^ set(expected)) + [
+                k for k in expected if got.get(k) != expected[k]
+            ]
+            state = "byte-identical" if not bad else f"DIFFERENT: {bad[:5]}"
+            print(f"  {name}: {len(expected)} files (stores + attempts.parquet) {state}")
+            if bad:
+                sys.exit(1)
+    finally:
+        if args.keep is None:
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()

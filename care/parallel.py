@@ -1,0 +1,165 @@
+"""Where independent tasks run: in this process, in a local process pool, or as Ray tasks.
+
+The dataset pipeline (one task a recording: ingest and both maps) and the evaluation (one
+task a scene) hand their tasks to :func:`run_tasks` and get the results back as they
+finish, whichever :class:`Runner` was chosen. Every worker process starts with the same
+process settings as the ``care`` program (:func:`setup_worker`: the allocator of
+:mod:`care.malloc`, the thread pools of :mod:`care.threads`): as the process pool's
+initializer, and as Ray's ``worker_process_setup_hook``. The tasks are pure functions of
+their arguments, so the outputs are the same, bit for bit, whichever runner ran them.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, TypeVar
+
+from care.errors import CareError
+
+__all__ = ["RAY_HOOK", "Runner", "ray_runtime_env", "run_tasks", "setup_worker"]
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+RAY_HOOK = "care.parallel.setup_worker"
+"""Ray's ``worker_process_setup_hook``, by module path (imported in every worker)."""
+
+_ROOT = Path(__file__).resolve().parents[1]
+"""The directory holding the ``care`` packages (put on the workers' path: a cluster's
+nodes started with ``ray start`` in another directory find them there)."""
+
+
+def setup_worker() -> None:
+    """The process settings of every worker: freed memory kept mapped (:mod:`care.malloc`)
+    and the thread pools of :attr:`care.threads.Work.DEFAULT` (:mod:`care.threads`); no
+    progress bars of their own."""
+    from care.malloc import keep_freed_memory
+    from care.threads import Work, use_threads
+
+    keep_freed_memory()
+    use_threads(Work.DEFAULT)
+    # a worker's stage bars would interleave on the driver's terminal; the driver shows one
+    # bar for the dataset instead (tqdm reads TQDM_* variables as defaults)
+    os.environ["TQDM_DISABLE"] = "1"
+
+
+@dataclass(frozen=True)
+class Runner:
+    """Where :func:`run_tasks` runs tasks, and what each task declares to Ray."""
+
+    workers: int = 1
+    """Local processes (1: one after another in this process)."""
+    ray_address: str | bool | None = None
+    """None/False: no Ray; True or "": a local Ray; an address: a running cluster."""
+    num_cpus: float = 1.0
+    """CPUs a Ray task declares."""
+    memory: int | None = None
+    """Bytes of memory a Ray task declares (None: none, Ray's default)."""
+
+    @property
+    def uses_ray(self) -> bool:
+        return self.ray_address is not None and self.ray_address is not False
+
+    @property
+    def address(self) -> str | None:
+        return None if self.ray_address is True or not self.ray_address else str(self.ray_address)
+
+    def describe(self) -> str:
+        if self.uses_ray:
+            return f"Ray at {self.address}" if self.address else "local Ray"
+        return "serial" if self.workers <= 1 else f"{self.workers} processes"
+
+
+def ray_runtime_env() -> dict[str, Any]:
+    """The runtime environment of our Ray tasks: the set-up hook, and the packages' path."""
+    path = os.pathsep.join(p for p in (str(_ROOT), os.environ.get("PYTHONPATH", "")) if p)
+    return {"worker_process_setup_hook": RAY_HOOK, "env_vars": {"PYTHONPATH": path}}
+
+
+def run_tasks(fn: Callable[[T], R], items: Sequence[T], runner: Runner) -> Iterator[tuple[T, R]]:
+    """``(item, fn(item))`` for every item, in the order they finish.
+
+    A task's project error (:class:`care.errors.CareError`) is raised here as itself (its
+    one line), not wrapped in the pool's or Ray's exception.
+    """
+    if runner.uses_ray:
+        yield from _run_ray(fn, items, runner)
+    elif runner.workers <= 1 or len(items) <= 1:
+        for item in items:
+            yield item, fn(item)
+    else:
+        yield from _run_pool(fn, items, runner.workers)
+
+
+def _run_pool(fn: Callable[[T], R], items: Sequence[T], workers: int) -> Iterator[tuple[T, R]]:
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    context = mp.get_context("spawn")  # no copy of the parent's threads and locks
+    with ProcessPoolExecutor(workers, mp_context=context, initializer=setup_worker) as pool:
+        futures = {pool.submit(fn, item): item for item in items}
+        for future in as_completed(futures):
+            yield futures[future], future.result()
+
+
+def _ray(runner: Runner) -> Any:
+    try:
+        import ray
+    except ImportError as err:
+        msg = "--ray needs Ray: pip install 'care-maps[ray]'"
+        raise CareError(msg) from err
+    if not ray.is_initialized():
+        if runner.address:
+            _check_reachable(runner.address)
+        ray.init(
+            address=runner.address,
+            include_dashboard=False,
+            log_to_driver=False,
+            runtime_env=ray_runtime_env(),
+        )
+    return ray
+
+
+def _run_ray(fn: Callable[[T], R], items: Sequence[T], runner: Runner) -> Iterator[tuple[T, R]]:
+    ray = _ray(runner)
+    options: dict[str, Any] = {"num_cpus": runner.num_cpus, "max_retries": 0}
+    if runner.memory:
+        options["memory"] = int(runner.memory)
+    task = ray.remote(_in_worker).options(runtime_env=ray_runtime_env(), **options)
+    refs = {task.remote(fn, item): item for item in items}
+    pending = list(refs)
+    while pending:
+        done, pending = ray.wait(pending, num_returns=1)
+        try:
+            result = ray.get(done[0])
+        except ray.exceptions.RayTaskError as err:  # the task's own one-line error, not Ray's
+            if isinstance(err.cause, CareError):
+                raise err.cause from None
+            raise
+        yield refs[done[0]], result
+
+
+def _in_worker(fn: Callable[[T], R], item: T) -> R:
+    """A Ray task: the process settings (again, should the hook not have run), then ``fn``."""
+    setup_worker()
+    return fn(item)
+
+
+def _check_reachable(address: str) -> None:
+    """Fail at once on a cluster address nothing listens on: ``ray.init`` would retry for
+    minutes, printing warnings, before giving up."""
+    host, _, port = address.split("://")[-1].rpartition(":")
+    if not host or not port.isdigit():
+        return  # "auto" and the like: Ray resolves them itself
+    try:
+        socket.create_connection((host, int(port)), timeout=5).close()
+    except OSError as err:
+        msg = (
+            f"cannot reach a Ray cluster at {address} ({err.strerror or err}); start one with "
+            "`ray start --head` or drop --ray-address to use a local Ray"
+        )
+        raise CareError(msg) from err

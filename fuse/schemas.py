@@ -1,0 +1,82 @@
+"""The declared columns of the map tables: one source for the writers and the readers.
+
+``cells.parquet`` (the grid) and ``instances.parquet`` (the instances) share the candidate
+columns of :func:`fuse.measures.candidate_columns` and add their own. The map-build
+skeleton checks every table it commits against its declaration (:mod:`fuse.build`), and
+:func:`query.map.load_map` checks a table against it before reading, so a column renamed
+or retyped on one side is one clear line, not a ``KeyError`` deep in a query. Only pyarrow
+is imported: readers of finished maps load this without the fusion.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pyarrow as pa
+
+__all__ = [
+    "CANDIDATE_FIELDS",
+    "GRID_FIELDS",
+    "INSTANCE_FIELDS",
+    "MAP_SCHEMAS",
+    "schema_problems",
+]
+
+CANDIDATE_FIELDS = (
+    pa.field("candidate_id", pa.int32()),
+    pa.field("num_views", pa.int32()),
+    pa.field("feature", pa.list_(pa.float16())),
+    pa.field("log_norm", pa.float32()),
+    pa.field("top_classes", pa.list_(pa.int16())),
+    pa.field("top_probs", pa.list_(pa.float16())),
+    pa.field("entropy", pa.float32()),
+    pa.field("stderr", pa.float32()),
+    pa.field("pwkl", pa.float32()),
+)
+"""Every map's candidates, in row order (``candidate_id`` = 0..N-1)."""
+
+GRID_FIELDS = (
+    pa.field("ix", pa.int32()),
+    pa.field("iy", pa.int32()),
+    pa.field("x", pa.float32()),
+    pa.field("y", pa.float32()),
+    pa.field("z_max", pa.float32()),
+    pa.field("weight", pa.float32()),
+    pa.field("r", pa.uint8()),
+    pa.field("g", pa.uint8()),
+    pa.field("b", pa.uint8()),
+    pa.field("obstacle", pa.bool_()),
+    pa.field("num_pixels", pa.int32()),
+)
+"""The grid's own columns (see :mod:`fuse.grid`)."""
+
+INSTANCE_FIELDS = (
+    pa.field("num_points", pa.int32()),
+    pa.field("point_indices", pa.list_(pa.int32())),
+    pa.field("bbox_min", pa.list_(pa.float32(), 3)),
+    pa.field("bbox_max", pa.list_(pa.float32(), 3)),
+    pa.field("center", pa.list_(pa.float32(), 3)),
+    pa.field("source_id", pa.int64()),
+)
+"""The instance map's own columns (see :mod:`fuse.instances`)."""
+
+MAP_SCHEMAS: dict[str, pa.Schema] = {
+    "grid": pa.schema([*CANDIDATE_FIELDS, *GRID_FIELDS]),
+    "instances": pa.schema([*CANDIDATE_FIELDS, *INSTANCE_FIELDS]),
+}
+"""Map kind -> the declared schema of its main table."""
+
+
+def schema_problems(schema: pa.Schema, kind: str, where: Path) -> str | None:
+    """What ``schema`` lacks or types otherwise than the ``kind`` map declares (None: all
+    there; extra columns are allowed)."""
+    wrong = []
+    for field in MAP_SCHEMAS[kind]:
+        index = schema.get_field_index(field.name)
+        if index < 0:
+            wrong.append(f"{field.name} missing")
+        elif not schema.field(index).type.equals(field.type):
+            wrong.append(f"{field.name} is {schema.field(index).type}, not {field.type}")
+    if not wrong:
+        return None
+    return f"{where}: not a {kind} map table as declared ({'; '.join(wrong)})"

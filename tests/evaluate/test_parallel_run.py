@@ -1,0 +1,160 @@
+"""``care run`` on a small dataset gives the same bytes serially, in a process pool, on a
+local Ray and on a two-node Ray cluster started with ``ray start``; a failing recording is
+one line and the others complete; a re-run redoes nothing."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+
+from evaluate.job import EvalConfig
+from evaluate.pipeline import RunConfig, run_all
+from world.record import DatasetConfig, make_dataset
+
+ROOT = Path(__file__).resolve().parents[2]
+CONFIG = RunConfig(evaluation=EvalConfig(attempts=2, seeds=1), rrd_ingest=False, progress=False)
+"""What ``care run --seeds 1 --no-rrd-ingest`` builds (the cluster run goes through the CLI)."""
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("parallel") / "data"
+    make_dataset(
+        DatasetConfig(
+            out=out, scenes=2, width=160, height=120, frames=12, num_rooms=1, workers=1,
+            progress=False,
+        )
+    )  # fmt: skip
+    return out
+
+
+def _outputs(out: Path) -> dict[str, bytes]:
+    """Every file of the stores, and the attempts table, by path relative to ``out``."""
+    files = [p for p in (out / "stores").rglob("*") if p.is_file()]
+    files.append(out / "eval" / "attempts.parquet")
+    return {str(p.relative_to(out)): p.read_bytes() for p in files}
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _wait_port(port: int, timeout: float) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=1).close()
+            return
+        except OSError:
+            time.sleep(0.3)
+    pytest.fail(f"the Ray head did not listen on port {port} within {timeout} s")
+
+
+def _cluster_run(dataset: Path, out: Path) -> subprocess.CompletedProcess[str]:
+    """``care run --ray-address`` against a head and a second node started with
+    ``ray start --block`` (so ending those two processes stops exactly this cluster)."""
+    ray = shutil.which("ray") or pytest.skip("no ray command")
+    port = _free_port()
+    env = {**os.environ, "RAY_AUTH_MODE": "token", "PYTHONPATH": str(ROOT)}
+    temp = tempfile.mkdtemp(prefix="care-ray-")  # short: Ray's socket paths must fit
+    node = ["--node-ip-address=127.0.0.1", "--num-cpus=1", "--block", "--disable-usage-stats"]
+    head = subprocess.Popen(
+        [ray, "start", "--head", f"--port={port}", "--include-dashboard=false",
+         f"--temp-dir={temp}", *node],
+        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    nodes = [head]
+    try:
+        _wait_port(port, 60)
+        nodes.append(
+            subprocess.Popen(
+                [ray, "start", f"--address=127.0.0.1:{port}", *node],
+                env=env,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+            )
+        )
+        return subprocess.run(
+            [sys.executable, "-m", "care_cli.main", "run", str(dataset), "--out", str(out),
+             "--seeds", "1", "--no-rrd-ingest", "--ray-address", f"127.0.0.1:{port}"],
+            env=env, capture_output=True, text=True, timeout=180, cwd=ROOT,
+        )  # fmt: skip
+    finally:
+        for proc in reversed(nodes):
+            proc.terminate()
+        for proc in reversed(nodes):
+            try:
+                proc.wait(timeout=60)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+        shutil.rmtree(temp, ignore_errors=True)
+
+
+@pytest.fixture(scope="module")
+def serial(dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, bytes]:
+    """The outputs of a serial run: what every other way must give, byte for byte."""
+    out = tmp_path_factory.mktemp("serial")
+    run_all(dataset, out, replace(CONFIG, workers=1))
+    outputs = _outputs(out)
+    assert any(name.endswith("cells.parquet") for name in outputs)
+    assert any(name.endswith("instances.parquet") for name in outputs)
+    return outputs
+
+
+def _differences(expected: dict[str, bytes], out: Path) -> list[str]:
+    got = _outputs(out)
+    return sorted(set(got) ^ set(expected)) + [k for k in expected if got.get(k) != expected[k]]
+
+
+def test_same_bytes_serial_pool_and_local_ray(
+    dataset: Path, serial: dict[str, bytes], tmp_path: Path, ray_session: object
+) -> None:
+    run_all(dataset, tmp_path / "pool", replace(CONFIG, workers=2))
+    assert _differences(serial, tmp_path / "pool") == []
+    run_all(dataset, tmp_path / "ray", replace(CONFIG, ray_address=True))  # the shared session
+    assert _differences(serial, tmp_path / "ray") == []
+
+
+def test_same_bytes_on_a_two_node_cluster(
+    dataset: Path, serial: dict[str, bytes], tmp_path: Path
+) -> None:
+    done = _cluster_run(dataset, tmp_path / "cluster")
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert _differences(serial, tmp_path / "cluster") == []
+
+
+def test_failing_recording_is_one_line_and_the_others_complete(
+    dataset: Path, tmp_path: Path, run_cli
+) -> None:
+    folder = tmp_path / "recordings"
+    folder.mkdir()
+    shutil.copy(dataset / "scene_000.mcap", folder / "good.mcap")
+    (folder / "broken.mcap").write_bytes(b"\x89MCAP0\r\n" + b"not an mcap" * 100)
+    out = tmp_path / "out"
+    code, _stdout, stderr = run_cli("run", folder, "--out", out, "--seeds", "1", "--no-rrd-ingest")
+    assert code == 1
+    lines = [line for line in stderr.splitlines() if line.startswith("error:")]
+    assert len(lines) == 2, stderr  # its error, then the run's summary naming it
+    assert lines[0].startswith("error: broken: ")
+    assert "Traceback" not in stderr
+    assert lines[1] == "error: 1 recording(s) failed: broken"
+    assert (out / "stores" / "good" / "cells.parquet").is_file()
+    assert (out / "stores" / "good" / "instances.parquet").is_file()
+    assert not (out / "stores" / "broken" / "meta.json").exists()
+
+    # resumable: the finished store and its maps are not redone
+    stamps = {p: p.stat().st_mtime_ns for p in (out / "stores" / "good").glob("*.parquet")}
+    code, _, _ = run_cli("run", folder, "--out", out, "--seeds", "1", "--no-rrd-ingest")
+    assert code == 1
+    assert {p: p.stat().st_mtime_ns for p in stamps} == stamps
