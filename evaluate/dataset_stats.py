@@ -72,7 +72,7 @@ def first_attempt_rates(summary_rows: Sequence[dict]) -> dict[str, float]:
     ``no replan`` rows."""
     out = {}
     for r in summary_rows:
-        if r["strategy"] != "no replan":
+        if r["strategy"] != "no_replan":
             continue
         key = "grid" if r["map"] == "grid" else f"{r['map']}/{r['protocol']}"
         out[key] = round(float(r["rate"]), 2)
@@ -85,16 +85,21 @@ def measure_first_attempts(
     workers: int | None = 1,
     config: MeasureConfig | None = None,
     progress: bool = True,
+    out: Path | None = None,
 ) -> dict[str, float]:
-    """Map and evaluate ``dataset`` (first attempts only), record the rates in its
-    ``index.json`` under ``statistics.first_attempt`` and return them."""
+    """Map and evaluate ``dataset`` (first attempts only) in ``out`` (default
+    ``dataset/measure``) and return the rates; with the default ``out`` they are also
+    recorded in the dataset's ``index.json`` under ``statistics.first_attempt``."""
     dataset = Path(dataset)
-    out = dataset / MEASURE_DIR
+    record = out is None
+    out = dataset / MEASURE_DIR if out is None else Path(out)
     scenes = map_dataset(dataset, out, config, progress=progress)
-    evaluation = EvalConfig(strategies=("no replan",), attempts=1, seeds=1, bootstrap=0)
+    evaluation = EvalConfig(strategies=("no_replan",), attempts=1, seeds=1, bootstrap=0)
     report = run_eval(scenes, evaluation, out / "eval", workers=workers, progress=progress)
-    rows = report.summary.filter(pc.equal(report.summary.column("strategy"), "no replan"))
+    rows = report.summary.filter(pc.equal(report.summary.column("strategy"), "no_replan"))
     rates = first_attempt_rates(rows.to_pylist())
+    if not record:
+        return rates
     index_path = dataset / INDEX_NAME
     doc = json.loads(index_path.read_text())
     doc.setdefault("statistics", {})["first_attempt"] = rates

@@ -434,6 +434,9 @@ def write_report(
     for table, path in zip((attempts, summary, scenes, aucs, paired), paths, strict=True):
         write_table_atomic(table, path)
     plots = plot_success(summary, ks, out / "plots")
+    from evaluate.preregistered import write_preregistered
+
+    prereg = write_preregistered(attempts, out, bootstrap=min(bootstrap, 2000))
     md = "\n".join(
         [
             header,
@@ -443,6 +446,7 @@ def write_report(
             "## 95% bootstrap confidence intervals (queries resampled)\n",
             markdown_tables(summary, ks, ci=True),
             paired_markdown(paired),
+            prereg.markdown,
             _auroc_markdown(aucs),
             per_scene_markdown(summary, scenes),
             "Plots: " + ", ".join(f"`plots/{p.name}`" for p in plots) + "\n",
@@ -452,4 +456,4 @@ def write_report(
     tmp = md_path.with_name(".results.md.tmp")
     tmp.write_text(md)
     tmp.replace(md_path)
-    return Report(md, summary, aucs, (*paths, md_path, *plots))
+    return Report(md, summary, aucs, (*paths, *prereg.paths, md_path, *plots))

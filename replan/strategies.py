@@ -261,6 +261,27 @@ def _by_measure(column: str, maximise: bool) -> Callable[[Situation], Pick]:
     return rule
 
 
+def _column(s: Situation, name: str) -> np.ndarray:
+    if name not in s.columns:
+        msg = f"this strategy chooses by the {name!r} column, which the map did not give"
+        raise ReplanError(msg)
+    return np.asarray(s.columns[name], np.float64)
+
+
+def _largest(s: Situation) -> Pick:
+    """Non-CARe baseline: the available candidate with the largest mask (scene points)."""
+    values = _column(s, "size")
+    cand, found = best_of(values, s.available, s.confidence, maximise=True)
+    return _pick(s, cand, found, values)
+
+
+def _most_views(s: Situation) -> Pick:
+    """Non-CARe baseline: the available candidate seen in the most views."""
+    values = _column(s, "num_views")
+    cand, found = best_of(values, s.available, s.confidence, maximise=True)
+    return _pick(s, cand, found, values)
+
+
 def _oracle(s: Situation) -> Pick:
     if s.success is None:
         msg = "the oracle needs ground truth; it exists only in evaluation (`care eval`)"
@@ -314,6 +335,8 @@ STRATEGIES: dict[str, Strategy] = {
             uses_set=True,
             ablation=True,
         ),
+        Strategy("largest", "Largest candidate (baseline)", _largest, "size"),
+        Strategy("most_views", "Most views (baseline)", _most_views, "num_views"),
     )
 }
 """Strategy name -> :class:`Strategy`, in the paper's row order; the CLI's choices."""
