@@ -43,10 +43,10 @@ class SweepConfig:
     """The grid: values per knob; ``design`` ``oat`` varies one knob at a time around the
     first value of each (cheap), ``grid`` takes every combination."""
 
-    bias_rate: tuple[float, ...] = (0.1, 0.0, 0.3)
+    bias_rate: tuple[float, ...] = (0.3, 0.0)
     bias_noise_scale: tuple[float, ...] = (1.0, 0.3)
-    view_bias_rate: tuple[float, ...] = (0.3, 0.0, 0.6)
-    base_noise: tuple[float, ...] = (0.25, 0.1, 0.4)
+    view_bias_rate: tuple[float, ...] = (0.5, 0.0)
+    base_noise: tuple[float, ...] = (0.6, 0.3)
     design: str = "oat"
     """``oat`` (one at a time) or ``grid`` (full product)."""
     bootstrap: int = 1000

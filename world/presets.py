@@ -71,14 +71,19 @@ class WorldSettings:
 
 _MATTERPORT_PERCEPTION = replace(
     PerceptionModel(),
-    instance_bias_rate=0.10,
-    class_bias_rate=0.10,
+    instance_bias_rate=0.3,
+    class_bias_rate=0.3,
     class_bias_per_scene=True,
     bias_noise_scale=1.0,
-    view_bias_rate=0.3,
+    view_bias_rate=0.5,
     view_bias_views=0.5,
-    base_noise=0.25,
+    base_noise=0.6,
+    small_gain=0.5,
+    confusion_gain=3.0,
+    confusion_temperature=0.15,
 )
+"""Tuned on 3 scenes (seed 5, 320x240) to first attempts of 15.8% (instances, ``instance``
+protocol) and 56.9% (grid) against the paper's 12.1% and 54.4%."""
 
 PRESETS: dict[WorldPreset, WorldSettings] = {
     WorldPreset.DEFAULT: WorldSettings(),
