@@ -264,7 +264,8 @@ def query_breakdown(
                     sum(rules[rule].get(q, 0.0) for q in sibling)
                 )
         rows.append(row)
-    return pa.Table.from_pylist(rows)
+    keys = list(dict.fromkeys(k for r in rows for k in r))  # every row's columns, in order
+    return pa.Table.from_pylist([{k: r.get(k) for k in keys} for r in rows])
 
 
 def _fmt(v: float, spec: str) -> str:
@@ -314,13 +315,13 @@ def preregistered_markdown(
         out.append("| " + " | ".join(cols) + " |")
         out.append("|" + "---|" * len(cols))
         for r in breakdown.to_pylist():
-            out.append(
-                "| "
-                + " | ".join(
-                    _fmt(r[c], ".4g") if isinstance(r[c], float) else str(r[c]) for c in cols
-                )
-                + " |"
-            )
+            cells = [
+                _fmt(r[c], ".4g")
+                if isinstance(r[c], float)
+                else ("" if r[c] is None else str(r[c]))
+                for c in cols
+            ]
+            out.append("| " + " | ".join(cells) + " |")
         out.append("")
     if by_class.num_rows:
         out.append(

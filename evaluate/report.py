@@ -321,6 +321,8 @@ _COLOURS = {
     "min_pwkl": "tab:red",
     "min_entropy": "tab:pink",
     "max_pwkl": "tab:purple",
+    "largest": "tab:cyan",
+    "most_views": "darkkhaki",
 }
 """Baselines dark or muted, the paper's three CARe measures strong, the ablations paler."""
 
