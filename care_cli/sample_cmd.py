@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Annotated
 
 import typer
+
+from world.presets import WorldPreset
 
 __all__ = ["register"]
 
@@ -48,10 +51,42 @@ def make(
             "json, yaml, csv, ply, scannet, matterport, replica, or all.",
         ),
     ] = "native",
+    preset: Annotated[
+        WorldPreset,
+        typer.Option(
+            "--preset",
+            help="World and perception preset: default (the sample world), matterport-like "
+            "(229 classes, ~25 instances per room, first attempts near the paper's), ideal.",
+        ),
+    ] = WorldPreset.DEFAULT,
+    sets: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--set",
+            help="Change one knob of the preset: KEY=VALUE (repeatable). Keys: scene knobs "
+            "(catalogue, clutter, instances_per_room, ...) and perception knobs "
+            "(class_bias_rate, bias_noise_scale, view_bias_rate, ...; see README).",
+        ),
+    ] = None,
+    measure: Annotated[
+        bool,
+        typer.Option(
+            "--measure/--no-measure",
+            help="Also run the pipeline on the dataset and record the first-attempt success "
+            "of each map (minutes; written to index.json and printed).",
+        ),
+    ] = False,
 ) -> None:
     """Generate scenes, render an exploration of each, write recordings + ground truth + index.json."""
     from care.errors import WorldError
+    from world.presets import PRESETS, with_sets
     from world.record import DatasetConfig, make_dataset
+
+    try:
+        world = with_sets(PRESETS[preset], sets or ())
+    except WorldError as err:
+        typer.echo(f"error: {err}", err=True)
+        raise typer.Exit(2) from err
 
     if fmt not in ("mcap", "ros2", "ros1"):
         msg = f"--format {fmt!r}: choose mcap, ros2 or ros1"
@@ -76,6 +111,8 @@ def make(
             compressed_rgb=jpeg,
             workers=workers,
             rrd=rrd,
+            preset=preset,
+            world=world,
         )
     )
     if set(formats) - {"native"}:
@@ -87,7 +124,28 @@ def make(
             chosen = EXPORT_FORMATS if "all" in formats else formats
             others = [f for f in chosen if f != "native"]  # make_dataset wrote the native files
             export_ground_truth(GroundTruth.load(entry.recording), entry.recording, others)
+    if measure:
+        from evaluate.dataset_stats import measure_first_attempts
+
+        measure_first_attempts(index.parent, workers=workers)
+    typer.echo(_statistics_line(index))
     typer.echo(f"wrote {index}")
+
+
+def _statistics_line(index: Path) -> str:
+    """One line of what the dataset holds (and its first attempts, once measured)."""
+    doc = json.loads(Path(index).read_text())
+    st = doc.get("statistics", {})
+    per = st.get("instances_per_room", {})
+    line = (
+        f"{st.get('scenes')} scenes, {st.get('rooms')} rooms, {st.get('instances')} instances "
+        f"({per.get('mean')} per room, {per.get('min')}-{per.get('max')}), "
+        f"{st.get('classes')} classes ({st.get('classes_per_scene')} per scene)"
+    )
+    first = st.get("first_attempt")
+    if first:
+        line += "; first attempt " + ", ".join(f"{k} {v:.1f}%" for k, v in first.items())
+    return line
 
 
 def register(app: typer.Typer) -> None:

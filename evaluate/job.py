@@ -32,7 +32,7 @@ from evaluate.groundtruth import GtSource, check_ground_truth, gt_files
 from evaluate.report import Report, write_report
 from evaluate.success import QuerySet, grid_queries, instance_queries, scene_point_labels
 from query.confidence import confidence
-from query.map import MAP_TABLES, MEASURES, load_map
+from query.map import MAP_TABLES, REPLAN_COLUMNS, load_map
 from replan.attempts import Attempts, run_attempts
 from replan.expected import expected_random_success
 from replan.strategies import STRATEGIES
@@ -196,7 +196,7 @@ def evaluate_queries(
         )
     else:
         conf = rank = None
-    columns = {m: cmap.column(m) for m in MEASURES}
+    columns = {m: cmap.column(m) for m in REPLAN_COLUMNS}
     rows: list[dict[str, np.ndarray]] = []
     oracle: np.ndarray | None = None
     expected_of: dict[tuple[str, str, int], np.ndarray] = {}  # the closed form has no seed

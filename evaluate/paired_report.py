@@ -12,7 +12,7 @@ import pyarrow.compute as pc
 from evaluate.paired import compare, comparison_rng
 from replan.strategies import STRATEGIES
 
-__all__ = ["CARE_STRATEGIES", "paired_markdown", "paired_table"]
+__all__ = ["CARE_STRATEGIES", "outcomes", "paired_markdown", "paired_table"]
 
 QUERY_KEYS = ("scene", "map", "protocol", "unit", "query")
 
@@ -22,7 +22,7 @@ CARE_STRATEGIES = tuple(
 """The CARe rules: a measure chosen over a candidate set (ablations included)."""
 
 
-def _outcomes(attempts: pa.Table) -> tuple[dict, dict]:
+def outcomes(attempts: pa.Table) -> tuple[dict, dict]:
     """``solved[(map, protocol)][(strategy, criterion, k)][query key]`` (mean over seeds of
     "some attempt succeeded", as :func:`evaluate.report.per_query`) and ``first[...]`` (the
     first attempt succeeded), grouped by Arrow rather than row by row."""
@@ -62,7 +62,7 @@ def paired_table(attempts: pa.Table, *, bootstrap: int = 10_000, seed: int = 0) 
     difference in success, its bootstrap interval, discordant counts, first-attempt ties
     and McNemar's p. Baselines: ``max_confidence`` and the best ``random_topk`` (the
     criterion and k with the highest success in that map and protocol)."""
-    solved, first = _outcomes(attempts)
+    solved, first = outcomes(attempts)
     rows = []
     for (kind, protocol), rules in sorted(solved.items()):
         baselines = []

@@ -362,6 +362,8 @@ _COLOURS = {
     "min_pwkl": "tab:red",
     "min_entropy": "tab:pink",
     "max_pwkl": "tab:purple",
+    "largest": "tab:cyan",
+    "most_views": "darkkhaki",
 }
 """Baselines dark or muted, the paper's three CARe measures strong, the ablations paler."""
 
@@ -478,6 +480,9 @@ def write_report(
         write_table_atomic(table, path)
     plots = plot_success(summary, ks, out / "plots")
     tables = markdown_tables(summary, ks)
+    from evaluate.preregistered import write_preregistered
+
+    prereg = write_preregistered(attempts, out, bootstrap=min(bootstrap, 2000))
     md = "\n".join(
         [
             header,
@@ -487,6 +492,7 @@ def write_report(
             "## 95% bootstrap confidence intervals (queries resampled)\n",
             markdown_tables(summary, ks, ci=True),
             paired_markdown(paired),
+            prereg.markdown,
             _auroc_markdown(aucs),
             per_scene_markdown(summary, scenes),
             "Plots: " + ", ".join(f"`plots/{p.name}`" for p in plots) + "\n",
@@ -494,4 +500,4 @@ def write_report(
     )
     md_path = out / "results.md"
     atomic_write_text(md_path, md)
-    return Report(md, tables, summary, aucs, (*paths, md_path, *plots))
+    return Report(md, tables, summary, aucs, (*paths, *prereg.paths, md_path, *plots))

@@ -69,6 +69,8 @@ SHORT = {
     "min_pwkl": "min pwKL",
     "min_entropy": "min H",
     "max_pwkl": "max pwKL",
+    "largest": "largest",
+    "most_views": "most views",
 }
 """Short names of the replan rules for labels (the tables use the long ones)."""
 COLOURS = {
@@ -82,6 +84,8 @@ COLOURS = {
     "min_pwkl": (214, 39, 40),
     "min_entropy": (148, 103, 189),
     "max_pwkl": (227, 119, 194),
+    "largest": (140, 86, 75),
+    "most_views": (23, 190, 207),
 }
 _SHOWN = ("max_confidence", "max_entropy", "min_stderr", "min_pwkl")
 """Rules whose choices the 3D view shows as it opens (the paper's); the others' entities are

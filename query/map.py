@@ -30,6 +30,7 @@ __all__ = [
     "MAP_TABLES",
     "MEASURES",
     "NOT_IN_TOP",
+    "REPLAN_COLUMNS",
     "CandidateMap",
     "MapKind",
     "list_column",
@@ -52,6 +53,10 @@ MAP_TABLES: dict[MapKind, str] = {MapKind.INSTANCES: "instances", MapKind.GRID: 
 
 MEASURES = ("entropy", "stderr", "pwkl")
 """Per-candidate uncertainty columns the strategies choose by."""
+
+REPLAN_COLUMNS = (*MEASURES, "num_views", "size")
+"""Every column a strategy may choose by: the measures and the non-CARe baselines' view
+count and mask size (scene points; 0 for grid cells, which all have one size)."""
 
 LOG_CONFIDENCE_CACHE = 1 << 25
 """Most entries (classes x candidates, 128 MiB of float32) of the cached log-confidence table."""
@@ -136,7 +141,11 @@ class CandidateMap:
         return len(self.features)
 
     def column(self, name: str) -> np.ndarray:
-        """A per-candidate measure column by name (``entropy``, ``stderr``, ``pwkl``, ``num_views``)."""
+        """A per-candidate column by name (:data:`REPLAN_COLUMNS`)."""
+        if name == "size":
+            if len(self.point_offsets) != self.num_candidates + 1:  # grid: cells, no masks
+                return np.zeros(self.num_candidates)
+            return np.diff(self.point_offsets).astype(np.float64)
         if name not in (*MEASURES, "num_views"):
             msg = f"no measure column {name!r}; choose one of {', '.join(MEASURES)}"
             raise QueryError(msg)

@@ -18,7 +18,7 @@ import numpy as np
 from care.checks import check_numbers
 from care.config import member
 from care.errors import ReplanError
-from query.map import MEASURES, CandidateMap
+from query.map import MEASURES, REPLAN_COLUMNS, CandidateMap
 from replan.strategies import (
     CRITERIA,
     Criterion,
@@ -316,7 +316,7 @@ def next_goal(
         size = np.zeros(1, np.int64)
     else:
         rank = target.class_rank(limit=k)[None] if criterion == "category" else None
-        columns = {name: cmap.column(name) for name in MEASURES}
+        columns = {name: cmap.column(name) for name in REPLAN_COLUMNS}
         pick, size = _step(
             chosen, conf, available, columns, criterion=criterion, k=k, rank=rank,
             rng=np.random.default_rng(seed), success=None,

@@ -26,7 +26,7 @@ import pyarrow as pa
 from care.errors import ReplanError
 from query.confidence import rank_by_confidence
 from query.goals import Goal, GoalMaker
-from query.map import MEASURES, CandidateMap
+from query.map import MEASURES, REPLAN_COLUMNS, CandidateMap
 from query.openvocab import open_queries
 from replan.attempts import DEFAULT_EXCLUDE_RADIUS, ReplanConfig, candidates_near, run_attempts
 from replan.strategies import CRITERIA, STRATEGIES
@@ -287,7 +287,7 @@ def plan_batch(
     from tqdm import tqdm
 
     config = config or BatchConfig()
-    columns = {name: cmap.column(name) for name in MEASURES}
+    columns = {name: cmap.column(name) for name in REPLAN_COLUMNS}
     positions = cmap.positions if cmap.kind == "grid" else None
     radius = config.exclude_radius if cmap.kind == "grid" else 0.0
     rng = np.random.default_rng(config.seed)

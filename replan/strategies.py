@@ -54,6 +54,8 @@ class StrategyName(StrEnum):
     MIN_PWKL = "min_pwkl"
     MIN_ENTROPY = "min_entropy"
     MAX_PWKL = "max_pwkl"
+    LARGEST = "largest"
+    MOST_VIEWS = "most_views"
 
 
 class Criterion(StrEnum):
@@ -289,6 +291,27 @@ def _by_measure(column: str, maximise: bool) -> Callable[[Situation], Pick]:
     return rule
 
 
+def _column(s: Situation, name: str) -> np.ndarray:
+    if name not in s.columns:
+        msg = f"this strategy chooses by the {name!r} column, which the map did not give"
+        raise ReplanError(msg)
+    return np.asarray(s.columns[name], np.float64)
+
+
+def _largest(s: Situation) -> Pick:
+    """Non-CARe baseline: the available candidate with the largest mask (scene points)."""
+    values = _column(s, "size")
+    cand, found = best_of(values, s.available, s.confidence, maximise=True)
+    return _pick(s, cand, found, values)
+
+
+def _most_views(s: Situation) -> Pick:
+    """Non-CARe baseline: the available candidate seen in the most views."""
+    values = _column(s, "num_views")
+    cand, found = best_of(values, s.available, s.confidence, maximise=True)
+    return _pick(s, cand, found, values)
+
+
 def _oracle(s: Situation) -> Pick:
     if s.success is None:
         msg = "the oracle needs ground truth; it exists only in evaluation (`care eval`)"
@@ -350,6 +373,8 @@ STRATEGIES: dict[StrategyName, Strategy] = {
             uses_set=True,
             ablation=True,
         ),
+        Strategy(StrategyName.LARGEST, "Largest candidate (baseline)", _largest, "size"),
+        Strategy(StrategyName.MOST_VIEWS, "Most views (baseline)", _most_views, "num_views"),
     )
 }
 """Strategy name -> :class:`Strategy`, in the paper's row order; the CLI's choices."""

@@ -13,7 +13,7 @@ import json
 import os
 from collections.abc import Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
@@ -25,6 +25,7 @@ from care.frames import Frame
 from care.outputs import check_output, is_ours, write_marker
 from world.dataset_index import INDEX_NAME
 from world.groundtruth import GroundTruth, gt_paths
+from world.presets import PRESETS, WorldPreset, WorldSettings
 from world.render import RenderConfig, Renderer
 from world.scene import Scene, SceneConfig, generate_scene
 from world.trajectory import TrajectoryConfig, plan_trajectory
@@ -33,6 +34,7 @@ __all__ = [
     "FORMAT_SUFFIX",
     "DatasetConfig",
     "RecordingSummary",
+    "dataset_statistics",
     "make_dataset",
     "make_recording",
     "recording_path",
@@ -68,12 +70,10 @@ class DatasetConfig:
     """Rooms per scene (1 to 6); default drawn per scene from 2 to 5."""
     compressed_rgb: bool = False
     """JPEG colour (CompressedImage) instead of raw rgb8."""
-    clutter: float = 1.0
-    """Furniture density (see :class:`world.scene.SceneConfig`)."""
-    point_density_objects: float = 1500.0
-    """Ground-truth points per m^2 on objects."""
-    point_density_structure: float = 150.0
-    """Ground-truth points per m^2 on walls, floors and ceilings."""
+    preset: WorldPreset = WorldPreset.DEFAULT
+    """The preset ``world`` started from (recorded in ``index.json``)."""
+    world: WorldSettings = field(default_factory=lambda: PRESETS[WorldPreset.DEFAULT])
+    """Every scene and perception knob (:mod:`world.presets`)."""
     workers: int = 2
     """Processes making scenes in parallel."""
     rrd: Path | None = None
@@ -93,6 +93,8 @@ class RecordingSummary:
     rooms: list[str]
     num_frames: int
     num_instances: int
+    instances_per_room: list[int]
+    """Instances of each room, in room order."""
     classes: list[str]
     """Classes present, sorted."""
     unseen_instances: list[int]
@@ -112,7 +114,12 @@ def recording_path(out: Path, index: int, fmt: Format) -> Path:
 
 
 def _settings(config: DatasetConfig, seed: int) -> dict[str, Any]:
-    """What determines a recording's bytes; stored in its ground truth to decide skipping."""
+    """What determines a recording's bytes; stored in its ground truth to decide skipping.
+
+    The world knobs join only where they differ from the default world, so a default
+    dataset's ground truth keeps the bytes of earlier releases."""
+    world = config.world
+    extra = {} if world == WorldSettings() else {"world": world.as_json()}
     return {
         "seed": seed,
         "fmt": config.fmt,
@@ -121,9 +128,10 @@ def _settings(config: DatasetConfig, seed: int) -> dict[str, Any]:
         "frames": config.frames,
         "num_rooms": config.num_rooms,
         "compressed_rgb": config.compressed_rgb,
-        "clutter": config.clutter,
-        "point_density_objects": config.point_density_objects,
-        "point_density_structure": config.point_density_structure,
+        "clutter": world.clutter,
+        "point_density_objects": world.point_density_objects,
+        "point_density_structure": world.point_density_structure,
+        **extra,
     }
 
 
@@ -158,9 +166,11 @@ def make_recording(
     trajectory: TrajectoryConfig | None = None,
     progress: bool = False,
     settings: dict[str, Any] | None = None,
+    perception: dict[str, Any] | None = None,
 ) -> tuple[Scene, GroundTruth, RecordingSummary]:
     """Generate the scene, render its exploration into a recording at ``path`` and save its
-    ground truth beside it. Returns the scene, the ground truth and a summary."""
+    ground truth beside it (with ``perception``, the perception model the ``labels``
+    encoder is to use, where given). Returns the scene, the ground truth and a summary."""
     from ingest.write import write_recording
 
     path = Path(path)
@@ -190,6 +200,7 @@ def make_recording(
             "num_frames": counter.count,
             "unseen_instances": unseen,
             "visible_pixels": {str(k): v for k, v in sorted(counter.pixels.items()) if k > 0},
+            **({"perception": perception} if perception else {}),
         }
     )
     gt.save(path)
@@ -200,6 +211,9 @@ def make_recording(
         rooms=[r.name for r in scene.rooms],
         num_frames=counter.count,
         num_instances=len(scene.objects),
+        instances_per_room=[
+            sum(o.room_id == r.room_id for o in scene.objects) for r in scene.rooms
+        ],
         classes=sorted({o.class_name for o in scene.objects}),
         unseen_instances=unseen,
     )
@@ -224,6 +238,9 @@ def _up_to_date(path: Path, settings: dict[str, Any]) -> RecordingSummary | None
         rooms=[r["name"] for r in doc["rooms"]],
         num_frames=int(info.get("num_frames", 0)),
         num_instances=len(doc["instances"]),
+        instances_per_room=[
+            sum(r["room_id"] == room["room_id"] for r in doc["instances"]) for room in doc["rooms"]
+        ],
         classes=sorted({r["class_name"] for r in doc["instances"]}),
         unseen_instances=list(info.get("unseen_instances", [])),
         skipped=True,
@@ -250,6 +267,7 @@ def _make_one(config: DatasetConfig, index: int, progress: bool) -> RecordingSum
         compressed_rgb=config.compressed_rgb,
         progress=progress,
         settings=settings,
+        perception=settings.get("world", {}).get("perception"),
     )
     return summary
 
@@ -292,14 +310,25 @@ def make_dataset(config: DatasetConfig) -> Path:
                     bar.update(1)
     finally:
         bar.close()
+    config_doc = {
+        k: v
+        for k, v in asdict(config).items()
+        if k not in ("out", "rrd", "workers", "progress", "world", "preset")
+    }
+    world = config.world
+    config_doc.update(
+        clutter=world.clutter,
+        point_density_objects=world.point_density_objects,
+        point_density_structure=world.point_density_structure,
+        preset=str(config.preset),
+        world=world.as_json(),
+    )
+    recordings = [asdict(summaries[i]) for i in range(config.scenes)]
     index = {
         "care_sample_dataset": 1,
-        "config": {
-            k: v
-            for k, v in asdict(config).items()
-            if k not in ("out", "rrd", "workers", "progress")
-        },
-        "recordings": [asdict(summaries[i]) for i in range(config.scenes)],
+        "config": config_doc,
+        "statistics": dataset_statistics(recordings),
+        "recordings": recordings,
     }
     index_path = out / INDEX_NAME
     tmp = index_path.with_name(f".index.json.tmp-{os.getpid()}")
@@ -326,7 +355,24 @@ def scene_config_of(config: DatasetConfig, index: int) -> SceneConfig:
     return SceneConfig(
         seed=scene_seed(config.seed, index),
         num_rooms=config.num_rooms,
-        clutter=config.clutter,
-        point_density_objects=config.point_density_objects,
-        point_density_structure=config.point_density_structure,
+        **config.world.scene_values(),
     )
+
+
+def dataset_statistics(recordings: list[dict[str, Any]]) -> dict[str, Any]:
+    """What a dataset holds: scenes, rooms, instances (per room: mean, min, max) and classes
+    (present in some scene; per scene on average)."""
+    per_room = [n for r in recordings for n in r.get("instances_per_room", [])]
+    classes = sorted({c for r in recordings for c in r["classes"]})
+    return {
+        "scenes": len(recordings),
+        "rooms": len(per_room),
+        "instances": int(sum(r["num_instances"] for r in recordings)),
+        "instances_per_room": {
+            "mean": round(float(np.mean(per_room)), 2) if per_room else 0.0,
+            "min": int(min(per_room, default=0)),
+            "max": int(max(per_room, default=0)),
+        },
+        "classes": len(classes),
+        "classes_per_scene": round(float(np.mean([len(r["classes"]) for r in recordings])), 2),
+    }

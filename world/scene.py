@@ -13,6 +13,7 @@ trajectory is collision-free by construction.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import StrEnum
 from functools import cached_property
 from typing import Any
 
@@ -25,6 +26,7 @@ from world.catalogue import (
     ROOM_TYPES,
     Built,
     ClassSpec,
+    RoomType,
     build_instance,
 )
 from world.groundtruth import GroundTruth, Room, instances_table
@@ -33,10 +35,12 @@ from world.meshes import Mesh, Part, merge_meshes, rotate_part, sample_surface
 __all__ = [
     "CEILING_HEIGHT",
     "GENERATOR_VERSION",
+    "Catalogue",
     "Door",
     "PlacedObject",
     "Scene",
     "SceneConfig",
+    "class_names_of",
     "generate_scene",
 ]
 
@@ -59,6 +63,45 @@ STRUCTURE_COLOURS = {
 }
 
 
+class Catalogue(StrEnum):
+    """Which object catalogue a scene is furnished from."""
+
+    SAMPLE = "sample"
+    """The 51 classes of :mod:`world.catalogue` (the sample world of every release)."""
+    MATTERPORT = "matterport"
+    """The 229 classes of :mod:`world.matterport_catalogue`, near-synonyms included."""
+
+
+@dataclass(frozen=True)
+class _Kit:
+    """A catalogue with its room contents: what a furnisher needs."""
+
+    classes: dict[str, ClassSpec]
+    class_names: tuple[str, ...]
+    room_types: dict[str, RoomType]
+    companions: dict[str, tuple[str, tuple[int, int], tuple[int, ...]]]
+    fill: dict[str, tuple[str, ...]]
+
+
+def _kit(catalogue: Catalogue) -> _Kit:
+    if Catalogue(catalogue) is Catalogue.SAMPLE:
+        return _Kit(CATALOGUE, CLASS_NAMES, ROOM_TYPES, COMPANIONS, {})
+    from world import matterport_catalogue as mp
+
+    return _Kit(
+        mp.MATTERPORT_CATALOGUE,
+        mp.MATTERPORT_CLASS_NAMES,
+        mp.MATTERPORT_ROOM_TYPES,
+        mp.MATTERPORT_COMPANIONS,
+        mp.MATTERPORT_FILL,
+    )
+
+
+def class_names_of(catalogue: Catalogue) -> tuple[str, ...]:
+    """Class id -> name of the scenes furnished from ``catalogue``."""
+    return _kit(catalogue).class_names
+
+
 @dataclass(frozen=True)
 class SceneConfig:
     """How to generate a scene; ``seed`` alone fixes everything else left at its default."""
@@ -75,6 +118,15 @@ class SceneConfig:
     """Ground-truth surface points per square metre on objects."""
     point_density_structure: float = 150.0
     """Ground-truth surface points per square metre on walls, floors and ceilings."""
+    catalogue: Catalogue = Catalogue.SAMPLE
+    """Object catalogue and room contents (``sample``: 51 classes; ``matterport``: 229)."""
+    instances_per_room: int = 0
+    """After the furniture, fill each room with small, hung and floor objects of its kind
+    (catalogues that list them) until it holds about this many instances (a target drawn
+    per room from 0.6 to 1.4 times it, as long as there is space); 0 = no filling."""
+    sibling_weight: float = 3.0
+    """While filling, a class already drawn in the room is this many times as likely to be
+    drawn again (same-class siblings: four pillows, three pictures)."""
 
 
 @dataclass(frozen=True)
@@ -140,14 +192,26 @@ class Scene:
     @cached_property
     def mesh(self) -> Mesh:
         """The whole scene as one labelled triangle mesh."""
-        cid = {n: i for i, n in enumerate(CLASS_NAMES)}
+        cid = {n: i for i, n in enumerate(self.class_names)}
         groups = [(0, cid[name], parts) for name, parts in self.structure.items()]
         groups += [(o.instance_id, cid[o.class_name], list(o.parts)) for o in self.objects]
         return merge_meshes(groups)
 
     @property
     def class_names(self) -> tuple[str, ...]:
-        return CLASS_NAMES
+        return class_names_of(self.config.catalogue)
+
+    def _catalogue_info(self) -> dict[str, Any]:
+        """The catalogue and filling, where they differ from the sample world's (so the
+        ground truth of a default scene keeps its bytes)."""
+        c = self.config
+        if c.catalogue is Catalogue.SAMPLE and c.instances_per_room == 0:
+            return {}
+        return {
+            "catalogue": str(c.catalogue),
+            "instances_per_room": c.instances_per_room,
+            "sibling_weight": c.sibling_weight,
+        }
 
     def ground_truth(self, info: dict[str, Any] | None = None) -> GroundTruth:
         """Ground truth with surface points sampled deterministically from the seed."""
@@ -159,7 +223,7 @@ class Scene:
         )
         rng = np.random.default_rng([self.config.seed, 7])
         pts, tri = sample_surface(mesh, density, rng)
-        cid = {n: i for i, n in enumerate(CLASS_NAMES)}
+        cid = {n: i for i, n in enumerate(self.class_names)}
         rows = []
         for o in self.objects:
             lo, hi = o.bbox
@@ -181,11 +245,12 @@ class Scene:
                 "num_rooms": len(self.rooms),
                 "room_types": [r.name for r in self.rooms],
                 "clutter": self.config.clutter,
+                **self._catalogue_info(),
             },
             **(info or {}),
         }
         return GroundTruth(
-            class_names=CLASS_NAMES,
+            class_names=self.class_names,
             instances=instances_table(rows),
             rooms=self.rooms,
             points=pts,
@@ -412,7 +477,9 @@ class _RoomFurnisher:
         doors: list[Door],
         rng: np.random.Generator,
         next_id: list[int],
+        kit: _Kit | None = None,
     ) -> None:
+        self.kit = kit or _kit(Catalogue.SAMPLE)
         self.placer = placer
         self.room_id = room_id
         self.rect = rect
@@ -528,7 +595,7 @@ class _RoomFurnisher:
     def place_companions(
         self, parent: PlacedObject, spec_name: str, count: int, sides: tuple[int, ...]
     ) -> None:
-        spec = CATALOGUE[spec_name]
+        spec = self.kit.classes[spec_name]
         lo, hi = parent.bbox
         centre = (lo + hi) / 2
         for _ in range(count):
@@ -559,23 +626,54 @@ class _RoomFurnisher:
                     self._commit(spec, parts, None)
                     break
 
+    def place(self, spec: ClassSpec) -> PlacedObject | None:
+        """Place one instance of ``spec`` where its kind goes; None if no room was found."""
+        return {
+            "wall": self.place_wall,
+            "free": self.place_free,
+            "on": self.place_on,
+            "hung": self.place_hung,
+        }[spec.placement](spec)
+
     def furnish(self, room_type: str, clutter: float) -> None:
-        for name, prob, (cmin, cmax) in ROOM_TYPES[room_type].contents:
+        kit = self.kit
+        for name, prob, (cmin, cmax) in kit.room_types[room_type].contents:
             if prob < 1.0 and self.rng.random() >= prob * clutter:
                 continue
-            spec = CATALOGUE[name]
+            spec = kit.classes[name]
             for _ in range(int(self.rng.integers(cmin, cmax + 1))):
-                placed = {
-                    "wall": self.place_wall,
-                    "free": self.place_free,
-                    "on": self.place_on,
-                    "hung": self.place_hung,
-                }[spec.placement](spec)
-                if placed is not None and name in COMPANIONS:
-                    comp, (kmin, kmax), sides = COMPANIONS[name]
+                placed = self.place(spec)
+                if placed is not None and name in kit.companions:
+                    comp, (kmin, kmax), sides = kit.companions[name]
                     self.place_companions(
                         placed, comp, int(self.rng.integers(kmin, kmax + 1)), sides
                     )
+
+    FILL_FAILURES = 25
+    """Consecutive failed placements after which a room counts as full."""
+
+    def fill(self, room_type: str, target: int, sibling_weight: float) -> None:
+        """Add small, hung and floor objects until the room holds ``target`` instances.
+
+        Classes are drawn from the room kind's fill list with weights that grow by
+        ``sibling_weight`` times for a class already drawn, so rooms get same-class siblings
+        as Matterport3D rooms do (several pillows, pictures, books)."""
+        names = self.kit.fill.get(room_type, ())
+        if not names or target <= 0:
+            return
+        weights = np.ones(len(names))
+        failures = 0
+        target = int(self.rng.integers(round(0.6 * target), round(1.4 * target) + 1))
+        while self._count() < target and failures < self.FILL_FAILURES:
+            k = int(self.rng.choice(len(names), p=weights / weights.sum()))
+            if self.place(self.kit.classes[names[k]]) is None:
+                failures += 1
+                continue
+            failures = 0
+            weights[k] = max(weights[k], sibling_weight)
+
+    def _count(self) -> int:
+        return sum(o.room_id == self.room_id for o in self.placer.objects)
 
 
 ROOM_ORDER = ("living room", "kitchen", "bedroom", "bathroom", "office", "dining room")
@@ -606,11 +704,12 @@ def generate_scene(config: SceneConfig | None = None) -> Scene:
     nav, nav_origin = _nav_mask(rect, doors)
     placer = _Placer(walls, nav, nav_origin)
     next_id = [1]
+    kit = _kit(config.catalogue)
     for i in range(n):
         room_doors = [d for d in doors if i in d.rooms]
-        _RoomFurnisher(placer, i, rect[i], room_doors, rng, next_id).furnish(
-            types[i], config.clutter
-        )
+        furnisher = _RoomFurnisher(placer, i, rect[i], room_doors, rng, next_id, kit)
+        furnisher.furnish(types[i], config.clutter)
+        furnisher.fill(types[i], config.instances_per_room, config.sibling_weight)
     rooms = [
         Room(i, types[i], np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], np.float64))
         for i, (x0, y0, x1, y1) in enumerate(rect)

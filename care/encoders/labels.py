@@ -20,13 +20,20 @@ Image side, per view (a (fh, fw, d) map, one cell per ``stride`` x ``stride`` pi
    owns the cells it appears in, as a VLM's attention would), optionally *bled* with its
    neighbours' mixtures (a spatial blur), then L2-normalised.
 
-The two mechanisms the paper argues about (``PerceptionModel``):
+The mechanisms the paper argues about (``PerceptionModel``), each switched on and off by
+its own knob:
 
 - **persistent bias**: a fraction of instances, and a fraction of classes scene-wide (all
   their instances), are perceived as their nearest other class by text embedding, in every
   view and with little noise: a confident, consistent mistake ("query table, grounding
   chair"). Multi-view fusion cannot undo it; it is what uncertainty measures must see
-  through by other means.
+  through by other means. ``class_bias_per_scene`` draws the biased classes per scene (from
+  the scene's seed, among the classes it holds) instead of once per encoder seed;
+  ``bias_noise_scale`` sets how confident the biased mistake is (1 = as noisy as any other).
+- **view-dependent bias** (``view_bias_rate``): an instance misread in some of its views,
+  as the class of the largest other object in the same view (its context: a pillow read as
+  the bed it lies on, a cup as the table). Fusion mixes the two readings; the per-view
+  spread is large, which is the inconsistency CARe's measures look for.
 - **view-dependent noise**: a level in [0, 1] per segment and view that grows with the
   segment's mean distance, with how grazing the surfaces are seen (normals from depth),
   with truncation at the image border and for small segments; the segment's feature is
@@ -38,14 +45,21 @@ The two mechanisms the paper argues about (``PerceptionModel``):
 Everything random is a hash of ``options.seed`` with instance ids, class names and view
 stamps, so a recording encodes to the same features on every run, and a biased instance
 is biased in every view.
+
+Sample-world datasets record their perception model (``care sample make --preset``) in the
+ground truth beside each recording; with ``--perception default`` the encoder uses the
+recorded one (:func:`recorded_perception`). ``perception`` may also carry overrides,
+``"NAME:key=value,key=value"`` (:func:`perception_model`), as sweeps use it.
 """
 
 from __future__ import annotations
 
+import json
 import zlib
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy.ndimage import gaussian_filter
@@ -55,7 +69,14 @@ from care.encoders.sentence import DIM, SentenceModel, sentence_model
 from care.errors import EncoderError
 from care.frames import Frame
 
-__all__ = ["PERCEPTION_PRESETS", "STRUCTURE_NAMES", "LabelsEncoder", "PerceptionModel"]
+__all__ = [
+    "PERCEPTION_PRESETS",
+    "STRUCTURE_NAMES",
+    "LabelsEncoder",
+    "PerceptionModel",
+    "perception_model",
+    "recorded_perception",
+]
 
 STRUCTURE_NAMES = frozenset({"void", "unlabeled", "wall", "floor", "ceiling"})
 """Classes that are never biased nor used as confusers (the room's shell and no-label)."""
@@ -72,6 +93,16 @@ class PerceptionModel:
     them) perceived as their nearest other class in every view."""
     bias_noise_scale: float = 0.3
     """Multiplies the view-dependent noise of a biased instance (its mistake is confident)."""
+    class_bias_per_scene: bool = False
+    """Draw the biased classes per scene (hash of the scene's seed, among the classes the
+    scene holds) rather than once per encoder seed for the whole vocabulary."""
+    view_bias_rate: float = 0.0
+    """Chance of each instance to be misread from some viewpoints (view-dependent bias)."""
+    view_bias_views: float = 0.5
+    """Fraction of a view-biased instance's views in which it is misread."""
+    view_bias_context: bool = True
+    """A misread view reads the class of the largest other object in that view (its
+    context); False: the instance's nearest class by text embedding."""
     base_noise: float = 0.15
     """Noise level of a large, near, frontal, fully visible segment."""
     distance_gain: float = 0.12
@@ -118,12 +149,95 @@ class PerceptionModel:
         }
         return replace(cls(), **zero)
 
+    def with_values(self, values: Mapping[str, Any]) -> PerceptionModel:
+        """This model with ``values`` (field name -> value, strings parsed by the field's
+        type); an unknown name or a bad value is one :class:`EncoderError` naming it."""
+        types = {f.name: type(f.default) for f in fields(self)}
+        out = {}
+        for key, value in values.items():
+            if key not in types:
+                msg = f"perception knob {key!r}: unknown; choose from {', '.join(types)}"
+                raise EncoderError(msg)
+            out[key] = _parse(key, value, types[key])
+        return replace(self, **out)
+
+
+def _parse(key: str, value: Any, kind: type) -> Any:
+    """``value`` as a ``kind`` (bool, int or float), from a string or a number."""
+    try:
+        if kind is bool:
+            if isinstance(value, bool):
+                return value
+            text = str(value).strip().lower()
+            if text not in ("true", "false", "1", "0", "on", "off"):
+                raise ValueError(text)
+            return text in ("true", "1", "on")
+        number = kind(value) if kind is float else int(str(value))
+    except (TypeError, ValueError) as err:
+        msg = f"perception knob {key}={value!r}: not a {kind.__name__}"
+        raise EncoderError(msg) from err
+    if isinstance(number, float) and not np.isfinite(number):
+        msg = f"perception knob {key}={value!r}: not a finite number"
+        raise EncoderError(msg)
+    if number < 0:
+        msg = f"perception knob {key}={value!r}: must not be negative"
+        raise EncoderError(msg)
+    return number
+
 
 PERCEPTION_PRESETS: dict[str, PerceptionModel] = {
     "default": PerceptionModel(),
     "ideal": PerceptionModel.ideal(),
 }
 """Presets selectable by ``EncoderOptions.perception``."""
+
+
+def perception_model(
+    spec: str, recorded: Mapping[str, Any] | None = None
+) -> tuple[PerceptionModel, bool]:
+    """The model of ``spec`` (``"NAME"`` or ``"NAME:key=value,..."``) and whether it came
+    from ``recorded`` (a dataset's recorded model, used when NAME is ``default``)."""
+    name, _, overrides = str(spec).partition(":")
+    if name not in PERCEPTION_PRESETS:
+        msg = f"perception preset {name!r}: choose one of {', '.join(PERCEPTION_PRESETS)}"
+        raise EncoderError(msg)
+    model, from_record = PERCEPTION_PRESETS[name], False
+    if name == "default" and recorded:
+        model, from_record = PerceptionModel().with_values(recorded), True
+    values = {}
+    for item in filter(None, (p.strip() for p in overrides.split(","))):
+        key, eq, value = item.partition("=")
+        if not eq:
+            msg = f"perception override {item!r}: write key=value"
+            raise EncoderError(msg)
+        values[key.strip()] = value.strip()
+    return model.with_values(values), from_record
+
+
+def recorded_perception(source: Path) -> dict[str, Any]:
+    """What the sample world recorded beside ``source`` for the perception model: the
+    ground-truth JSON's ``info.perception`` (field -> value) and ``info.scene`` (its seed and
+    classes); empty where there is none (any other recording).
+
+    The file name follows :func:`truth.formats.native.gt_paths` (the core cannot import it).
+    """
+    source = Path(source)
+    stem = source.stem if source.suffix else source.name
+    path = source.with_name(f"{stem}.gt.json")
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    info = doc.get("info") if isinstance(doc, dict) else None
+    if not isinstance(info, dict):
+        return {}
+    scene = info.get("scene") or {}
+    classes = sorted({str(r.get("class_name")) for r in doc.get("instances") or []})
+    return {
+        "perception": info.get("perception") or {},
+        "scene_seed": scene.get("seed"),
+        "scene_classes": classes,
+    }
 
 
 class LabelsEncoder(Encoder):
@@ -141,15 +255,12 @@ class LabelsEncoder(Encoder):
 
     def __init__(self, options: EncoderOptions | None = None, model: PerceptionModel | None = None):
         options = options or EncoderOptions()
+        self.spec = None if model is not None else str(options.perception)
         if model is None:
-            if options.perception not in PERCEPTION_PRESETS:
-                msg = (
-                    f"perception preset {options.perception!r}: choose one of "
-                    f"{', '.join(PERCEPTION_PRESETS)}"
-                )
-                raise EncoderError(msg)
-            model = PERCEPTION_PRESETS[options.perception]
+            model, _ = perception_model(self.spec)
         self.model = model
+        self.scene_seed: int | None = None
+        self.scene_classes: tuple[str, ...] = ()
         self.seed = int(options.seed)
         if options.weights == "hashed":
             self.text_model: SentenceModel = sentence_model("hashed")
@@ -171,7 +282,14 @@ class LabelsEncoder(Encoder):
     # -- recording -----------------------------------------------------------------------
 
     def prepare(self, context: RecordingContext) -> None:
-        """Embed the recording's class names and fix each class's confusers."""
+        """Take the perception model the sample world recorded (with ``--perception
+        default``), embed the recording's class names and fix each class's confusers."""
+        record = recorded_perception(context.source) if context.source else {}
+        if self.spec is not None:
+            self.model, _ = perception_model(self.spec, record.get("perception"))
+        seed = record.get("scene_seed")
+        self.scene_seed = int(seed) if isinstance(seed, int) else None
+        self.scene_classes = tuple(record.get("scene_classes") or ())
         self.set_label_names(context.label_names, source=str(context.source))
 
     def set_label_names(self, names: Sequence[str], source: str = "recording") -> None:
@@ -198,8 +316,16 @@ class LabelsEncoder(Encoder):
         self.confusion_cdf = np.cumsum(weights / weights.sum(1, keepdims=True), axis=1)
         # exactly round(rate * object classes) classes, the first by a seeded hash order
         crc = np.array([zlib.crc32(nm.encode()) for nm in names], np.uint64)
-        order = np.argsort(np.where(self.is_object, _uniform(self.seed, crc, 11), np.inf))
-        n_biased = round(self.model.class_bias_rate * int(self.is_object.sum()))
+        pool = self.is_object
+        draw = _uniform(self.seed, crc, 11)
+        if self.model.class_bias_per_scene:
+            scene = self.scene_seed if self.scene_seed is not None else zlib.crc32(source.encode())
+            draw = _uniform(self.seed, crc, 12, np.uint64(scene & 0xFFFFFFFFFFFFFFFF))
+            present = set(self.scene_classes)
+            if present:
+                pool = pool & np.array([nm in present for nm in names])
+        order = np.argsort(np.where(pool, draw, np.inf))
+        n_biased = round(self.model.class_bias_rate * int(pool.sum()))
         self.class_biased = np.zeros(n, bool)
         self.class_biased[order[:n_biased]] = True
 
@@ -280,7 +406,9 @@ class LabelsEncoder(Encoder):
         depth[~np.isfinite(depth)] = 0.0
         level = self._noise_level(frames, inv, S, depth, H, W)
         del depth
-        vectors = self._segment_vectors(seg_view, seg_inst, seg_cls, stamps, level)
+        vectors = self._segment_vectors(
+            seg_view, seg_inst, seg_cls, stamps, level, np.bincount(inv, minlength=S)
+        )
 
         # Cell mixtures: pixel counts per (view, cell, local segment), area-normalised.
         rows = (np.arange(H) * fh) // H
@@ -362,12 +490,15 @@ class LabelsEncoder(Encoder):
         seg_cls: np.ndarray,
         stamps: np.ndarray,
         level: np.ndarray,
+        area: np.ndarray,
     ) -> np.ndarray:
         """(S, d) feature of each segment in its view: perceived class, confuser, noise."""
         m = self.model
         biased = self.biased(seg_inst, seg_cls)
         perceived = np.where(biased, self.nearest[seg_cls], seg_cls)
         stamp = stamps[seg_view]
+        if m.view_bias_rate > 0:
+            perceived = self._view_bias(seg_view, seg_inst, seg_cls, stamp, area, perceived)
         ids = seg_inst.astype(np.uint64) * np.uint64(1 << 17) + seg_cls.astype(np.uint64)
         u_conf = _uniform(self.seed, stamp, ids, 21)
         u_mix = _uniform(self.seed, stamp, ids, 22)
@@ -382,6 +513,46 @@ class LabelsEncoder(Encoder):
             gauss = _gaussian(self.seed, stamp, ids, 23, DIM)
             vec = vec + (m.segment_noise * level)[:, None] * gauss / np.sqrt(DIM)
         return l2_normalise(vec)
+
+    def _view_bias(
+        self,
+        seg_view: np.ndarray,
+        seg_inst: np.ndarray,
+        seg_cls: np.ndarray,
+        stamp: np.ndarray,
+        area: np.ndarray,
+        perceived: np.ndarray,
+    ) -> np.ndarray:
+        """``perceived`` with view-biased instances misread in some views: as the class of
+        the largest other object segment of the view (context), else their nearest class."""
+        m = self.model
+        inst = seg_inst.astype(np.uint64)
+        obj = (seg_inst > 0) & self.is_object[seg_cls]
+        chosen = _uniform(self.seed, inst, 31) < m.view_bias_rate
+        misread = obj & chosen & (_uniform(self.seed, inst, stamp, 32) < m.view_bias_views)
+        if not misread.any():
+            return perceived
+        other = self.nearest[seg_cls]
+        if m.view_bias_context:
+            # the two largest object segments of each view: a segment's context is the
+            # largest one that is not itself, if its class differs
+            key = np.where(obj, area, -1)
+            order = np.lexsort((-key, seg_view))
+            sv = seg_view[order]
+            start = np.searchsorted(sv, sv, side="left")
+            rank = np.arange(len(order)) - start
+            n_view = int(seg_view.max()) + 1 if len(seg_view) else 0
+            top = np.full((n_view, 2), -1)
+            keep = rank < 2
+            top[sv[keep], rank[keep]] = order[keep]
+            top[top >= 0] = np.where(obj[top[top >= 0]], top[top >= 0], -1)
+            own = np.arange(len(seg_view))
+            first, second = top[seg_view, 0], top[seg_view, 1]
+            ctx = np.where(first == own, second, first)
+            ok = ctx >= 0
+            ctx_cls = np.where(ok, seg_cls[np.maximum(ctx, 0)], -1)
+            other = np.where(ok & (ctx_cls != seg_cls), ctx_cls, other)
+        return np.where(misread, other, perceived)
 
     def _need_names(self) -> None:
         if not self.label_names:

@@ -134,6 +134,7 @@ def test_oracle_bounds_every_strategy_and_seeds_meet_closed_form(seed, attempts,
     rank = rng.integers(0, 10, size=(n_q, n_c))
     cols = {m: rng.random(n_c).round(1) for m in ("entropy", "stderr", "pwkl")}
     cols["stderr"][rng.random(n_c) < 0.3] = np.inf
+    cols |= {"size": rng.integers(0, 9, n_c), "num_views": rng.integers(1, 6, n_c)}
     positions = rng.random((n_c, 3)) * 4
     kw = {"k": k, "attempts": attempts, "rank": rank, "positions": positions, "exclude_radius": 1.0}
     for criterion in ("confidence", "category"):

@@ -1,0 +1,215 @@
+"""When CARe helps: the paired gain of each measure over a grid of perception settings.
+
+The paper shows CARe helping on one dataset with one VLM. Whether it helps depends on how
+the VLM errs: a confident, consistent mistake (persistent bias with little view noise)
+looks *certain* to every consistency measure, while a mistake that changes with the
+viewpoint (view-dependent bias, view noise) is what the per-view spread can see. This
+module re-encodes the same recordings under each setting of a grid over (bias rate, bias
+noise scale, view-dependent bias, view noise), builds both maps, plays the pre-registered
+rules (:data:`evaluate.preregistered.PAPER_SETTINGS`) and max confidence, and reports each
+measure's paired gain over max confidence with its scene-clustered 95% interval
+(``sweep.parquet``) and a figure of it (``sweep.png``): the figure the paper lacks.
+
+Every setting is a perception override of the dataset's recorded model
+(``EncoderOptions.perception = "default:key=value,..."``), so the scenes and the
+trajectory stay fixed and only the perception changes.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+
+from care.store import write_table_atomic
+from evaluate.dataset_stats import MeasureConfig, map_dataset
+from evaluate.job import EvalConfig, run_eval
+from evaluate.preregistered import PAPER_SETTINGS, headline_table
+
+__all__ = ["SWEEP_KNOBS", "SweepConfig", "plot_sweep", "run_sweep", "sweep_settings"]
+
+SWEEP_KNOBS = ("bias_rate", "bias_noise_scale", "view_bias_rate", "base_noise")
+"""The axes: ``bias_rate`` sets both the instance and the class bias rate; ``base_noise``
+is the view noise of a near, frontal, fully visible segment (the rest grows from it)."""
+
+
+@dataclass(frozen=True)
+class SweepConfig:
+    """The grid: values per knob; ``design`` ``oat`` varies one knob at a time around the
+    first value of each (cheap), ``grid`` takes every combination."""
+
+    bias_rate: tuple[float, ...] = (0.3, 0.0)
+    bias_noise_scale: tuple[float, ...] = (1.0, 0.3)
+    view_bias_rate: tuple[float, ...] = (0.5, 0.0)
+    base_noise: tuple[float, ...] = (0.6, 0.3)
+    design: str = "oat"
+    """``oat`` (one at a time) or ``grid`` (full product)."""
+    bootstrap: int = 1000
+    """Scene-clustered bootstrap resamples of each interval."""
+    workers: int = 1
+    """Evaluation processes."""
+    measure: MeasureConfig = field(default_factory=MeasureConfig)
+    """Map settings (the encoder options' perception is replaced per setting)."""
+
+
+def sweep_settings(config: SweepConfig) -> list[dict[str, float]]:
+    """The settings of the sweep, each ``{knob: value}``, the centre first."""
+    values = {k: tuple(getattr(config, k)) for k in SWEEP_KNOBS}
+    if config.design == "grid":
+        return [
+            dict(zip(SWEEP_KNOBS, combo, strict=True))
+            for combo in itertools.product(*values.values())
+        ]
+    centre = {k: v[0] for k, v in values.items()}
+    out = [centre]
+    for knob, vals in values.items():
+        out += [{**centre, knob: v} for v in vals[1:]]
+    return out
+
+
+def _spec(setting: dict[str, float]) -> str:
+    parts = {
+        "instance_bias_rate": setting["bias_rate"],
+        "class_bias_rate": setting["bias_rate"],
+        "bias_noise_scale": setting["bias_noise_scale"],
+        "view_bias_rate": setting["view_bias_rate"],
+        "base_noise": setting["base_noise"],
+    }
+    return "default:" + ",".join(f"{k}={v:g}" for k, v in parts.items())
+
+
+def _tag(setting: dict[str, float]) -> str:
+    return "_".join(f"{k}{setting[k]:g}" for k in SWEEP_KNOBS)
+
+
+def run_sweep(
+    dataset: Path, out: Path, config: SweepConfig | None = None, *, progress: bool = True
+) -> pa.Table:
+    """Run every setting on ``dataset`` under ``out`` (stores per setting are kept, so a
+    re-run resumes) and write ``out/sweep.parquet`` and ``out/sweep.png``."""
+    from dataclasses import replace
+
+    from tqdm import tqdm
+
+    config = config or SweepConfig()
+    out = Path(out)
+    evaluation = EvalConfig(
+        strategies=("no_replan", "max_confidence", "max_entropy", "min_stderr", "min_pwkl"),
+        k_instances=tuple(sorted({k for _, _, k in PAPER_SETTINGS["instances"]})),
+        k_grid=tuple(sorted({k for _, _, k in PAPER_SETTINGS["grid"]})),
+        protocols=("instance",),
+        seeds=1,
+        bootstrap=0,
+    )
+    rows = []
+    settings = sweep_settings(config)
+    for setting in tqdm(settings, desc="sweep", unit="setting", disable=not progress):
+        here = out / _tag(setting)
+        measure = replace(
+            config.measure,
+            encoder_options=replace(config.measure.encoder_options, perception=_spec(setting)),
+        )
+        scenes = map_dataset(dataset, here, measure)
+        report = run_eval(scenes, evaluation, here / "eval", workers=config.workers, progress=False)
+        import pyarrow.parquet as pq
+
+        attempts = pq.read_table(here / "eval" / "attempts.parquet")
+        first = report.summary.filter(pc.equal(report.summary.column("strategy"), "no_replan"))
+        first_rate = {r["map"]: r["rate"] for r in first.to_pylist()}
+        table = headline_table(attempts, bootstrap=config.bootstrap)
+        for r in table.to_pylist():
+            if r["family"] != "pre-registered" or not r["baseline"].startswith("Max confidence"):
+                continue
+            rows.append(
+                {
+                    **setting,
+                    "map": r["map"],
+                    "protocol": r["protocol"],
+                    "measure": r["strategy"],
+                    "criterion": r["criterion"],
+                    "k": r["k"],
+                    "first_attempt": first_rate.get(r["map"], float("nan")),
+                    "max_confidence": r["baseline_rate"],
+                    "rate": r["rate"],
+                    "gain": r["diff"],
+                    "lo": r["lo"],
+                    "hi": r["hi"],
+                    "mcnemar_p": r["mcnemar_p"],
+                    "n_queries": r["n_queries"],
+                }
+            )
+    result = pa.Table.from_pylist(rows)
+    write_table_atomic(result, out / "sweep.parquet")
+    plot_sweep(result, out / "sweep.png", config)
+    return result
+
+
+def plot_sweep(table: pa.Table, path: Path, config: SweepConfig | None = None) -> Path:
+    """One panel per (map, knob): each measure's gain over max confidence (percentage points)
+    against the knob's value, the other knobs at the centre; 95% intervals as error bars."""
+    import matplotlib as mpl
+
+    mpl.use("Agg")
+    import matplotlib.pyplot as plt
+
+    config = config or SweepConfig()
+    rows = table.to_pylist()
+    maps = [m for m in ("instances", "grid") if any(r["map"] == m for r in rows)]
+    centre = {k: getattr(config, k)[0] for k in SWEEP_KNOBS}
+    colours = {"max_entropy": "tab:orange", "min_stderr": "tab:green", "min_pwkl": "tab:purple"}
+    fig, axes = plt.subplots(
+        len(maps), len(SWEEP_KNOBS), figsize=(14, 3.3 * len(maps)), squeeze=False, sharey="row"
+    )
+    for i, kind in enumerate(maps):
+        for j, knob in enumerate(SWEEP_KNOBS):
+            ax = axes[i][j]
+            others = [k for k in SWEEP_KNOBS if k != knob]
+            for measure, colour in colours.items():
+                pts = sorted(
+                    (r[knob], r["gain"], r["lo"], r["hi"])
+                    for r in rows
+                    if r["map"] == kind
+                    and r["measure"] == measure
+                    and all(np.isclose(r[o], centre[o]) for o in others)
+                )
+                if not pts:
+                    continue
+                x, y, lo, hi = (np.array(v, np.float64) for v in zip(*pts, strict=True))
+                err = np.stack([np.nan_to_num(y - lo), np.nan_to_num(hi - y)])
+                ax.errorbar(x, y, yerr=err, marker="o", capsize=3, color=colour, label=measure)
+            ax.axhline(0, color="black", linewidth=0.8)
+            ax.axvline(centre[knob], color="gray", linewidth=0.6, linestyle=":")
+            ax.set_xlabel(knob)
+            ax.grid(alpha=0.3)
+            if j == 0:
+                ax.set_ylabel(f"{kind}: gain over max conf. (pp)")
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="upper center", ncol=3, frameon=False)
+    fig.suptitle(
+        "When CARe helps: paired gain of each measure (paper's settings), 95% scene-clustered CI",
+        y=1.02,
+    )
+    fig.tight_layout()
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp.png")
+    fig.savefig(tmp, dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    tmp.replace(path)
+    return path
+
+
+def settings_of(values: Sequence[str]) -> dict[str, tuple[float, ...]]:
+    """``["bias_rate=0.1,0,0.3", ...]`` as ``{knob: values}`` (for the script's options)."""
+    out = {}
+    for item in values:
+        key, _, text = item.partition("=")
+        if key not in SWEEP_KNOBS:
+            msg = f"sweep knob {key!r}: choose from {', '.join(SWEEP_KNOBS)}"
+            raise ValueError(msg)
+        out[key] = tuple(float(v) for v in text.split(","))
+    return out
