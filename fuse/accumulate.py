@@ -52,8 +52,13 @@ class CandidateSums:
         text: (n, d) L2-normalised text embeddings of the vocabulary.
         scale: logit scale s of the class distributions.
         capacity: initial number of candidates allocated; grows on demand.
-        dtype: precision of the per-channel mean and M2 (float32; float64 for a reference).
         limit: most candidates this state will hold (growth never allocates beyond it).
+            Given, the tables are reserved at the limit at once: ``np.zeros`` of that size
+            is address space whose pages the kernel maps, zeroed, only when a row is first
+            written, so resident memory still follows the candidates seen, and the state
+            is never copied or re-zeroed as it grows (each growth step of a 79k-cell floor
+            took a stall of its own).
+        dtype: precision of the per-channel mean and M2 (float32; float64 for a reference).
     """
 
     def __init__(
@@ -77,12 +82,12 @@ class CandidateSums:
         d, n = self.dim, self.text.shape[0]
         self.num_classes = n
         cap = max(min(int(capacity), self.limit or int(capacity)), 1)
+        widths = ((2 * d, dtype), (2 * n, np.float64), (4, np.float64))
         # per candidate: [mu (d) | M2 (d)], [Pbar (n) | abar (n)], [W1, W2, views, C]
-        self._tables = (
-            np.zeros((cap, 2 * d), dtype),
-            np.zeros((cap, 2 * n), np.float64),
-            np.zeros((cap, 4), np.float64),
-        )
+        try:  # reserved up to the limit: zeroed pages the kernel maps on first touch
+            self._tables = tuple(np.zeros((self.limit or cap, w), t) for w, t in widths)
+        except MemoryError:  # address space refused: grow on demand instead
+            self._tables = tuple(np.zeros((cap, w), t) for w, t in widths)
 
     @classmethod
     def bytes_per_candidate(cls, dim: int, num_classes: int, dtype: type = np.float32) -> int:
@@ -184,12 +189,13 @@ class CandidateSums:
         m_old = old[:, 2]
         m_new = m_old + 1.0
         crow = classes[ids]
-        dP = np.subtract(P, crow[:, :n], dtype=np.float64)
-        da = np.subtract(a, crow[:, n:], dtype=np.float64)
+        # [P - Pbar | a - abar] in one float64 buffer, updated in place
+        delta = np.concatenate([P, a], axis=1, dtype=np.float64)
+        delta -= crow
         # co-moment: C += m_old / m_new * (P - Pbar) . (a - abar)
-        comoment = np.einsum("ij,ij->i", dP, da) * (m_old / m_new)
-        crow[:, :n] += (dP / m_new[:, None]).astype(classes.dtype)
-        crow[:, n:] += (da / m_new[:, None]).astype(classes.dtype)
+        comoment = np.einsum("ij,ij->i", delta[:, :n], delta[:, n:]) * (m_old / m_new)
+        delta /= m_new[:, None]
+        crow += delta
         index = torch.from_numpy(ids)
         torch.from_numpy(classes).index_copy_(0, index, torch.from_numpy(crow))
         old[:, 0] = w_new
