@@ -379,13 +379,13 @@ def _build_child(store: str, queue) -> None:
     # process's first Arrow -> NumPy conversion, whichever step makes it
     pa.array([0.0]).to_numpy()
     base = current_rss_mb()
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     path = build_grid(Path(store), GridConfig(stride=1, overwrite=True))
-    seconds = time.perf_counter() - t0
+    seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
     cells = pq.read_metadata(path).num_rows
     views = Path(store, "cell_views.parquet")
     samples = pq.read_metadata(views).num_rows
-    queue.put((seconds, cells, base, peak_rss_mb(), views.stat().st_size / 2**20, samples))
+    queue.put((seconds, cpu, cells, base, peak_rss_mb(), views.stat().st_size / 2**20, samples))
 
 
 def _build(store: Path) -> tuple:
@@ -405,8 +405,8 @@ def bench_end_to_end(num_frames: int, big_frames: int, workdir: Path, d: int = 5
 
     print(f"\n## care fuse grid end to end (640x480, stride 1, d={d}, 100 classes, 1 thread)")
     print(
-        "| store | views | occupied cells | samples/view | s | views/s | cell_views MB/view | "
-        "peak RSS MiB (before build) | peak KB/cell | load |"
+        "| store | views | occupied cells | samples/view | s (CPU s) | views/s (per CPU s) | "
+        "cell_views MB/view | peak RSS MiB (before build) | peak KB/cell | load |"
     )
     print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     runs = []
@@ -415,13 +415,17 @@ def bench_end_to_end(num_frames: int, big_frames: int, workdir: Path, d: int = 5
         if not (store / "meta.json").is_file():
             shutil.rmtree(store, ignore_errors=True)
             _write_store(store, frames, room, d, seed=2)
-        seconds, cells, base, peak, views_mb, samples = _build(store)
+        seconds, cpu, cells, base, peak, views_mb, samples = _build(store)
         runs.append((cells, peak))
         rate = frames / seconds
-        _target(f"views/s end to end, {label}", f"{rate:.1f}", ">= 30", rate >= 30)
+        _target(
+            f"views/s end to end, {label} ({samples / frames:,.0f} samples a view)",
+            f"{rate:.1f} ({frames / cpu:.1f} per CPU second)", ">= 30", rate >= 30,
+        )  # fmt: skip
         print(
-            f"| {label} | {frames} | {cells:,} | {samples / frames:,.0f} | {seconds:.1f} | "
-            f"{rate:.1f} | {views_mb / frames:.2f} | {peak:,.0f} ({base:,.0f}) | "
+            f"| {label} | {frames} | {cells:,} | {samples / frames:,.0f} | {seconds:.1f} "
+            f"({cpu:.1f}) | {rate:.1f} ({frames / cpu:.1f}) | {views_mb / frames:.2f} | "
+            f"{peak:,.0f} ({base:,.0f}) | "
             f"{(peak - base) * 1024 / cells:.1f} | {_load()} |"
         )
     (c1, p1), (c2, p2) = runs
