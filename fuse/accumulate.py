@@ -51,7 +51,8 @@ class CandidateSums:
         dim: feature dimension d.
         text: (n, d) L2-normalised text embeddings of the vocabulary.
         scale: logit scale s of the class distributions.
-        capacity: initial number of candidates allocated; grows on demand.
+        capacity: initial number of candidates allocated; grows on demand (without a
+            ``limit``, or where the limit's reservation was refused).
         limit: most candidates this state will hold (growth never allocates beyond it).
             Given, the tables are reserved at the limit at once: ``np.zeros`` of that size
             is address space whose pages the kernel maps, zeroed, only when a row is first
@@ -158,7 +159,7 @@ class CandidateSums:
         seen = old[:, 2] > 0
         fresh = np.flatnonzero(~seen)
         # rows are gathered and scattered by numpy's fancy indexing (numpy 2: 2-4x faster
-        # than torch's index_select_/index_copy_ on these row sizes, one thread)
+        # than torch's index_select/index_copy_ on these row sizes, one thread)
         if fresh.size:
             moments[ids[fresh], :d] = features[fresh]
         merge = np.flatnonzero(seen)
@@ -202,7 +203,8 @@ class CandidateSums:
 
     @property
     def nbytes(self) -> int:
-        """Bytes held by the state: O(capacity x (d + n)), independent of the views."""
+        """Bytes allocated for the state: O(capacity x (d + n)), independent of the views
+        (with a ``limit``, reserved: resident only as far as candidates were written)."""
         return sum(b.nbytes for b in self._tables)
 
     @property
