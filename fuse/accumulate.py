@@ -161,15 +161,20 @@ class CandidateSums:
         # rows are gathered and scattered by numpy's fancy indexing (numpy 2: 2-4x faster
         # than torch's index_select/index_copy_ on these row sizes, one thread)
         if fresh.size:
-            moments[ids[fresh], :d] = features[fresh]
+            moments[ids[fresh], :d] = features if fresh.size == ids.size else features[fresh]
         merge = np.flatnonzero(seen)
         if merge.size:  # torch: two fused multiply-adds on the gathered rows
-            rows = ids[merge]
+            every = merge.size == ids.size  # most views after the first few: no row copies
+            rows = ids if every else ids[merge]
             row = torch.from_numpy(moments[rows])
             mu, m2 = row[:, :d], row[:, d:]
-            delta = torch.from_numpy(np.asarray(features[merge], dtype=moments.dtype)) - mu
-            c_m2 = torch.from_numpy((share * w_old)[merge].astype(moments.dtype)[:, None])
-            c_mu = torch.from_numpy(share[merge].astype(moments.dtype)[:, None])
+            mine = np.asarray(features if every else features[merge], dtype=moments.dtype)
+            if not mine.flags.writeable:  # torch wraps writable arrays only (it reads it)
+                mine = mine.copy()
+            delta = torch.from_numpy(mine) - mu
+            c_m2 = (share * w_old).astype(moments.dtype)[:, None]
+            c_mu = share.astype(moments.dtype)[:, None]
+            c_m2, c_mu = (torch.from_numpy(c if every else c[merge]) for c in (c_m2, c_mu))
             m2.addcmul_(delta, delta * c_m2)
             mu.addcmul_(delta, c_mu)
             moments[rows] = row.numpy()
