@@ -1,4 +1,5 @@
-"""The one place that sizes thread pools: torch's and the BLAS libraries' (via threadpoolctl).
+"""The one place that sizes thread pools: torch's, the BLAS libraries' (via threadpoolctl)
+and Arrow's CPU pool (Parquet decoding).
 
 Left alone, torch and OpenBLAS each start one thread per core, and on a busy 2-core machine
 they fight each other and every other process: ``torch.index_add_`` of the grid's sums
@@ -16,7 +17,9 @@ views in separate processes. So every kind of work (:class:`Work`) has a thread 
 
 ``CARE_THREADS=<n>`` overrides every count (for a machine of your own; 0 = all cores).
 BLAS also decides the last bits of a float32 product by its thread count, so a fixed count
-keeps near-ties deterministic across workers (``evaluate.job``).
+keeps near-ties deterministic across workers (``evaluate.job``). Arrow decodes a Parquet
+row group's columns on its own pool (one thread per core): it is sized with the others, so
+"one thread" holds for reading the store too.
 """
 
 from __future__ import annotations
@@ -116,6 +119,16 @@ def _set(n: int) -> None:
     import scipy.linalg  # noqa: F401
 
     threadpool_limits(limits=n)  # not used as a context: stays in effect for the process
+    _set_arrow(n)
+
+
+def _set_arrow(n: int) -> int:
+    """Size Arrow's CPU pool; returns the previous size."""
+    import pyarrow
+
+    before = pyarrow.cpu_count()
+    pyarrow.set_cpu_count(n)
+    return before
 
 
 def use_threads(work: Work) -> int:
@@ -134,8 +147,10 @@ def threads_for(work: Work) -> Iterator[int]:
     n = thread_count(work)
     before = torch.get_num_threads()
     torch.set_num_threads(n)
+    arrow_before = _set_arrow(n)
     try:
         with threadpool_limits(limits=n):
             yield n
     finally:
         torch.set_num_threads(before)
+        _set_arrow(arrow_before)

@@ -13,6 +13,7 @@ pairs, not pixels x d. ``bench/fuse.py`` times it against a per-pixel loop.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -21,6 +22,9 @@ import torch
 from scipy import sparse
 
 from care.frames import Frame
+from care.threads import sync_torch
+
+sync_torch()  # the process's thread count, now that torch is here (care.threads)
 
 __all__ = ["CellIndex", "ViewSamples", "pack_cells", "unpack_cells", "view_samples"]
 
@@ -159,13 +163,15 @@ def _patch_of_pixel(height: int, width: int, fh: int, fw: int, stride: int) -> n
 
 def _world_cells(
     frame: Frame, stride: int, cell_size: float, z_min: float, z_max: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Kept pixels (flat index into the strided image), their depth, world height and cell.
+) -> tuple[np.ndarray | None, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Kept pixels (flat index into the strided image; None when every pixel is kept),
+    their depth, world height and cell.
 
     A pixel's world point is ``z * R (xn, yn, 1) + t`` with normalised image coordinates
     ``xn`` of its column and ``yn`` of its row, so each world axis is a depth-scaled ray plane
     built by broadcasting a column term and a row term: a few passes over the image instead
-    of an (N, 3) @ (3, 3) product. Height comes first so only pixels in the band go on.
+    of an (N, 3) @ (3, 3) product. Height comes first so only pixels in the band go on; a
+    view whose pixels all lie in the band (most views of a room) skips the gathers.
     """
     K = frame.K
     R, t = frame.cam_to_world[:3, :3], frame.cam_to_world[:3, 3]
@@ -173,25 +179,31 @@ def _world_cells(
     yn = (np.arange(0, frame.height, stride) - K[1, 2]) / K[1, 1]
 
     def ray(axis: int) -> np.ndarray:
-        return (R[axis, 0] * xn)[None, :] + (R[axis, 1] * yn + R[axis, 2])[:, None]
+        plane = (R[axis, 0] * xn)[None, :] + (R[axis, 1] * yn + R[axis, 2])[:, None]
+        return plane.reshape(-1)
 
-    depth = frame.depth_m[::stride, ::stride]
-    z_all = depth.astype(np.float64)
-    height_all = z_all * ray(2)
-    height_all += t[2]
-    # NaN depths fail both comparisons; +inf ones the second
-    keep = (depth > 0) & (depth < np.inf) & (height_all >= z_min) & (height_all <= z_max)
-    idx = np.flatnonzero(keep)
-    z = z_all.reshape(-1)[idx]
+    z = frame.depth_m[::stride, ::stride].astype(np.float64).reshape(-1)
+    height = z * ray(2)
+    height += t[2]
+    # NaN depths fail every comparison; an infinite one gives an infinite or NaN height,
+    # which only an infinite bound lets through
+    keep = height >= z_min
+    keep &= height <= z_max
+    keep &= z > 0
+    if not (np.isfinite(z_min) and np.isfinite(z_max)):
+        keep &= z < np.inf
+    idx = None if keep.all() else np.flatnonzero(keep)
+    if idx is not None:
+        z, height = z[idx], height[idx]
 
     def cell(axis: int) -> np.ndarray:
-        c = ray(axis).reshape(-1)[idx]
+        c = ray(axis) if idx is None else ray(axis)[idx]
         c *= z
         c += t[axis]
         c /= cell_size
         return np.floor(c, out=c).astype(np.int64)
 
-    return idx, z, height_all.reshape(-1)[idx], cell(0), cell(1)
+    return idx, z, height, cell(0), cell(1)
 
 
 def _runs(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -203,6 +215,14 @@ def _runs(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return starts, np.diff(starts, append=key.size)
 
 
+def _run_reduce(values: np.ndarray, lengths: np.ndarray, reduce: str) -> np.ndarray:
+    """``np.<reduce>.reduceat`` over consecutive runs of ``lengths`` (all > 0), by torch's
+    segment reduction: the same left-to-right order (the same bits), a third faster."""
+    return torch.segment_reduce(
+        torch.from_numpy(values), reduce, lengths=torch.from_numpy(lengths), unsafe=True
+    ).numpy()
+
+
 def _first_highest(
     height: np.ndarray, starts: np.ndarray, lengths: np.ndarray, run_cell: np.ndarray, k: int
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -211,30 +231,61 @@ def _first_highest(
     Works on runs: the maximum of each run, the first run of each cell reaching the cell's
     maximum, then a scan of those k runs only.
     """
-    run_top = np.maximum.reduceat(height, starts)
+    run_top = _run_reduce(height, lengths, "max")
     top_z = torch.full((k,), -torch.inf, dtype=torch.float64)
     top_z = top_z.scatter_reduce_(
         0, torch.from_numpy(run_cell), torch.from_numpy(run_top), "amax"
     ).numpy()
     reaching = np.flatnonzero(run_top == top_z[run_cell])
-    _, first = np.unique(run_cell[reaching], return_index=True)  # runs are in pixel order
-    best = reaching[first]  # (k,) one run per cell, cells in order
+    # (k,) the first reaching run of each cell (runs are in pixel order), cells in order
+    best = torch.full((k,), starts.size, dtype=torch.int64)
+    best = best.scatter_reduce_(
+        0, torch.from_numpy(run_cell[reaching]), torch.from_numpy(reaching), "amin"
+    ).numpy()
     lens = lengths[best]
     ends = np.cumsum(lens)
     seg = np.repeat(np.arange(k), lens)
     pixel = np.arange(ends[-1]) + np.repeat(starts[best] - (ends - lens), lens)
     hit = np.flatnonzero(height[pixel] == top_z[seg])
-    _, first_hit = np.unique(seg[hit], return_index=True)
+    # seg is sorted and every cell has a hit: the first hit of each is where seg changes
+    seg_hit = seg[hit]
+    first_hit = np.flatnonzero(np.r_[True, seg_hit[1:] != seg_hit[:-1]])
     return top_z, pixel[hit[first_hit]]
 
 
-def _mean_features(
-    pair_cell: np.ndarray,
-    pair_patch: np.ndarray,
-    count: np.ndarray,
+def _patch_counts(
+    run_cell: np.ndarray,
+    run_patch: np.ndarray,
+    lengths: np.ndarray,
     num_cells: int,
-    feature_map: np.ndarray,
-    text: np.ndarray | None,
+    num_patches: int,
+) -> sparse.csr_matrix:
+    """The sparse (cells x patches) matrix of pixel counts, from runs of equal (cell, patch).
+
+    scipy's COO -> CSR conversion sums the runs of one (cell, patch) pair and sorts each
+    row's patches (a counting sort by cell, then small per-row sorts): the same matrix as
+    ``np.unique`` of the pair keys, about three times faster.
+    """
+    counts = sparse.csr_matrix(
+        (lengths.astype(np.float32), (run_cell, run_patch)), shape=(num_cells, num_patches)
+    )
+    counts.sum_duplicates()
+    return counts
+
+
+def _as_float32(values: np.ndarray) -> np.ndarray:
+    """A contiguous float32 copy (or the array itself); float16 (the store's features) is
+    widened by torch, exactly and ten times faster than numpy's conversion."""
+    if values.dtype == np.float16:
+        with warnings.catch_warnings():  # a read-only map (the store's) is only read here
+            warnings.simplefilter("ignore", UserWarning)
+            source = torch.from_numpy(np.ascontiguousarray(values))
+        return source.to(torch.float32).numpy()
+    return np.ascontiguousarray(values, dtype=np.float32)
+
+
+def _mean_features(
+    counts: sparse.csr_matrix, feature_map: np.ndarray, text: np.ndarray | None
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """Per-cell normalised mean of the pixels' patch features, from (cell, patch) pixel counts.
 
@@ -245,14 +296,9 @@ def _mean_features(
     sum_p c_p (t . F_p) / ||sum_p c_p F_p||``, so the (k, n) logits cost
     (patches x d x n), not (k x d x n).
     """
-    fh, fw, d = feature_map.shape
-    num_patches = fh * fw
-    indptr = np.zeros(num_cells + 1, np.int64)
-    np.cumsum(np.bincount(pair_cell, minlength=num_cells), out=indptr[1:])
-    counts = sparse.csr_matrix(
-        (count.astype(np.float32), pair_patch, indptr), shape=(num_cells, num_patches)
-    )
-    flat = np.ascontiguousarray(feature_map, dtype=np.float32).reshape(num_patches, d)
+    num_cells, num_patches = counts.shape
+    d = feature_map.shape[-1]
+    flat = _as_float32(feature_map).reshape(num_patches, d)
     mean = counts @ flat
     norm = np.sqrt(np.einsum("ij,ij->i", mean, mean))[:, None]
     np.maximum(norm, 1e-12, out=norm)
@@ -292,7 +338,7 @@ def view_samples(
     """
     fh, fw, dim = feature_map.shape
     idx, z, height, ix, iy = _world_cells(frame, stride, cell_size, z_min, z_max)
-    if idx.size == 0:
+    if z.size == 0:
         return _empty(dim, None if text is None else len(text))
     lo_x, lo_y = ix.min(), iy.min()
     nx, ny = int(ix.max() - lo_x) + 1, int(iy.max() - lo_y) + 1
@@ -303,7 +349,8 @@ def view_samples(
     iy -= lo_y
     key += iy
     key *= num_patches
-    key += _patch_of_pixel(frame.height, frame.width, fh, fw, stride)[idx]
+    patch = _patch_of_pixel(frame.height, frame.width, fh, fw, stride)
+    key += patch if idx is None else patch[idx]
     starts, lengths = _runs(key)
     run_local, run_patch = np.divmod(key[starts], num_patches)
     local, run_cell = _compact(run_local, nx * ny)
@@ -313,15 +360,15 @@ def view_samples(
     if sigma_z is None:
         weight = num_pixels.astype(np.float32)
     else:
-        zf = z.astype(np.float32)
-        w = np.exp(np.square(zf, out=zf) * np.float32(-0.5 / sigma_z**2))
-        run_w = np.add.reduceat(w, starts, dtype=np.float64)
+        w = z.astype(np.float32)
+        np.square(w, out=w)
+        w *= np.float32(-0.5 / sigma_z**2)
+        np.exp(w, out=w)
+        run_w = _run_reduce(w.astype(np.float64), lengths, "sum")
         weight = np.bincount(run_cell, weights=run_w, minlength=k).astype(np.float32)
     top_z, top = _first_highest(height, starts, lengths, run_cell, k)
-    pairs, pair_of_run = _compact(run_cell * num_patches + run_patch, k * num_patches)
-    count = np.bincount(pair_of_run, weights=lengths, minlength=pairs.size)
-    pair_cell, pair_patch = np.divmod(pairs, num_patches)
-    feature, dots = _mean_features(pair_cell, pair_patch, count, k, feature_map, text)
+    counts = _patch_counts(run_cell, run_patch, lengths, k, num_patches)
+    feature, dots = _mean_features(counts, feature_map, text)
     rgb = frame.rgb[::stride, ::stride].reshape(-1, 3)
     return ViewSamples(
         keys=keys,
@@ -329,6 +376,6 @@ def view_samples(
         feature=feature,
         num_pixels=num_pixels,
         top_z=top_z.astype(np.float32),
-        top_rgb=rgb[idx[top]],
+        top_rgb=rgb[top if idx is None else idx[top]],
         dots=dots,
     )

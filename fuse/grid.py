@@ -50,6 +50,7 @@ from care.store import (
     SCHEMA_VERSION,
     Store,
     append_rows,
+    group_rows,
     open_writer,
     parquet_options,
     read_table,
@@ -204,6 +205,22 @@ def _views(store: Store, wanted: set[int] | None = None, desc: str = "fuse grid"
         yield view_id, frame, feature_map
 
 
+def _write_whole_groups(writer: pq.ParquetWriter, pending: list[pa.Table]) -> list[pa.Table]:
+    """Write the whole row groups ``pending`` holds; returns the rows left over.
+
+    A write as soon as a row group is full (a view of a large room fills one alone) keeps
+    the pass free of long stalls, and the groups are the same whatever the views' sizes.
+    """
+    rows = sum(t.num_rows for t in pending)
+    group = group_rows(pending[0])
+    if rows < group:
+        return pending
+    table = pa.concat_tables(pending)
+    whole = rows - rows % group
+    append_rows(writer, table.slice(0, whole))
+    return [table.slice(whole)] if whole < rows else []
+
+
 def _fuse_views(
     store: Store, config: GridConfig, sums: CandidateSums, views_path: Path, capacity: int
 ) -> _FirstPass:
@@ -227,9 +244,7 @@ def _fuse_views(
                 sums.add(ids, samples.weight, samples.feature, samples.dots)
             layers.add(ids, samples)
             pending.append(_view_rows(view_id, ids, samples))
-            if len(pending) >= 16:
-                append_rows(writer, pa.concat_tables(pending))
-                pending.clear()
+            pending = _write_whole_groups(writer, pending)
         if pending:
             append_rows(writer, pa.concat_tables(pending))
     return _FirstPass(index, layers, later, sums)

@@ -1,4 +1,5 @@
-"""care.threads sets torch's and BLAS's pools in a fresh worker process, as every entry point does."""
+"""care.threads sets torch's, BLAS's and Arrow's pools in a fresh worker process, as every
+entry point does."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from care.threads import THREADS, Work, thread_count
 
 def _pools_in_worker(kind: str, queue) -> None:  # runs in a spawned process
     import numpy as np
+    import pyarrow as pa
     import torch
     from threadpoolctl import threadpool_info
 
@@ -21,9 +23,11 @@ def _pools_in_worker(kind: str, queue) -> None:  # runs in a spawned process
     set_to = use_threads(Work(kind))
     blas = [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"]
     inside = None
+    arrow = pa.cpu_count()
     with threads_for(Work.ENCODE) as n:
-        inside = (n, torch.get_num_threads())
-    queue.put((set_to, torch.get_num_threads(), blas, inside, torch.get_num_threads()))
+        inside = (n, torch.get_num_threads(), pa.cpu_count())
+    after = (torch.get_num_threads(), pa.cpu_count())
+    queue.put((set_to, torch.get_num_threads(), blas, arrow, inside, after))
 
 
 def _run(kind: Work, env: dict[str, str] | None = None) -> tuple:
@@ -45,18 +49,21 @@ def _run(kind: Work, env: dict[str, str] | None = None) -> tuple:
 
 
 def test_worker_pools_follow_the_kind_of_work() -> None:
-    set_to, torch_threads, blas, (encode_n, encode_torch), after = _run(Work.FUSE)
+    set_to, torch_threads, blas, arrow, (encode_n, encode_torch, encode_arrow), after = _run(
+        Work.FUSE
+    )
     assert set_to == THREADS[Work.FUSE] == 1
     assert torch_threads == 1
     assert blas
     assert all(n == 1 for n in blas)
-    assert encode_torch == encode_n >= 1  # the encoder's block gets every core...
-    assert after == 1  # ...and gives them back
+    assert arrow == 1  # Parquet decoding too
+    assert encode_torch == encode_arrow == encode_n >= 1  # the encoder's block gets every core...
+    assert after == (1, 1)  # ...and gives them back
 
 
 def test_environment_overrides_every_count(monkeypatch: pytest.MonkeyPatch) -> None:
-    set_to, torch_threads, blas, _, _ = _run(Work.FUSE, {"CARE_THREADS": "2"})
-    assert set_to == torch_threads == 2
+    set_to, torch_threads, blas, arrow, _, _ = _run(Work.FUSE, {"CARE_THREADS": "2"})
+    assert set_to == torch_threads == arrow == 2
     assert all(n == 2 for n in blas)
     monkeypatch.setenv("CARE_THREADS", "many")
     with pytest.raises(CareError, match="CARE_THREADS"):
