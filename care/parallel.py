@@ -11,16 +11,18 @@ their arguments, so the outputs are the same, bit for bit, whichever runner ran 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import socket
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from concurrent.futures import Executor, ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
 from care.errors import CareError
 
-__all__ = ["RAY_HOOK", "Runner", "ray_runtime_env", "run_tasks", "setup_worker"]
+__all__ = ["RAY_HOOK", "Runner", "open_runner", "ray_runtime_env", "run_tasks", "setup_worker"]
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -59,6 +61,8 @@ class Runner:
     """CPUs a Ray task declares."""
     memory: int | None = None
     """Bytes of memory a Ray task declares (None: none, Ray's default)."""
+    executor: Executor | None = field(default=None, compare=False, repr=False)
+    """A process pool kept up across :func:`run_tasks` calls (:func:`open_runner`)."""
 
     @property
     def uses_ray(self) -> bool:
@@ -72,6 +76,25 @@ class Runner:
         if self.uses_ray:
             return f"Ray at {self.address}" if self.address else "local Ray"
         return "serial" if self.workers <= 1 else f"{self.workers} processes"
+
+
+@contextlib.contextmanager
+def open_runner(runner: Runner) -> Iterator[Runner]:
+    """``runner`` with its process pool started once for every :func:`run_tasks` inside the
+    block (a dataset's recordings, then its evaluation): the workers' start-up, imports
+    included, is paid once."""
+    if runner.uses_ray or runner.workers <= 1 or runner.executor is not None:
+        yield runner
+        return
+    with _pool(runner.workers) as pool:
+        yield replace(runner, executor=pool)
+
+
+def _pool(workers: int) -> ProcessPoolExecutor:
+    import multiprocessing as mp
+
+    context = mp.get_context("spawn")  # no copy of the parent's threads and locks
+    return ProcessPoolExecutor(workers, mp_context=context, initializer=setup_worker)
 
 
 def ray_runtime_env() -> dict[str, Any]:
@@ -88,22 +111,20 @@ def run_tasks(fn: Callable[[T], R], items: Sequence[T], runner: Runner) -> Itera
     """
     if runner.uses_ray:
         yield from _run_ray(fn, items, runner)
+    elif runner.executor is not None:
+        yield from _run_pool(fn, items, runner.executor)
     elif runner.workers <= 1 or len(items) <= 1:
         for item in items:
             yield item, fn(item)
     else:
-        yield from _run_pool(fn, items, runner.workers)
+        with _pool(runner.workers) as pool:
+            yield from _run_pool(fn, items, pool)
 
 
-def _run_pool(fn: Callable[[T], R], items: Sequence[T], workers: int) -> Iterator[tuple[T, R]]:
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-
-    context = mp.get_context("spawn")  # no copy of the parent's threads and locks
-    with ProcessPoolExecutor(workers, mp_context=context, initializer=setup_worker) as pool:
-        futures = {pool.submit(fn, item): item for item in items}
-        for future in as_completed(futures):
-            yield futures[future], future.result()
+def _run_pool(fn: Callable[[T], R], items: Sequence[T], pool: Executor) -> Iterator[tuple[T, R]]:
+    futures = {pool.submit(fn, item): item for item in items}
+    for future in as_completed(futures):
+        yield futures[future], future.result()
 
 
 def _ray(runner: Runner) -> Any:
