@@ -22,7 +22,15 @@ from typing import Any, TypeVar
 
 from care.errors import CareError
 
-__all__ = ["RAY_HOOK", "Runner", "open_runner", "ray_runtime_env", "run_tasks", "setup_worker"]
+__all__ = [
+    "RAY_HOOK",
+    "Runner",
+    "open_runner",
+    "openmp_threads",
+    "ray_runtime_env",
+    "run_tasks",
+    "setup_worker",
+]
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -97,10 +105,30 @@ def _pool(workers: int) -> ProcessPoolExecutor:
     return ProcessPoolExecutor(workers, mp_context=context, initializer=setup_worker)
 
 
+def openmp_threads() -> str:
+    """The OpenMP thread count of this process (``OMP_NUM_THREADS``, else one per core).
+
+    open3d's RANSAC (the map frame's floor, the proposals' structure planes) runs on an
+    OpenMP pool that threadpoolctl cannot reach, and its planes depend on the pool's size.
+    Ray starts its workers with ``OMP_NUM_THREADS=<task CPUs>``; the driver's count travels
+    with the tasks instead, so a Ray worker fits the same planes as this process and a pool
+    worker (which inherit it), and the maps are the same bytes.
+    """
+    found = os.environ.get("OMP_NUM_THREADS", "").strip()
+    if found:
+        return found
+    try:
+        return str(max(1, len(os.sched_getaffinity(0))))
+    except AttributeError:  # not Linux
+        return str(max(1, os.cpu_count() or 1))
+
+
 def ray_runtime_env() -> dict[str, Any]:
-    """The runtime environment of our Ray tasks: the set-up hook, and the packages' path."""
+    """The runtime environment of our Ray tasks: the set-up hook, the packages' path, and
+    this process's OpenMP thread count (:func:`openmp_threads`)."""
     path = os.pathsep.join(p for p in (str(_ROOT), os.environ.get("PYTHONPATH", "")) if p)
-    return {"worker_process_setup_hook": RAY_HOOK, "env_vars": {"PYTHONPATH": path}}
+    env = {"PYTHONPATH": path, "OMP_NUM_THREADS": openmp_threads()}
+    return {"worker_process_setup_hook": RAY_HOOK, "env_vars": env}
 
 
 def run_tasks(fn: Callable[[T], R], items: Sequence[T], runner: Runner) -> Iterator[tuple[T, R]]:
