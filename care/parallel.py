@@ -11,16 +11,26 @@ their arguments, so the outputs are the same, bit for bit, whichever runner ran 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import socket
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from concurrent.futures import Executor, ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
 from care.errors import CareError
 
-__all__ = ["RAY_HOOK", "Runner", "ray_runtime_env", "run_tasks", "setup_worker"]
+__all__ = [
+    "RAY_HOOK",
+    "Runner",
+    "open_runner",
+    "openmp_threads",
+    "ray_runtime_env",
+    "run_tasks",
+    "setup_worker",
+]
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -59,6 +69,8 @@ class Runner:
     """CPUs a Ray task declares."""
     memory: int | None = None
     """Bytes of memory a Ray task declares (None: none, Ray's default)."""
+    executor: Executor | None = field(default=None, compare=False, repr=False)
+    """A process pool kept up across :func:`run_tasks` calls (:func:`open_runner`)."""
 
     @property
     def uses_ray(self) -> bool:
@@ -74,10 +86,49 @@ class Runner:
         return "serial" if self.workers <= 1 else f"{self.workers} processes"
 
 
+@contextlib.contextmanager
+def open_runner(runner: Runner) -> Iterator[Runner]:
+    """``runner`` with its process pool started once for every :func:`run_tasks` inside the
+    block (a dataset's recordings, then its evaluation): the workers' start-up, imports
+    included, is paid once."""
+    if runner.uses_ray or runner.workers <= 1 or runner.executor is not None:
+        yield runner
+        return
+    with _pool(runner.workers) as pool:
+        yield replace(runner, executor=pool)
+
+
+def _pool(workers: int) -> ProcessPoolExecutor:
+    import multiprocessing as mp
+
+    context = mp.get_context("spawn")  # no copy of the parent's threads and locks
+    return ProcessPoolExecutor(workers, mp_context=context, initializer=setup_worker)
+
+
+def openmp_threads() -> str:
+    """The OpenMP thread count of this process (``OMP_NUM_THREADS``, else one per core).
+
+    open3d's RANSAC (the map frame's floor, the proposals' structure planes) runs on an
+    OpenMP pool that threadpoolctl cannot reach, and its planes depend on the pool's size.
+    Ray starts its workers with ``OMP_NUM_THREADS=<task CPUs>``; the driver's count travels
+    with the tasks instead, so a Ray worker fits the same planes as this process and a pool
+    worker (which inherit it), and the maps are the same bytes.
+    """
+    found = os.environ.get("OMP_NUM_THREADS", "").strip()
+    if found:
+        return found
+    try:
+        return str(max(1, len(os.sched_getaffinity(0))))
+    except AttributeError:  # not Linux
+        return str(max(1, os.cpu_count() or 1))
+
+
 def ray_runtime_env() -> dict[str, Any]:
-    """The runtime environment of our Ray tasks: the set-up hook, and the packages' path."""
+    """The runtime environment of our Ray tasks: the set-up hook, the packages' path, and
+    this process's OpenMP thread count (:func:`openmp_threads`)."""
     path = os.pathsep.join(p for p in (str(_ROOT), os.environ.get("PYTHONPATH", "")) if p)
-    return {"worker_process_setup_hook": RAY_HOOK, "env_vars": {"PYTHONPATH": path}}
+    env = {"PYTHONPATH": path, "OMP_NUM_THREADS": openmp_threads()}
+    return {"worker_process_setup_hook": RAY_HOOK, "env_vars": env}
 
 
 def run_tasks(fn: Callable[[T], R], items: Sequence[T], runner: Runner) -> Iterator[tuple[T, R]]:
@@ -88,22 +139,20 @@ def run_tasks(fn: Callable[[T], R], items: Sequence[T], runner: Runner) -> Itera
     """
     if runner.uses_ray:
         yield from _run_ray(fn, items, runner)
+    elif runner.executor is not None:
+        yield from _run_pool(fn, items, runner.executor)
     elif runner.workers <= 1 or len(items) <= 1:
         for item in items:
             yield item, fn(item)
     else:
-        yield from _run_pool(fn, items, runner.workers)
+        with _pool(runner.workers) as pool:
+            yield from _run_pool(fn, items, pool)
 
 
-def _run_pool(fn: Callable[[T], R], items: Sequence[T], workers: int) -> Iterator[tuple[T, R]]:
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-
-    context = mp.get_context("spawn")  # no copy of the parent's threads and locks
-    with ProcessPoolExecutor(workers, mp_context=context, initializer=setup_worker) as pool:
-        futures = {pool.submit(fn, item): item for item in items}
-        for future in as_completed(futures):
-            yield futures[future], future.result()
+def _run_pool(fn: Callable[[T], R], items: Sequence[T], pool: Executor) -> Iterator[tuple[T, R]]:
+    futures = {pool.submit(fn, item): item for item in items}
+    for future in as_completed(futures):
+        yield futures[future], future.result()
 
 
 def _ray(runner: Runner) -> Any:

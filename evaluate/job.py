@@ -372,6 +372,7 @@ def run_scenes(
     workers: int | None = None,
     ray_address: str | bool | None = None,
     progress: bool = True,
+    runner: Runner | None = None,
 ) -> pa.Table:
     """Evaluate every scene not cached under ``out/scenes``; return all attempt rows.
 
@@ -385,7 +386,7 @@ def run_scenes(
         msg = f"scene names must be unique, got {sorted(n for n in names if names.count(n) > 1)}"
         raise EvalError(msg)
     todo = [s for s in scenes if not _cached(out, s, config)]
-    runner = Runner(workers=workers or os.cpu_count() or 1, ray_address=ray_address)
+    runner = runner or Runner(workers=workers or os.cpu_count() or 1, ray_address=ray_address)
     results = run_tasks(_SceneTask(config), todo, runner)
     for scene, table in tqdm(results, total=len(todo), desc="scenes", disable=not progress):
         md = {
@@ -492,6 +493,7 @@ def run_eval(
     progress: bool = True,
     gt: Sequence[Path] = (),
     gt_defaults: GtSource | None = None,
+    runner: Runner | None = None,
 ) -> Report:
     """Evaluate a dataset (see :func:`scenes_of`) and write every output under ``out``.
 
@@ -502,8 +504,9 @@ def run_eval(
     out = Path(out)
     with evaluation_output(out, [s.store for s in scenes]):
         attempts = run_scenes(
-            scenes, config, out, workers=workers, ray_address=ray_address, progress=progress
-        )
+            scenes, config, out, workers=workers, ray_address=ray_address, progress=progress,
+            runner=runner,
+        )  # fmt: skip
         ks = {kind: config.ks(kind) for kind in MAP_TABLES}
         header = describe(config, scenes, attempts)
         dropped = {name: classes for name, classes in left_out.items() if classes}

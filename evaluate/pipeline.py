@@ -21,7 +21,7 @@ from tqdm import tqdm
 
 from care.errors import CareError, EvalError
 from care.outputs import owned_output
-from care.parallel import Runner, run_tasks
+from care.parallel import Runner, open_runner, run_tasks
 from evaluate.api import evaluate
 from evaluate.config import RunConfig
 from evaluate.groundtruth import GtSource
@@ -236,20 +236,20 @@ def run_all(source: Path | None, out: Path, config: RunConfig | None = None) -> 
             RecordingTask(name, Path(rec), out, config, progress=config.progress and serial)
             for name, rec in recordings
         ]
-        outcomes = map_recordings(tasks, runner, progress=config.progress and not serial)
-        failed = tuple((n, o.error) for n, o in outcomes.items() if o.error is not None)
-        done = [(n, r) for n, r in recordings if outcomes[n].error is None]
-        scenes = [plan for (n, _), (plan, has) in zip(recordings, planned, strict=True)
-                  if has and outcomes[n].error is None]  # fmt: skip
-        unevaluated = [n for (n, _), (_, has) in zip(recordings, planned, strict=True)
-                       if not has and outcomes[n].error is None]  # fmt: skip
-        report, attempts = None, None
-        if scenes:
-            report = evaluate(
-                scenes, config.evaluation, out / "eval",
-                workers=runner.workers, ray_address=config.ray_address, progress=config.progress,
-            )  # fmt: skip
-            attempts = pq.read_table(out / "eval" / "attempts.parquet")
+        with open_runner(runner) as live:  # one pool for the recordings and the evaluation
+            outcomes = map_recordings(tasks, live, progress=config.progress and not serial)
+            failed = tuple((n, o.error) for n, o in outcomes.items() if o.error is not None)
+            done = [(n, r) for n, r in recordings if outcomes[n].error is None]
+            scenes = [plan for (n, _), (plan, has) in zip(recordings, planned, strict=True)
+                      if has and outcomes[n].error is None]  # fmt: skip
+            unevaluated = [n for (n, _), (_, has) in zip(recordings, planned, strict=True)
+                           if not has and outcomes[n].error is None]  # fmt: skip
+            report, attempts = None, None
+            if scenes:
+                report = evaluate(
+                    scenes, config.evaluation, out / "eval", progress=config.progress, runner=live
+                )
+                attempts = pq.read_table(out / "eval" / "attempts.parquet")
         evaluated = {scene.name: scene for scene in scenes}
         rrds: list[Path] = []
         for name, _ in done:

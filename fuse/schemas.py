@@ -19,6 +19,7 @@ __all__ = [
     "GRID_FIELDS",
     "INSTANCE_FIELDS",
     "MAP_SCHEMAS",
+    "QUERY_COLUMNS",
     "schema_problems",
 ]
 
@@ -64,18 +65,32 @@ MAP_SCHEMAS: dict[str, pa.Schema] = {
     "grid": pa.schema([*CANDIDATE_FIELDS, *GRID_FIELDS]),
     "instances": pa.schema([*CANDIDATE_FIELDS, *INSTANCE_FIELDS]),
 }
-"""Map kind -> the declared schema of its main table."""
+"""Map kind -> the declared schema of its main table (what the writers must give)."""
+
+_QUERIED = ("candidate_id", "num_views", "feature", "log_norm", "top_classes", "entropy",
+            "stderr", "pwkl")  # fmt: skip
+QUERY_COLUMNS: dict[str, tuple[str, ...]] = {
+    "grid": (*_QUERIED, "x", "y", "z_max"),
+    "instances": (*_QUERIED, "center", "point_indices"),
+}
+"""Map kind -> the declared columns a query reads (:func:`query.map.map_from_table`)."""
+assert all(set(QUERY_COLUMNS[k]) <= set(MAP_SCHEMAS[k].names) for k in MAP_SCHEMAS)
 
 
-def schema_problems(schema: pa.Schema, kind: str, where: Path) -> str | None:
+def schema_problems(
+    schema: pa.Schema, kind: str, where: Path, *, columns: tuple[str, ...] | None = None
+) -> str | None:
     """What ``schema`` lacks or types otherwise than the ``kind`` map declares (None: all
-    there; extra columns are allowed)."""
+    there; extra columns are allowed). ``columns``: only those, by name (a reader's
+    check: a fixed or variable-length list reads the same)."""
     wrong = []
     for field in MAP_SCHEMAS[kind]:
+        if columns is not None and field.name not in columns:
+            continue
         index = schema.get_field_index(field.name)
         if index < 0:
             wrong.append(f"{field.name} missing")
-        elif not schema.field(index).type.equals(field.type):
+        elif columns is None and not schema.field(index).type.equals(field.type):
             wrong.append(f"{field.name} is {schema.field(index).type}, not {field.type}")
     if not wrong:
         return None

@@ -22,7 +22,7 @@ import pyarrow as pa
 
 from care.errors import QueryError
 from care.store import read_schema, read_table
-from fuse.schemas import schema_problems
+from fuse.schemas import QUERY_COLUMNS, schema_problems
 from fuse.sidecar import read_sidecar
 
 __all__ = [
@@ -415,7 +415,7 @@ def load_map(
         raise QueryError(msg)
     path = store / f"{MAP_TABLES[kind]}.parquet"
     schema = read_schema(path)
-    problem = schema_problems(schema, kind, path)
+    problem = schema_problems(schema, kind, path, columns=QUERY_COLUMNS[kind])
     if problem is not None:
         msg = f"{problem}; rebuild it with `care fuse {kind} {store} --overwrite`"
         raise QueryError(msg)

@@ -1,6 +1,6 @@
 """``care run`` on a small dataset gives the same bytes serially, in a process pool, on a
 local Ray and on a two-node Ray cluster started with ``ray start``; a failing recording is
-one line and the others complete; a re-run redoes nothing."""
+one line and the others complete; a re-run, even of a moved dataset, redoes nothing."""
 
 from __future__ import annotations
 
@@ -102,11 +102,16 @@ def _cluster_run(dataset: Path, out: Path) -> subprocess.CompletedProcess[str]:
 
 
 @pytest.fixture(scope="module")
-def serial(dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, bytes]:
-    """The outputs of a serial run: what every other way must give, byte for byte."""
-    out = tmp_path_factory.mktemp("serial")
+def serial_run(dataset: Path) -> Path:
+    """A serial run beside the dataset: what every other way must give, byte for byte."""
+    out = dataset.parent / "serial"
     run_all(dataset, out, replace(CONFIG, workers=1))
-    outputs = _outputs(out)
+    return out
+
+
+@pytest.fixture(scope="module")
+def serial(serial_run: Path) -> dict[str, bytes]:
+    outputs = _outputs(serial_run)
     assert any(name.endswith("cells.parquet") for name in outputs)
     assert any(name.endswith("instances.parquet") for name in outputs)
     return outputs
@@ -117,21 +122,37 @@ def _differences(expected: dict[str, bytes], out: Path) -> list[str]:
     return sorted(set(got) ^ set(expected)) + [k for k in expected if got.get(k) != expected[k]]
 
 
+@pytest.mark.slow
 def test_same_bytes_serial_pool_and_local_ray(
-    dataset: Path, serial: dict[str, bytes], tmp_path: Path, ray_session: object
+    dataset: Path, serial: dict[str, bytes], ray_session: object
 ) -> None:
-    run_all(dataset, tmp_path / "pool", replace(CONFIG, workers=2))
-    assert _differences(serial, tmp_path / "pool") == []
-    run_all(dataset, tmp_path / "ray", replace(CONFIG, ray_address=True))  # the shared session
-    assert _differences(serial, tmp_path / "ray") == []
+    # beside the serial run: a store names its recording relative to itself
+    run_all(dataset, dataset.parent / "pool", replace(CONFIG, workers=2))
+    assert _differences(serial, dataset.parent / "pool") == []
+    run_all(dataset, dataset.parent / "ray", replace(CONFIG, ray_address=True))  # shared session
+    assert _differences(serial, dataset.parent / "ray") == []
 
 
-def test_same_bytes_on_a_two_node_cluster(
-    dataset: Path, serial: dict[str, bytes], tmp_path: Path
-) -> None:
-    done = _cluster_run(dataset, tmp_path / "cluster")
+@pytest.mark.slow
+def test_same_bytes_on_a_two_node_cluster(dataset: Path, serial: dict[str, bytes]) -> None:
+    done = _cluster_run(dataset, dataset.parent / "cluster")
     assert done.returncode == 0, done.stderr[-2000:]
-    assert _differences(serial, tmp_path / "cluster") == []
+    assert _differences(serial, dataset.parent / "cluster") == []
+
+
+def test_moved_dataset_and_outputs_are_current(serial_run: Path, tmp_path: Path) -> None:
+    """The dataset and the run's outputs copied to another directory (as to another
+    machine): nothing is rebuilt or re-evaluated, and the bytes are the same."""
+    moved = tmp_path / "elsewhere"
+    others = shutil.ignore_patterns("*.rrd", "pool", "ray", "cluster")  # the other tests' runs
+    shutil.copytree(serial_run.parent, moved, ignore=others)
+    out = moved / serial_run.name
+    kept = [*(out / "stores").rglob("*.parquet"), *(out / "eval" / "scenes").glob("*.parquet")]
+    made = {p: p.stat().st_mtime_ns for p in kept}  # stores, maps, cached scene results
+    run_all(moved / "data", out, replace(CONFIG, workers=1))
+    assert {p: p.stat().st_mtime_ns for p in made} == made
+    stores = "\n".join(p.read_text() for p in (out / "stores").glob("*/*.json"))
+    assert str(serial_run.parent) not in stores  # no absolute path of the old place
 
 
 def test_failing_recording_is_one_line_and_the_others_complete(
@@ -153,8 +174,15 @@ def test_failing_recording_is_one_line_and_the_others_complete(
     assert (out / "stores" / "good" / "instances.parquet").is_file()
     assert not (out / "stores" / "broken" / "meta.json").exists()
 
-    # resumable: the finished store and its maps are not redone
-    stamps = {p: p.stat().st_mtime_ns for p in (out / "stores" / "good").glob("*.parquet")}
-    code, _, _ = run_cli("run", folder, "--out", out, "--seeds", "1", "--no-rrd-ingest")
-    assert code == 1
-    assert {p: p.stat().st_mtime_ns for p in stamps} == stamps
+
+def test_workers_start_with_the_process_settings(ray_session: object) -> None:
+    """Pool and Ray workers run :func:`care.parallel.setup_worker` (its last step hides the
+    workers' own progress bars), the driver does not."""
+    from care.parallel import Runner, openmp_threads, run_tasks
+
+    for runner in (Runner(workers=2), Runner(ray_address=True)):
+        got = dict(run_tasks(os.getenv, ["TQDM_DISABLE", "OMP_NUM_THREADS"], runner))
+        # and the driver's OpenMP pool size (open3d's RANSAC planes depend on it), which
+        # Ray would otherwise set to the task's CPUs
+        assert got == {"TQDM_DISABLE": "1", "OMP_NUM_THREADS": openmp_threads()}, runner
+    assert os.environ.get("TQDM_DISABLE") is None
