@@ -87,7 +87,8 @@ class CandidateSums:
         # per candidate: [mu (d) | M2 (d)], [Pbar (n) | abar (n)], [W1, W2, views, C]
         try:  # reserved up to the limit: zeroed pages the kernel maps on first touch
             self._tables = tuple(np.zeros((self.limit or cap, w), t) for w, t in widths)
-        except MemoryError:  # address space refused: grow on demand instead
+        except (MemoryError, ValueError):  # address space refused (or beyond numpy's
+            # largest array, for a budget of exabytes): grow on demand instead
             self._tables = tuple(np.zeros((cap, w), t) for w, t in widths)
 
     @classmethod

@@ -242,6 +242,24 @@ def test_float32_state_exact_where_views_agree() -> None:
     assert np.max(np.abs(naive / sums.stderr() - 1)) > 0.1
 
 
+@pytest.mark.parametrize("limit", [50, 10**12, 10**17])
+def test_candidate_sums_reserved_or_grown_give_the_same_state(limit: int) -> None:
+    """A limit reserves the state at once (10**12 and 10**17 rows are refused: it grows
+    instead); the state is the same as grown from a small capacity."""
+    rng = np.random.default_rng(8)
+    text = _unit(rng, 7, 16)
+    grown = CandidateSums(16, text, 30.0, capacity=2)
+    reserved = CandidateSums(16, text, 30.0, limit=limit)
+    for _ in range(6):
+        ids = rng.choice(50, 20, replace=False)
+        w, f = rng.uniform(0.1, 1.0, 20), _unit(rng, 20, 16).astype(np.float32)
+        grown.add(ids, w, f)
+        reserved.add(ids, w, f)
+    assert reserved.size == grown.size
+    for a, b in zip(grown._tables, reserved._tables, strict=True):
+        np.testing.assert_array_equal(a[: grown.size], b[: grown.size])
+
+
 def test_candidate_sums_state_size() -> None:
     """At most ~6 KB of streaming state per cell at d = 512, n = 100 (issue 14)."""
     assert CandidateSums.bytes_per_candidate(512, 100) <= 6 * 1024
