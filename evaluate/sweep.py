@@ -189,10 +189,12 @@ def plot_sweep(table: pa.Table, path: Path, config: SweepConfig | None = None) -
             if j == 0:
                 ax.set_ylabel(f"{kind}: gain over max conf. (pp)")
     handles, labels = axes[0][0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="upper center", ncol=3, frameon=False)
+    fig.legend(
+        handles, labels, loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=3, frameon=False
+    )
     fig.suptitle(
         "When CARe helps: paired gain of each measure (paper's settings), 95% scene-clustered CI",
-        y=1.02,
+        y=1.06,
     )
     fig.tight_layout()
     path = Path(path)

@@ -9,9 +9,9 @@
    (copy it to ``docs/sweep.png``).
 
 Every step skips what is already done, so an interrupted run resumes. Run it with
-``nice``: it takes about an hour on two busy cores with the default sizes.
+``nice``: about 45 minutes on two busy cores with the default sizes.
 
-    python scripts/reproduce.py OUT [--scenes 6] [--sweep-scenes 2] [--seeds 20 77]
+    python scripts/reproduce.py OUT [--scenes 4] [--sweep-scenes 2] [--seeds 20 77]
 """
 
 from __future__ import annotations
@@ -90,7 +90,7 @@ def section(datasets: dict[int, Path], sweep_png: Path) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("out", type=Path)
-    parser.add_argument("--scenes", type=int, default=6)
+    parser.add_argument("--scenes", type=int, default=4)
     parser.add_argument("--sweep-scenes", type=int, default=2)
     parser.add_argument("--seeds", type=int, nargs="+", default=[20, 77])
     parser.add_argument("--no-sweep", action="store_true")

@@ -8,8 +8,9 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 
+from care.encoders import EncoderOptions
 from care.threads import ENV_VAR, Work, use_threads
-from evaluate.dataset_stats import map_dataset
+from evaluate.dataset_stats import MeasureConfig, map_dataset
 from evaluate.job import EvalConfig, run_eval
 from world.presets import PRESETS, WorldPreset
 from world.record import DatasetConfig, make_dataset
@@ -30,13 +31,14 @@ def test_one_and_two_threads_give_identical_results(
         strategies=("no_replan", "max_confidence", "min_stderr", "largest"),
         k_instances=(2,), k_grid=(4,), seeds=1, bootstrap=50,
     )  # fmt: skip
+    hashed = MeasureConfig(encoder_options=EncoderOptions(weights="hashed"))  # no model load
     results = []
     try:
         for n in (1, 2):
             monkeypatch.setenv(ENV_VAR, str(n))
             use_threads(Work.DEFAULT)
             out = tmp_path / f"threads{n}"
-            scenes = map_dataset(dataset, out)
+            scenes = map_dataset(dataset, out, hashed)
             run_eval(scenes, evaluation, out / "eval", workers=1, progress=False)
             store = out / "stores" / "scene_000"
             tables = {
