@@ -175,14 +175,10 @@ def _ray(runner: Runner) -> Any:
 
 def _run_ray(fn: Callable[[T], R], items: Sequence[T], runner: Runner) -> Iterator[tuple[T, R]]:
     ray = _ray(runner)
-    # max_calls=1: every task in a fresh worker process. A reused worker carried state from
-    # its earlier tasks into a later map: one scene's instance map in eight differed from
-    # the serial run's (bench/dataset.py), while the same task alone in a fresh worker gave
-    # the serial bytes; the start-up is small beside a recording's task.
     options: dict[str, Any] = {"num_cpus": runner.num_cpus, "max_retries": 0}
     if runner.memory:
         options["memory"] = int(runner.memory)
-    task = ray.remote(max_calls=1)(_in_worker).options(runtime_env=ray_runtime_env(), **options)
+    task = ray.remote(_in_worker).options(runtime_env=ray_runtime_env(), **options)
     refs = {task.remote(fn, item): item for item in items}
     pending = list(refs)
     while pending:
