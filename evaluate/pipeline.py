@@ -201,7 +201,7 @@ def map_recordings(
     with tqdm(total=len(tasks), desc="recordings", unit="rec", disable=not progress) as bar:
         for task, outcome in run_tasks(_run_task, tasks, runner):
             outcomes[task.name] = outcome
-            if outcome.error is not None:
+            if outcome.error is not None and len(tasks) > 1:  # a lone one is the run's error
                 bar.write(f"error: {task.name}: {outcome.error}", file=sys.stderr)
             bar.set_postfix_str(task.name)
             bar.update(1)
@@ -240,6 +240,11 @@ def run_all(source: Path | None, out: Path, config: RunConfig | None = None) -> 
             outcomes = map_recordings(tasks, live, progress=config.progress and not serial)
             failed = tuple((n, o.error) for n, o in outcomes.items() if o.error is not None)
             done = [(n, r) for n, r in recordings if outcomes[n].error is None]
+            if not done:  # nothing made: the run fails whole, and leaves no output behind
+                if len(recordings) == 1:
+                    raise EvalError(failed[0][1])
+                msg = f"every recording failed ({', '.join(n for n, _ in failed)}); see above"
+                raise EvalError(msg)
             scenes = [plan for (n, _), (plan, has) in zip(recordings, planned, strict=True)
                       if has and outcomes[n].error is None]  # fmt: skip
             unevaluated = [n for (n, _), (_, has) in zip(recordings, planned, strict=True)

@@ -383,20 +383,39 @@ def map_from_table(
     )
 
 
-def _vocabulary_text(store: Path, vocabulary: tuple[str, ...]) -> np.ndarray:
-    """The store's cached text embeddings, in the map's vocabulary order."""
+def _vocabulary_text(
+    store: Path, vocabulary: tuple[str, ...], weights: Path | None = None
+) -> np.ndarray:
+    """The text embeddings of the map's vocabulary, in its order: the store's cache, and for
+    names a ``care fuse --recompute --vocabulary`` added, the store's own model (the same
+    text side the map's columns were computed with, :mod:`fuse.vocabulary`)."""
     table = read_table(store / "text.parquet")
     names = table.column("name").to_pylist()
     emb = list_column(table, "embedding", np.float32)
     index = {name: i for i, name in enumerate(names)}
     missing = [name for name in vocabulary if name not in index]
-    if missing:
+    if not missing:
+        return emb[[index[name] for name in vocabulary]]
+    from care.encoders.record import store_text_encoder
+    from care.errors import CareError
+
+    try:
+        encode = store_text_encoder(store, weights=weights)
+    except (CareError, ImportError) as err:
+        reason, encode = f" ({err})", None
+    else:
+        reason = ""
+    if encode is None:
         msg = (
             f"{store / 'text.parquet'}: no text embedding for {len(missing)} classes of the map "
-            f"(e.g. {missing[0]!r}); re-run `care fuse` with the store's vocabulary"
+            f"(e.g. {missing[0]!r}) and the store's model cannot embed them{reason}; re-run "
+            "`care fuse` with the store's vocabulary"
         )
         raise QueryError(msg)
-    return emb[[index[name] for name in vocabulary]]
+    extra = np.asarray(encode(missing), np.float32)
+    extra /= np.maximum(np.linalg.norm(extra, axis=1, keepdims=True), np.float32(1e-12))
+    found = {**{n: emb[i] for n, i in index.items()}, **dict(zip(missing, extra, strict=True))}
+    return np.stack([found[name] for name in vocabulary])
 
 
 def load_map(
@@ -427,6 +446,6 @@ def load_map(
     vocabulary = tuple(json.loads(_meta(table, "care.vocabulary", path)))
     from query.openvocab import StoreText
 
-    text = _vocabulary_text(store, vocabulary)
+    text = _vocabulary_text(store, vocabulary, weights)
     cmap = map_from_table(table, text, kind, path=path, sidecar=sidecar)
     return dataclasses.replace(cmap, text_encoder=StoreText(store, weights))
