@@ -282,32 +282,32 @@ def write_table_atomic(
 def read_schema(path: Path) -> pa.Schema:
     """The schema (with metadata) of a Parquet table of this project, checked like
     :func:`read_table`, without reading any column."""
-    path = Path(path)
-    if not path.is_file():
-        msg = f"{path}: no such table; build it first (see `care --help`)."
-        raise StoreError(msg)
-    if damaged(path.parent, [path.name], checksum=False):
-        raise damaged_table(path)
+    path = _readable(path)
     with reading(path):
         schema = pq.read_schema(path)
     _check_version(schema, path)
     return schema
 
 
-def read_table(path: Path, columns: Sequence[str] | None = None) -> pa.Table:
-    """Read a Parquet table of this project, refusing missing files and other schema versions."""
+def _readable(path: Path) -> Path:
+    """``path``, refused in one line when it is missing or its directory's marker says it
+    was damaged since it was written."""
     path = Path(path)
     if not path.is_file():
         msg = f"{path}: no such table; build it first (see `care --help`)."
         raise StoreError(msg)
     if damaged(path.parent, [path.name], checksum=False):
         raise damaged_table(path)
-    with reading(path):
-        _check_version(pq.read_schema(path), path)
-        # one file: ParquetFile, not pq.read_table, whose dataset layer imports pandas
-        # (0.4-1 s of every command that reads a table)
-        with pq.ParquetFile(path) as table:
-            return table.read(columns=list(columns) if columns else None)
+    return path
+
+
+def read_table(path: Path, columns: Sequence[str] | None = None) -> pa.Table:
+    """Read a Parquet table of this project, refusing missing files and other schema versions."""
+    path = _readable(path)
+    with reading(path), pq.ParquetFile(path) as table:
+        # one file: ParquetFile, not pq.read_table and its dataset layer (slower to open)
+        _check_version(table.schema_arrow, path)
+        return table.read(columns=list(columns) if columns else None)
 
 
 def iter_batches(

@@ -11,7 +11,6 @@ the rates into the dataset's ``index.json`` (``statistics.first_attempt``).
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,6 +18,7 @@ from pathlib import Path
 import pyarrow.compute as pc
 
 from care.encoders import EncoderOptions
+from care.outputs import atomic_write_text
 from evaluate.job import EvalConfig, Scene, run_eval
 from fuse.grid import GridConfig, build_grid
 from fuse.instances import InstanceConfig, build_instances
@@ -103,10 +103,5 @@ def measure_first_attempts(
     index_path = dataset / INDEX_NAME
     doc = json.loads(index_path.read_text())
     doc.setdefault("statistics", {})["first_attempt"] = rates
-    tmp = index_path.with_name(f".index.json.tmp-{os.getpid()}")
-    try:
-        tmp.write_text(json.dumps(doc, indent=1))
-        tmp.replace(index_path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    atomic_write_text(index_path, json.dumps(doc, indent=1))
     return rates

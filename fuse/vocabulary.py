@@ -8,6 +8,7 @@ encoder, rebuilt from the record ingest left (:mod:`care.encoders.record`), so t
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 
@@ -18,9 +19,10 @@ __all__ = ["vocabulary_text"]
 
 
 def vocabulary_text(
-    store: Store, vocabulary: Sequence[str] | None = None
+    store: Store, vocabulary: Sequence[str] | None = None, *, weights: Path | None = None
 ) -> tuple[tuple[str, ...], np.ndarray]:
-    """``(names, (n, d) float32 L2-normalised embeddings)`` for ``vocabulary`` or the store's."""
+    """``(names, (n, d) float32 L2-normalised embeddings)`` for ``vocabulary`` or the store's
+    (``weights``: where the store's model lives now, if its directory moved)."""
     if store.table_path("text").is_file():  # a damaged or mismatched cache is an error
         cached_names, cached = store.text_embeddings()
     else:
@@ -38,17 +40,19 @@ def vocabulary_text(
     known = [i for i, name in enumerate(names) if name in index]
     emb[known] = cached[[index[names[i]] for i in known]]
     if missing:
-        emb[[names.index(m) for m in missing]] = _encode(store, missing)
+        emb[[names.index(m) for m in missing]] = _encode(store, missing, weights)
     norm = np.linalg.norm(emb, axis=1, keepdims=True)
     return names, emb / np.where(norm > 0, norm, 1.0)
 
 
-def _encode(store: Store, names: list[str]) -> np.ndarray:
+def _encode(store: Store, names: list[str], weights: Path | None) -> np.ndarray:
     from care.encoders.record import encoder_for_store
 
     encoder_name = store.encoder.name
     try:
-        return np.asarray(encoder_for_store(store.path).encode_text(names), np.float32)
+        return np.asarray(
+            encoder_for_store(store.path, weights=weights).encode_text(names), np.float32
+        )
     except (CareError, ImportError) as err:
         msg = (
             f"{store.path}: cannot embed {names} with the store's encoder {encoder_name!r} "

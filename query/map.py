@@ -387,35 +387,28 @@ def _vocabulary_text(
     store: Path, vocabulary: tuple[str, ...], weights: Path | None = None
 ) -> np.ndarray:
     """The text embeddings of the map's vocabulary, in its order: the store's cache, and for
-    names a ``care fuse --recompute --vocabulary`` added, the store's own model (the same
-    text side the map's columns were computed with, :mod:`fuse.vocabulary`)."""
+    names a ``care fuse --recompute --vocabulary`` added, the store's own model, exactly as
+    the fusion embedded them (:func:`fuse.vocabulary.vocabulary_text`)."""
     table = read_table(store / "text.parquet")
     names = table.column("name").to_pylist()
-    emb = list_column(table, "embedding", np.float32)
     index = {name: i for i, name in enumerate(names)}
     missing = [name for name in vocabulary if name not in index]
-    if not missing:
+    if not missing:  # the usual case: no store model to load
+        emb = list_column(table, "embedding", np.float32)
         return emb[[index[name] for name in vocabulary]]
-    from care.encoders.record import store_text_encoder
     from care.errors import CareError
+    from care.store import Store
+    from fuse.vocabulary import vocabulary_text
 
     try:
-        encode = store_text_encoder(store, weights=weights)
-    except (CareError, ImportError) as err:
-        reason, encode = f" ({err})", None
-    else:
-        reason = ""
-    if encode is None:
+        return vocabulary_text(Store(store), vocabulary, weights=weights)[1]
+    except CareError as err:
         msg = (
             f"{store / 'text.parquet'}: no text embedding for {len(missing)} classes of the map "
-            f"(e.g. {missing[0]!r}) and the store's model cannot embed them{reason}; re-run "
+            f"(e.g. {missing[0]!r}) and the store's model cannot embed them ({err}); re-run "
             "`care fuse` with the store's vocabulary"
         )
-        raise QueryError(msg)
-    extra = np.asarray(encode(missing), np.float32)
-    extra /= np.maximum(np.linalg.norm(extra, axis=1, keepdims=True), np.float32(1e-12))
-    found = {**{n: emb[i] for n, i in index.items()}, **dict(zip(missing, extra, strict=True))}
-    return np.stack([found[name] for name in vocabulary])
+        raise QueryError(msg) from err
 
 
 def load_map(

@@ -10,7 +10,6 @@ ground truth already exist with the same settings is skipped, so re-running resu
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
@@ -22,7 +21,7 @@ from tqdm import tqdm
 
 from care.errors import WorldError
 from care.frames import Frame
-from care.outputs import check_output, is_ours, write_marker
+from care.outputs import atomic_write_text, check_output, is_ours, write_marker
 from world.dataset_index import INDEX_NAME
 from world.groundtruth import GroundTruth, gt_paths
 from world.presets import PRESETS, WorldPreset, WorldSettings
@@ -331,12 +330,7 @@ def make_dataset(config: DatasetConfig) -> Path:
         "recordings": recordings,
     }
     index_path = out / INDEX_NAME
-    tmp = index_path.with_name(f".index.json.tmp-{os.getpid()}")
-    try:
-        tmp.write_text(json.dumps(index, indent=1))
-        tmp.replace(index_path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    atomic_write_text(index_path, json.dumps(index, indent=1))
     if config.rrd is not None:
         from world.viz import log_dataset
 
