@@ -12,6 +12,13 @@ folder, as a user would type it:
 It prints each wall time, the speed-up over serial (target: close to the worker count),
 the load average around the runs (the machine may be shared), and checks that the stores
 and ``eval/attempts.parquet`` are byte-identical across the three.
+
+Next to them it measures the machine's own ceiling: the same number of processes running a
+compute-bound kernel (a Python loop) and a memory-bound one (numpy streaming over 160 MB)
+at once, against one alone. Much of a recording's work streams large arrays (depth, dense
+features, Parquet encoding), so the memory-bound ceiling is what a pool can reach: on the
+2-core machine of this project two such processes share the memory bandwidth and together
+do x1.3-1.5 the work of one, not x2.
 """
 
 from __future__ import annotations
@@ -36,6 +43,36 @@ def _outputs(out: Path) -> dict[str, bytes]:
     files = [p for p in (out / "stores").rglob("*") if p.is_file()]
     files.append(out / "eval" / "attempts.parquet")
     return {str(p.relative_to(out)): p.read_bytes() for p in files}
+
+
+_KERNELS = {
+    "compute-bound": "x = 0\nfor i in range(20_000_000):\n    x += i * i",
+    "memory-bound": (
+        "import numpy as np\na = np.random.default_rng(0).random(20_000_000)\n"
+        "for _ in range(12):\n    b = np.sqrt(a) * 2 + 1"
+    ),
+}
+"""Reference kernels of :func:`_ceiling` (each about 2 s alone)."""
+
+
+def _ceiling(kernel: str, workers: int, repeats: int = 3) -> float:
+    """How much more work ``workers`` processes running ``kernel`` at once do than one
+    alone (``workers`` x the time alone / the time together): this machine's speed-up.
+    Alone and together alternate ``repeats`` times and the fastest of each counts (a shared
+    machine's other load only ever slows a run down)."""
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
+    cmd = [sys.executable, "-c", kernel]
+    alone, together = [], []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        subprocess.run(cmd, check=True, env=env)
+        alone.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        procs = [subprocess.Popen(cmd, env=env) for _ in range(workers)]
+        for proc in procs:
+            proc.wait()
+        together.append(time.perf_counter() - t0)
+    return workers * min(alone) / min(together)
 
 
 def _run(dataset: Path, out: Path, seeds: int, how: list[str]) -> float:
@@ -87,10 +124,15 @@ def main() -> None:
         load_before = os.getloadavg()
         walls = {name: _run(dataset, tmp / name.split()[0], args.seeds, how)
                  for name, how in ways.items()}  # fmt: skip
+        ceilings = {name: _ceiling(kernel, args.workers) for name, kernel in _KERNELS.items()}
         load_after = os.getloadavg()
         serial = walls["serial"]
         for name, wall in walls.items():
             print(f"  {name:<20} {wall:7.1f} s   x{serial / wall:.2f} vs serial")
+        print(
+            f"  this machine's ceiling for {args.workers} processes: "
+            + ", ".join(f"x{v:.2f} {k}" for k, v in ceilings.items())
+        )
         print(
             f"  load average (1 min) {load_before[0]:.2f} before, {load_after[0]:.2f} after "
             f"({os.cpu_count()} CPUs)"

@@ -10,7 +10,7 @@ How it is found (:func:`estimate_map_frame`), from the recording itself:
 1. a first guess of "up" from the cameras: a robot's or a person's camera is held roughly
    level, so the mean of the optical frames' -y axes points up; the second guess is the
    world's +z (REP 103), for cameras that look straight down;
-2. the floor: among the largest planes (RANSAC, open3d's ``segment_plane``) of a bounded
+2. the floor: among the largest planes (seeded RANSAC, :func:`care.planes.fit_plane`) of a bounded
    sample of the depth points, oriented towards the cameras (so the ceiling, above them,
    points down), the largest whose normal lies within ``max_tilt`` of the first guess that
    has one (walls are not horizontal);
@@ -33,6 +33,7 @@ from enum import StrEnum
 import numpy as np
 
 from care.errors import CareError
+from care.planes import along, fit_plane
 
 __all__ = [
     "FloorNotFoundError",
@@ -45,6 +46,9 @@ __all__ = [
 
 _MIN_POINTS = 30
 """Fewest points a plane is fitted to."""
+
+_RANSAC_ITERATIONS = 500
+"""Random triples tried per plane."""
 
 
 class FloorNotFoundError(CareError):
@@ -193,9 +197,10 @@ def estimate_map_frame(
     up = _snap(normal, snap)
     if up is not normal:  # snapped: measure the floor's height along the exact axis
         offset = _floor_along(points, centres, up, distance, seed)
-    # the share of points on the floor, measured on the final plane: open3d's RANSAC
-    # counts its inliers in threads, so its own count differs from run to run by a point
-    fraction = float(np.mean(np.abs(points @ up - offset) <= distance)) if len(points) else 0.0
+    # the share of points on the floor, measured on the final (possibly snapped) plane
+    fraction = (
+        float(np.mean(np.abs(along(points, up) - offset) <= distance)) if len(points) else 0.0
+    )
     return _frame(up, offset if floor is None else floor, "floor plane", fraction, floor_tolerance)
 
 
@@ -219,25 +224,22 @@ def _floor_plane(
     """(up normal, offset along it, inlier share) of the floor: among the ``planes`` largest
     planes, those below the cameras whose normal lies within ``max_tilt`` of a hint; the
     largest for the first hint that has any (the cameras' up, then the world's +z)."""
-    import open3d as o3d
-
-    o3d.utility.random.seed(seed)
+    rng = np.random.default_rng(seed)
     rest = points
     found: list[tuple[np.ndarray, float, int]] = []
     for _ in range(planes):
         if len(rest) < _MIN_POINTS:
             break
-        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(rest))
-        model, inliers = cloud.segment_plane(distance, 3, 500)
-        normal, d = np.asarray(model[:3], np.float64), float(model[3])
-        scale = np.linalg.norm(normal)
-        normal, d = normal / scale, d / scale
-        side = np.median(centres @ normal + d)
+        plane = fit_plane(rest, distance, _RANSAC_ITERATIONS, rng)
+        if plane is None:
+            break
+        normal, d, inliers = plane.normal, plane.offset, plane.inliers
+        side = np.median(along(centres, normal) + d)
         if side < 0:  # orient the normal towards the cameras
             normal, d = -normal, -d
         found.append((normal, -d, len(inliers)))
         keep = np.ones(len(rest), bool)
-        keep[np.asarray(inliers, np.int64)] = False
+        keep[inliers] = False
         rest = rest[keep]
     cos_tilt = math.cos(math.radians(max_tilt))
     for hint in hints:
@@ -253,8 +255,8 @@ def _floor_along(
 ) -> float:
     """The floor's height along a known up axis: the lowest dense height band below the
     cameras (a histogram of point heights at the plane-fit distance)."""
-    heights = points @ up
-    cams = float(np.median(centres @ up))
+    heights = along(points, up)
+    cams = float(np.median(along(centres, up)))
     below = heights[heights < cams]
     if below.size < _MIN_POINTS:
         msg = "no floor found below the cameras along the given up axis; pass --floor-z"

@@ -52,6 +52,9 @@ def setup_worker() -> None:
 
     keep_freed_memory()
     use_threads(Work.DEFAULT)
+    # read by open3d's OpenMP runtime when it loads, after this hook (a Ray worker has it
+    # from the runtime environment already)
+    os.environ["OMP_NUM_THREADS"] = openmp_threads()
     # a worker's stage bars would interleave on the driver's terminal; the driver shows one
     # bar for the dataset instead (tqdm reads TQDM_* variables as defaults)
     os.environ["TQDM_DISABLE"] = "1"
@@ -106,26 +109,21 @@ def _pool(workers: int) -> ProcessPoolExecutor:
 
 
 def openmp_threads() -> str:
-    """The OpenMP thread count of this process (``OMP_NUM_THREADS``, else one per core).
+    """The OpenMP thread count of a worker: its :attr:`care.threads.Work.DEFAULT` count.
 
-    open3d's RANSAC (the map frame's floor, the proposals' structure planes) runs on an
-    OpenMP pool that threadpoolctl cannot reach, and its planes depend on the pool's size.
-    Ray starts its workers with ``OMP_NUM_THREADS=<task CPUs>``; the driver's count travels
-    with the tasks instead, so a Ray worker fits the same planes as this process and a pool
-    worker (which inherit it), and the maps are the same bytes.
+    open3d (normals, DBSCAN) runs on an OpenMP pool that threadpoolctl cannot reach; left at
+    one thread per core, two workers on two cores would run four threads. Its results do not
+    depend on the pool's size (the planes are fitted by :mod:`care.planes`, seeded, not by
+    open3d's threaded RANSAC), so the count is a matter of speed only.
     """
-    found = os.environ.get("OMP_NUM_THREADS", "").strip()
-    if found:
-        return found
-    try:
-        return str(max(1, len(os.sched_getaffinity(0))))
-    except AttributeError:  # not Linux
-        return str(max(1, os.cpu_count() or 1))
+    from care.threads import Work, thread_count
+
+    return str(thread_count(Work.DEFAULT))
 
 
 def ray_runtime_env() -> dict[str, Any]:
     """The runtime environment of our Ray tasks: the set-up hook, the packages' path, and
-    this process's OpenMP thread count (:func:`openmp_threads`)."""
+    a worker's OpenMP thread count (:func:`openmp_threads`)."""
     path = os.pathsep.join(p for p in (str(_ROOT), os.environ.get("PYTHONPATH", "")) if p)
     env = {"PYTHONPATH": path, "OMP_NUM_THREADS": openmp_threads()}
     return {"worker_process_setup_hook": RAY_HOOK, "env_vars": env}

@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 from tqdm import tqdm
@@ -42,6 +43,7 @@ __all__ = [
     "RecordingTask",
     "RunConfig",
     "RunResult",
+    "SceneLogTask",
     "map_recordings",
     "recordings_of",
     "run_all",
@@ -185,7 +187,70 @@ class RecordingOutcome:
     error: str | None = None
 
 
-def _run_task(task: RecordingTask) -> RecordingOutcome:
+@dataclass(frozen=True)
+class SceneLogTask:
+    """One recording's Rerun files after the evaluation: its grid map (when new) and its
+    evaluation. A task of :func:`care.parallel.run_tasks` like the recording's maps, so the
+    scenes are logged in parallel too (done one after another in the driver, the logging
+    was the serial tail that kept a pool of two near x1.1)."""
+
+    name: str
+    store: Path
+    grid_rrd: Path | None
+    """Log the grid here (None: it is current)."""
+    target: tuple[str, ...] | None
+    """The grid's confidence layers (None: the map's default class)."""
+    eval_rrd: Path | None = None
+    """Log the evaluation here (None: the recording was not evaluated)."""
+    scene: Scene | None = None
+    attempts: pa.Table | None = None
+    """The scene's own attempts."""
+    summary: pa.Table | None = None
+    maps: tuple[str, ...] = ()
+
+    @property
+    def due(self) -> bool:
+        return self.grid_rrd is not None or self.eval_rrd is not None
+
+    def __call__(self) -> None:
+        if self.grid_rrd is not None:
+            target = list(self.target) if self.target else None
+            log_grid(self.store, self.grid_rrd, target=target, scene=self.name)
+        if self.eval_rrd is not None and self.scene is not None:
+            maps = {kind: load_map(self.store, kind) for kind in self.maps}  # type: ignore[misc]
+            write_evaluation_rrd(
+                self.eval_rrd, self.attempts, self.summary, maps, scene=self.name,
+                gt=self.scene.gt.load(self.scene.recording), store=self.store,
+            )  # fmt: skip
+
+
+def _log_task(
+    name: str,
+    out: Path,
+    grid_due: bool,
+    scene: Scene | None,
+    attempts: pa.Table | None,
+    report: Report | None,
+    config: RunConfig,
+) -> SceneLogTask:
+    store = out / "stores" / name
+    mine = None
+    if attempts is not None and scene is not None:
+        mine = attempts.filter(pc.equal(attempts.column("scene"), name))
+    target = [config.rrd_class] if config.rrd_class is not None else None
+    if target is None and mine is not None:  # the scene's query classes by default
+        target = list(dict.fromkeys(mine.column("target").to_pylist())) or None
+    grid_rrd = out / f"{name}.grid.rrd" if grid_due or config.rrd_class is not None else None
+    if scene is None or report is None:
+        return SceneLogTask(name, store, grid_rrd, tuple(target) if target else None)
+    return SceneLogTask(
+        name, store, grid_rrd, tuple(target) if target else None,
+        eval_rrd=out / f"{name}.eval.rrd", scene=scene, attempts=mine,
+        summary=report.summary, maps=tuple(config.evaluation.maps),
+    )  # fmt: skip
+
+
+def _run_task(task: RecordingTask | SceneLogTask) -> RecordingOutcome | None:
     return task()
 
 
@@ -255,23 +320,16 @@ def run_all(source: Path | None, out: Path, config: RunConfig | None = None) -> 
                     scenes, config.evaluation, out / "eval", progress=config.progress, runner=live
                 )
                 attempts = pq.read_table(out / "eval" / "attempts.parquet")
-        evaluated = {scene.name: scene for scene in scenes}
+            evaluated = {scene.name: scene for scene in scenes}
+            logs = [
+                _log_task(name, out, outcomes[name].grid_due, evaluated.get(name), attempts,
+                          report, config)
+                for name, _ in done
+            ]  # fmt: skip
+            for _ in run_tasks(_run_task, [t for t in logs if t.due], live):
+                pass
         rrds: list[Path] = []
         for name, _ in done:
-            store = out / "stores" / name
-            if outcomes[name].grid_due or config.rrd_class is not None:
-                target = config.rrd_class  # the scene's query classes' confidence by default
-                if target is None and name in evaluated:
-                    mine = attempts.filter(pc.equal(attempts.column("scene"), name))
-                    target = list(dict.fromkeys(mine.column("target").to_pylist())) or None
-                log_grid(store, out / f"{name}.grid.rrd", target=target, scene=name)
-            if name in evaluated:
-                scene = evaluated[name]
-                maps = {kind: load_map(store, kind) for kind in config.evaluation.maps}  # type: ignore[misc]
-                write_evaluation_rrd(
-                    out / f"{name}.eval.rrd", attempts, report.summary, maps, scene=name,
-                    gt=scene.gt.load(scene.recording), store=store,
-                )  # fmt: skip
             stages = ("ingest", "grid", "instances", "eval")
             rrds += [p for p in (out / f"{name}.{s}.rrd" for s in stages) if p.is_file()]
         stores = tuple(out / "stores" / name for name, _ in done)

@@ -2,8 +2,8 @@
 
 ``PROPOSERS`` maps a method name to a function ``(cloud, store, settings) -> Proposals``:
 
-- ``geometric``: no labels needed. The dominant planes are found with RANSAC (open3d
-  ``segment_plane``) one after the other; a plane counts as *structure* when it is
+- ``geometric``: no labels needed. The dominant planes are found with RANSAC
+  (:func:`care.planes.fit_plane`, seeded: the same planes in every process) one after the other; a plane counts as *structure* when it is
   horizontal at floor or ceiling height, or vertical and at least ``wall_min_height``
   tall (a wall; a tall flat front such as a wardrobe's can go with it, a known
   weakness). Only the inliers whose own normal agrees with the plane's are removed, so the
@@ -25,6 +25,7 @@ import numpy as np
 from tqdm import tqdm
 
 from care.errors import FuseError
+from care.planes import along, fit_plane
 from care.store import Store
 from fuse.config import InstanceConfig, ProposalMethod
 from fuse.pointcloud import SceneCloud
@@ -42,6 +43,9 @@ _RANSAC_SAMPLE = 20_000
 """RANSAC fits each plane on at most this many random points of the pool; the inliers are
 then taken from the whole pool by their distance to the fitted plane (same result for the
 dominant planes, a fraction of the time on large clouds)."""
+
+_RANSAC_ITERATIONS = 1000
+"""Random triples tried per plane."""
 
 
 @dataclass(frozen=True)
@@ -90,7 +94,6 @@ def remove_structure(points: np.ndarray, settings: InstanceConfig) -> np.ndarray
     """
     import open3d as o3d
 
-    o3d.utility.random.seed(settings.seed)
     rng = np.random.default_rng(settings.seed)
     n = len(points)
     removed = np.zeros(n, bool)
@@ -108,13 +111,14 @@ def remove_structure(points: np.ndarray, settings: InstanceConfig) -> np.ndarray
         if len(pool) < max(settings.plane_min_points, 3):
             break
         sample = pool if len(pool) <= _RANSAC_SAMPLE else rng.choice(pool, _RANSAC_SAMPLE, False)
-        model, _ = _pcd(points[sample]).segment_plane(settings.plane_distance, 3, 1000)
-        scale = np.linalg.norm(model[:3])
-        normal = np.asarray(model[:3]) / scale
-        inl = pool[np.abs(points[pool] @ normal + model[3] / scale) <= settings.plane_distance]
+        plane = fit_plane(points[sample], settings.plane_distance, _RANSAC_ITERATIONS, rng)
+        if plane is None:
+            break
+        normal, offset = plane.normal, plane.offset
+        inl = pool[plane.distance(points[pool]) <= settings.plane_distance]
         if len(inl) < settings.plane_min_points:
             break
-        agree = np.abs(normals[inl] @ normal) >= cos_tol
+        agree = np.abs(along(normals[inl], normal)) >= cos_tol
         pool = np.setdiff1d(pool, inl, assume_unique=True)
         height = float(np.median(z[inl]))
         horizontal = abs(normal[2]) >= cos_tol
@@ -128,7 +132,7 @@ def remove_structure(points: np.ndarray, settings: InstanceConfig) -> np.ndarray
         is_wall = vertical and hi_z - lo_z >= settings.wall_min_height
         if is_floor or is_ceiling or is_wall:
             removed[inl[agree]] = True
-            structural.append((normal, model[3] / scale, inl[~agree]))
+            structural.append((normal, offset, inl[~agree]))
     removed[_corner_points(points, structural, settings.normal_radius, cos_tol)] = True
     return removed
 
@@ -156,7 +160,7 @@ def _corner_points(
         for j, (normal, d, _) in enumerate(structural):
             if j == i or abs(normal @ structural[i][0]) >= cos_tol:
                 continue
-            near |= np.abs(points[off] @ normal + d) <= band
+            near |= np.abs(along(points[off], normal) + d) <= band
         hits.append(off[near])
     return np.concatenate(hits) if hits else np.zeros(0, np.int64)
 

@@ -68,3 +68,45 @@ def test_environment_overrides_every_count(monkeypatch: pytest.MonkeyPatch) -> N
     monkeypatch.setenv("CARE_THREADS", "many")
     with pytest.raises(CareError, match="CARE_THREADS"):
         thread_count(Work.FUSE)
+
+
+def test_stage_functions_run_on_their_own_pools(monkeypatch: pytest.MonkeyPatch, tmp_path) -> None:
+    """A caller's pools (a notebook at every core) do not reach the fusion or the ingest:
+    the maps' bytes depend on torch's and BLAS's thread counts (tests/evaluate's serial
+    run in the test process against pool and Ray workers checks the bytes)."""
+    import torch
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    import fuse.api
+    import ingest.api
+    from fuse.config import GridConfig, InstanceConfig
+    from ingest.pipeline import IngestConfig
+
+    seen: dict[str, tuple[int, list[int]]] = {}
+
+    def spy(name: str):
+        def record(*_args: object) -> None:
+            blas = [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"]
+            seen[name] = (torch.get_num_threads(), blas)
+
+        return record
+
+    monkeypatch.setattr(fuse.api, "build_grid", spy("grid"))
+    monkeypatch.setattr(fuse.api, "build_instances", spy("instances"))
+    monkeypatch.setattr(ingest.api, "run_ingest", spy("ingest"))
+    monkeypatch.setattr(ingest.api, "Store", lambda path: path)  # nothing was written
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        with threadpool_limits(2):
+            fuse.api.fuse_grid(tmp_path, GridConfig())
+            fuse.api.fuse_instances(tmp_path, InstanceConfig())
+            ingest.api.ingest(tmp_path / "rec", IngestConfig(recording=tmp_path, out=tmp_path))
+            assert torch.get_num_threads() == 2  # given back
+    finally:
+        torch.set_num_threads(before)
+    for name in ("grid", "instances", "ingest"):
+        threads, blas = seen[name]
+        assert threads == 1, name
+        assert blas, name
+        assert all(n == 1 for n in blas), name
