@@ -15,9 +15,10 @@ views in separate processes. So every kind of work (:class:`Work`) has a thread 
 - Ray and process-pool workers: :func:`threads_for` around the task (``evaluate.job``);
 - benchmarks: :func:`use_threads` in ``main``, so their "one core" is true for BLAS too.
 
-``CARE_THREADS=<n>`` overrides every count (for a machine of your own; 0 = all cores).
-BLAS also decides the last bits of a float32 product by its thread count, so a fixed count
-keeps near-ties deterministic across workers (``evaluate.job``). Arrow decodes a Parquet
+``CARE_THREADS=<n>`` overrides the counts (for a machine of your own; 0 = all cores) except
+those of :data:`PINNED` work: BLAS decides the last bits of a float32 product by its thread
+count, so the fusion, the queries and the evaluation keep one thread and their results are
+the same bytes on every machine, worker and setting (``tests/evaluate/test_thread_counts``). Arrow decodes a Parquet
 row group's columns on its own pool (one thread per core): it is sized with the others, so
 "one thread" holds for reading the store too.
 """
@@ -32,6 +33,7 @@ from enum import Enum
 
 __all__ = [
     "ENV_VAR",
+    "PINNED",
     "THREADS",
     "Work",
     "sync_torch",
@@ -68,6 +70,12 @@ THREADS: dict[Work, int | None] = {
 }
 """Threads per kind of work; ``None`` = every core this process may use."""
 
+PINNED: frozenset[Work] = frozenset({Work.FUSE, Work.QUERY, Work.EVAL})
+"""Kinds of work whose results must not depend on the machine, so ``CARE_THREADS`` leaves
+them at :data:`THREADS`: a float32 matrix product rounds its last bits by BLAS's thread
+count (the grid's per-view class dot products changed its pwKL column with two threads),
+and such bits decide near-ties between candidates. Their parallelism is processes."""
+
 
 def _cores() -> int:
     try:
@@ -77,7 +85,8 @@ def _cores() -> int:
 
 
 def thread_count(work: Work) -> int:
-    """Threads for ``work``: :data:`THREADS`, or ``CARE_THREADS`` when set."""
+    """Threads for ``work``: :data:`THREADS`, or ``CARE_THREADS`` when set (except for the
+    :data:`PINNED` kinds)."""
     override = os.environ.get(ENV_VAR, "").strip()
     if override:
         try:
@@ -89,7 +98,8 @@ def thread_count(work: Work) -> int:
 
             msg = f"{ENV_VAR}={override!r}: give a number of threads (0 = all cores)"
             raise CareError(msg)
-        return n or _cores()
+        if work not in PINNED:
+            return n or _cores()
     n = THREADS[work]
     return _cores() if n is None else n
 
@@ -140,17 +150,27 @@ def use_threads(work: Work) -> int:
 
 @contextmanager
 def threads_for(work: Work) -> Iterator[int]:
-    """Run a block with the pools of ``work``, restoring the previous ones afterwards."""
-    import torch
+    """Run a block with the pools of ``work``, restoring the previous ones afterwards.
+
+    torch is not imported for it: a module that imports torch inside the block sizes it
+    through :func:`sync_torch`, and the block's end restores it."""
     from threadpoolctl import threadpool_limits
 
+    global _PROCESS_THREADS
     n = thread_count(work)
-    before = torch.get_num_threads()
-    torch.set_num_threads(n)
+    torch = sys.modules.get("torch")
+    before = torch.get_num_threads() if torch is not None else None
+    process_before = _PROCESS_THREADS
+    _PROCESS_THREADS = n
+    sync_torch()
     arrow_before = _set_arrow(n)
     try:
         with threadpool_limits(limits=n):
             yield n
     finally:
-        torch.set_num_threads(before)
+        _PROCESS_THREADS = process_before
+        torch = sys.modules.get("torch")
+        if torch is not None:
+            restore = before if before is not None else process_before
+            torch.set_num_threads(restore if restore is not None else _cores())
         _set_arrow(arrow_before)

@@ -27,6 +27,10 @@ from replan.strategies import Criterion, StrategyName
 
 __all__ = ["EvalConfig", "QueryProtocol", "RunConfig"]
 
+NO_CRITERION = "-"
+"""The criterion column of the strategies that use no candidate set (their k is 0): a
+report's rule key, never parsed out of a display string."""
+
 
 class QueryProtocol(StrEnum):
     """How the instance map's queries are made."""

@@ -23,6 +23,7 @@ from evaluate.job import EvalConfig, Scene, run_eval
 from fuse.grid import GridConfig, build_grid
 from fuse.instances import InstanceConfig, build_instances
 from ingest.pipeline import IngestConfig, run_ingest
+from replan.strategies import StrategyName
 from world.dataset_index import INDEX_NAME, read_index
 
 __all__ = ["MeasureConfig", "first_attempt_rates", "map_dataset", "measure_first_attempts"]
@@ -72,7 +73,7 @@ def first_attempt_rates(summary_rows: Sequence[dict]) -> dict[str, float]:
     ``no replan`` rows."""
     out = {}
     for r in summary_rows:
-        if r["strategy"] != "no_replan":
+        if r["strategy"] != StrategyName.NO_REPLAN:
             continue
         key = "grid" if r["map"] == "grid" else f"{r['map']}/{r['protocol']}"
         out[key] = round(float(r["rate"]), 2)
@@ -94,9 +95,11 @@ def measure_first_attempts(
     record = out is None
     out = dataset / MEASURE_DIR if out is None else Path(out)
     scenes = map_dataset(dataset, out, config, progress=progress)
-    evaluation = EvalConfig(strategies=("no_replan",), attempts=1, seeds=1, bootstrap=0)
+    evaluation = EvalConfig(strategies=(StrategyName.NO_REPLAN,), attempts=1, seeds=1, bootstrap=0)
     report = run_eval(scenes, evaluation, out / "eval", workers=workers, progress=progress)
-    rows = report.summary.filter(pc.equal(report.summary.column("strategy"), "no_replan"))
+    rows = report.summary.filter(
+        pc.equal(report.summary.column("strategy"), StrategyName.NO_REPLAN)
+    )
     rates = first_attempt_rates(rows.to_pylist())
     if not record:
         return rates

@@ -27,7 +27,7 @@ from care.fingerprint import content_digest, fingerprint
 from care.outputs import evaluation_output, read_marker
 from care.parallel import Runner, run_tasks
 from care.store import META_FILE, read_table, source_recording, write_table_atomic
-from evaluate.config import EvalConfig
+from evaluate.config import NO_CRITERION, EvalConfig
 from evaluate.groundtruth import GtSource, check_ground_truth, gt_files
 from evaluate.report import Report, write_report
 from evaluate.success import QuerySet, grid_queries, instance_queries, scene_point_labels
@@ -49,8 +49,6 @@ __all__ = [
     "scenes_of",
 ]
 
-NO_CRITERION = "-"
-"""Criterion of the strategies that do not use a candidate set (k is 0 for them)."""
 
 ATTEMPT_SCHEMA = pa.schema(
     [

@@ -9,8 +9,9 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from evaluate.config import NO_CRITERION
 from evaluate.paired import compare, comparison_rng
-from replan.strategies import STRATEGIES
+from replan.strategies import STRATEGIES, Criterion, StrategyName
 
 __all__ = ["CARE_STRATEGIES", "outcomes", "paired_markdown", "paired_table"]
 
@@ -66,9 +67,9 @@ def paired_table(attempts: pa.Table, *, bootstrap: int = 10_000, seed: int = 0) 
     rows = []
     for (kind, protocol), rules in sorted(solved.items()):
         baselines = []
-        if ("max_confidence", "-", 0) in rules:
-            baselines.append(("max_confidence", "-", 0))
-        best_random = _best(rules, "random_topk")
+        if (StrategyName.MAX_CONFIDENCE, NO_CRITERION, 0) in rules:
+            baselines.append((StrategyName.MAX_CONFIDENCE, NO_CRITERION, 0))
+        best_random = _best(rules, StrategyName.RANDOM_TOPK)
         if best_random is not None:
             baselines.append(best_random)
         for rule in sorted(r for r in rules if r[0] in CARE_STRATEGIES):
@@ -130,7 +131,7 @@ def paired_markdown(table: pa.Table) -> str:
         )
         out.append("|---|---|---:|---|---:|---:|---|---:|---:|---:|---:|")
         for strategy in shown:
-            for criterion in ("confidence", "category"):
+            for criterion in (Criterion.CONFIDENCE, Criterion.CATEGORY):
                 mine = [
                     r for r in here if r["strategy"] == strategy and r["criterion"] == criterion
                 ]
@@ -139,7 +140,7 @@ def paired_markdown(table: pa.Table) -> str:
                 best_k = max(mine, key=lambda r: (r["rate"], -r["k"]))["k"]
                 for r in (r for r in mine if r["k"] == best_k):
                     base = STRATEGIES[r["baseline"]].label
-                    if r["baseline_criterion"] != "-":
+                    if r["baseline_criterion"] != NO_CRITERION:
                         base += f" ({r['baseline_criterion']}, k={r['baseline_k']})"
                     out.append(
                         f"| {STRATEGIES[strategy].label} | {criterion} | {r['k']} | {base} "

@@ -29,9 +29,10 @@ import numpy as np
 import pyarrow as pa
 
 from care.store import write_table_atomic
+from evaluate.config import NO_CRITERION
 from evaluate.paired import compare, comparison_rng, holm, mcnemar_exact
 from evaluate.paired_report import CARE_STRATEGIES, outcomes
-from replan.strategies import STRATEGIES
+from replan.strategies import STRATEGIES, Criterion, StrategyName
 
 __all__ = [
     "PAPER_SETTINGS",
@@ -50,31 +51,36 @@ Rule = tuple[str, str, int]
 
 PAPER_SETTINGS: dict[str, tuple[Rule, ...]] = {
     "instances": (
-        ("max_entropy", "confidence", 8),
-        ("min_stderr", "category", 2),
-        ("min_pwkl", "category", 40),
+        (StrategyName.MAX_ENTROPY, Criterion.CONFIDENCE, 8),
+        (StrategyName.MIN_STDERR, Criterion.CATEGORY, 2),
+        (StrategyName.MIN_PWKL, Criterion.CATEGORY, 40),
     ),
     "grid": (
-        ("max_entropy", "confidence", 4),
-        ("min_stderr", "confidence", 4),
-        ("min_pwkl", "confidence", 16),
+        (StrategyName.MAX_ENTROPY, Criterion.CONFIDENCE, 4),
+        (StrategyName.MIN_STDERR, Criterion.CONFIDENCE, 4),
+        (StrategyName.MIN_PWKL, Criterion.CONFIDENCE, 16),
     ),
 }
 """The settings the paper's tables highlight (``method.md``), fixed before our results."""
 
-MAX_CONF: Rule = ("max_confidence", "-", 0)
-NON_CARE: tuple[Rule, ...] = (("largest", "-", 0), ("most_views", "-", 0))
+MAX_CONF: Rule = (StrategyName.MAX_CONFIDENCE, NO_CRITERION, 0)
+NON_CARE: tuple[Rule, ...] = (
+    (StrategyName.LARGEST, NO_CRITERION, 0),
+    (StrategyName.MOST_VIEWS, NO_CRITERION, 0),
+)
 """The non-CARe baselines: biggest mask, most views."""
 
 
 def _label(rule: Rule) -> str:
     name, criterion, k = rule
     label = STRATEGIES[name].label if name in STRATEGIES else name
-    return label if criterion == "-" else f"{label} ({criterion}, k={k})"
+    return label if criterion == NO_CRITERION else f"{label} ({criterion}, k={k})"
 
 
 def _best_random(rules: dict) -> Rule | None:
-    cands = [(np.mean(list(v.values())), r) for r, v in rules.items() if r[0] == "random_topk"]
+    cands = [
+        (np.mean(list(v.values())), r) for r, v in rules.items() if r[0] == StrategyName.RANDOM_TOPK
+    ]
     return max(cands, key=lambda c: (c[0], -c[1][2]))[1] if cands else None
 
 
@@ -234,13 +240,13 @@ def query_breakdown(
     targets = _targets(attempts)
     class_first: dict[tuple, bool] = {}
     for (kind, protocol), f in first.items():
-        if protocol == "class" and ("no_replan", "-", 0) in f:
-            for q, ok in f["no_replan", "-", 0].items():
+        if protocol == "class" and (StrategyName.NO_REPLAN, NO_CRITERION, 0) in f:
+            for q, ok in f[StrategyName.NO_REPLAN, NO_CRITERION, 0].items():
                 class_first[q[0], kind, q[3], targets.get(q, q[4])] = ok
     rows = []
     for (kind, protocol), rules in sorted(solved.items()):
-        oracle = rules.get(("oracle", "-", 0), {})
-        f0 = first[kind, protocol].get(("no_replan", "-", 0), {})
+        oracle = rules.get((StrategyName.ORACLE, NO_CRITERION, 0), {})
+        f0 = first[kind, protocol].get((StrategyName.NO_REPLAN, NO_CRITERION, 0), {})
         queries = sorted(f0)
         unsolvable = [q for q in queries if oracle.get(q, 1.0) == 0]
         sibling = [

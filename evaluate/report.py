@@ -18,6 +18,7 @@ import pyarrow.compute as pc
 
 from care.outputs import atomic_write_text, write_atomic
 from care.store import write_table_atomic
+from evaluate.config import NO_CRITERION
 from evaluate.paired_report import paired_markdown, paired_table
 from replan.strategies import CRITERIA, STRATEGIES, StrategyName
 
@@ -40,7 +41,7 @@ AUROC_MEASURES = ("confidence", "entropy", "stderr", "pwkl", "num_views")
 QUERY_KEYS = ["scene", "map", "protocol", "unit", "query"]
 RULE_KEYS = ["strategy", "criterion", "k"]
 """What a replan rule is in the attempt rows: its strategy, criterion and k (criterion
-``evaluate.job.NO_CRITERION`` and k 0 for the strategies without a candidate set)."""
+``evaluate.config.NO_CRITERION`` and k 0 for the strategies without a candidate set)."""
 MAP_TITLES = {
     "instances": "Instance map (OpenMask3D-like): retrieval success (%)",
     "grid": "Grid map (VLMaps-like): subgoal success (%)",
@@ -161,7 +162,7 @@ def auroc_table(attempts: pa.Table) -> pa.Table:
     protocol (> 0.5: a higher value means failure is more likely)."""
     first = attempts.filter(
         pc.and_(
-            pc.equal(attempts.column("strategy"), "no_replan"),
+            pc.equal(attempts.column("strategy"), StrategyName.NO_REPLAN),
             pc.equal(attempts.column("attempt"), 1),
         )
     )
@@ -226,7 +227,7 @@ def _label(strategy: str, closed_form: bool = False) -> str:
 
 
 def _criterion_cell(strategy: str, criterion: str) -> str:
-    return criterion if _uses_set(strategy) else "-"
+    return criterion if _uses_set(strategy) else NO_CRITERION
 
 
 def markdown_tables(summary: pa.Table, ks: dict[str, Sequence[int]], *, ci: bool = False) -> str:
@@ -352,18 +353,18 @@ def per_scene_markdown(summary: pa.Table, scenes: pa.Table) -> str:
 
 
 _COLOURS = {
-    "no_replan": "black",
-    "oracle": "tab:gray",
-    "max_confidence": "tab:blue",
-    "random": "tab:brown",
-    "random_topk": "tab:olive",
-    "max_entropy": "tab:orange",
-    "min_stderr": "tab:green",
-    "min_pwkl": "tab:red",
-    "min_entropy": "tab:pink",
-    "max_pwkl": "tab:purple",
-    "largest": "tab:cyan",
-    "most_views": "darkkhaki",
+    StrategyName.NO_REPLAN: "black",
+    StrategyName.ORACLE: "tab:gray",
+    StrategyName.MAX_CONFIDENCE: "tab:blue",
+    StrategyName.RANDOM: "tab:brown",
+    StrategyName.RANDOM_TOPK: "tab:olive",
+    StrategyName.MAX_ENTROPY: "tab:orange",
+    StrategyName.MIN_STDERR: "tab:green",
+    StrategyName.MIN_PWKL: "tab:red",
+    StrategyName.MIN_ENTROPY: "tab:pink",
+    StrategyName.MAX_PWKL: "tab:purple",
+    StrategyName.LARGEST: "tab:cyan",
+    StrategyName.MOST_VIEWS: "darkkhaki",
 }
 """Baselines dark or muted, the paper's three CARe measures strong, the ablations paler."""
 

@@ -30,6 +30,7 @@ from care.store import write_table_atomic
 from evaluate.dataset_stats import MeasureConfig, map_dataset
 from evaluate.job import EvalConfig, run_eval
 from evaluate.preregistered import PAPER_SETTINGS, headline_table
+from replan.strategies import StrategyName
 
 __all__ = ["SWEEP_KNOBS", "SweepConfig", "plot_sweep", "run_sweep", "sweep_settings"]
 
@@ -99,7 +100,13 @@ def run_sweep(
     config = config or SweepConfig()
     out = Path(out)
     evaluation = EvalConfig(
-        strategies=("no_replan", "max_confidence", "max_entropy", "min_stderr", "min_pwkl"),
+        strategies=(
+            StrategyName.NO_REPLAN,
+            StrategyName.MAX_CONFIDENCE,
+            StrategyName.MAX_ENTROPY,
+            StrategyName.MIN_STDERR,
+            StrategyName.MIN_PWKL,
+        ),
         k_instances=tuple(sorted({k for _, _, k in PAPER_SETTINGS["instances"]})),
         k_grid=tuple(sorted({k for _, _, k in PAPER_SETTINGS["grid"]})),
         protocols=("instance",),
@@ -119,7 +126,9 @@ def run_sweep(
         import pyarrow.parquet as pq
 
         attempts = pq.read_table(here / "eval" / "attempts.parquet")
-        first = report.summary.filter(pc.equal(report.summary.column("strategy"), "no_replan"))
+        first = report.summary.filter(
+            pc.equal(report.summary.column("strategy"), StrategyName.NO_REPLAN)
+        )
         first_rate = {r["map"]: r["rate"] for r in first.to_pylist()}
         table = headline_table(attempts, bootstrap=config.bootstrap)
         for r in table.to_pylist():
@@ -134,7 +143,7 @@ def run_sweep(
                     "criterion": r["criterion"],
                     "k": r["k"],
                     "first_attempt": first_rate.get(r["map"], float("nan")),
-                    "max_confidence": r["baseline_rate"],
+                    StrategyName.MAX_CONFIDENCE: r["baseline_rate"],
                     "rate": r["rate"],
                     "gain": r["diff"],
                     "lo": r["lo"],
@@ -161,7 +170,11 @@ def plot_sweep(table: pa.Table, path: Path, config: SweepConfig | None = None) -
     rows = table.to_pylist()
     maps = [m for m in ("instances", "grid") if any(r["map"] == m for r in rows)]
     centre = {k: getattr(config, k)[0] for k in SWEEP_KNOBS}
-    colours = {"max_entropy": "tab:orange", "min_stderr": "tab:green", "min_pwkl": "tab:purple"}
+    colours = {
+        StrategyName.MAX_ENTROPY: "tab:orange",
+        StrategyName.MIN_STDERR: "tab:green",
+        StrategyName.MIN_PWKL: "tab:purple",
+    }
     fig, axes = plt.subplots(
         len(maps), len(SWEEP_KNOBS), figsize=(14, 3.3 * len(maps)), squeeze=False, sharey="row"
     )

@@ -35,6 +35,7 @@ from care.errors import FuseError
 from care.fingerprint import canonical_json, config_json, fingerprint
 from care.outputs import damaged, record_table
 from care.store import Store, read_schema
+from care.threads import Work, threads_for
 from fuse.frame import ensure_map_frame, store_stamp
 from fuse.measures import candidate_metadata
 from fuse.schemas import MAP_SCHEMAS, schema_problems
@@ -213,8 +214,22 @@ def build_map(
     path of its main table.
 
     ``write`` stages every table of the map (:meth:`StagedMap.path`); the skeleton commits
-    them. ``after`` runs once the tables are in place (images derived from them).
+    them. ``after`` runs once the tables are in place (images derived from them). Runs on
+    the thread pools of :attr:`care.threads.Work.FUSE` whoever calls it: the per-view class
+    products round their last bits by BLAS's thread count, and a caller's pools (a notebook
+    at every core) would otherwise change the map's bytes.
     """
+    with threads_for(Work.FUSE):
+        return _build_map(store_path, spec, config, write, after)
+
+
+def _build_map(
+    store_path: Path,
+    spec: MapSpec,
+    config: MapConfig,
+    write: Callable[[MapBuild], None],
+    after: Callable[[Store], None] | None,
+) -> Path:
     ensure_map_frame(store_path)  # the gravity-aligned frame every pose is read in
     store = Store(store_path)
     vocabulary, text = vocabulary_text(store, config.vocabulary)

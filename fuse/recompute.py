@@ -17,6 +17,7 @@ import pyarrow as pa
 
 from care.errors import FuseError
 from care.store import Store, iter_batches, read_table, write_table_atomic
+from care.threads import Work, threads_for
 from fuse.accumulate import CandidateSums
 from fuse.build import update_config
 from fuse.measures import candidate_metadata
@@ -71,6 +72,7 @@ def recompute_grid(
     )  # fmt: skip
 
 
+@threads_for(Work.FUSE)  # the same bytes as a build, whoever calls it (fuse.build.build_map)
 def recompute_candidates(
     store_path: Path,
     table_name: str,

@@ -7,7 +7,6 @@ from pathlib import Path
 
 from care.encoders import Encoder
 from care.store import Store
-from care.threads import Work, threads_for
 from ingest.pipeline import IngestConfig, run_ingest
 
 __all__ = ["ingest"]
@@ -19,10 +18,6 @@ def ingest(recording: Path, config: IngestConfig, *, encoder: Encoder | None = N
     Everything the store depends on is in the arguments (``config.recording`` is replaced by
     ``recording``); an up-to-date store (same recording content and options) is returned
     without any work, or a model loaded. ``encoder``: an already built encoder instance.
-    Runs on the thread pools of :attr:`care.threads.Work.DEFAULT` (the encoder's forward
-    pass on :attr:`~care.threads.Work.ENCODE`'s), whoever calls it, so a store's bytes do
-    not depend on the caller's pools.
     """
-    with threads_for(Work.DEFAULT):
-        run_ingest(replace(config, recording=Path(recording)), encoder)
+    run_ingest(replace(config, recording=Path(recording)), encoder)
     return Store(config.out)

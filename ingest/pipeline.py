@@ -186,8 +186,15 @@ def run_ingest(config: IngestConfig, encoder: Encoder | None = None) -> Path:
     """Build the store ``config.out`` from ``config.recording``; returns the store path.
 
     ``encoder`` overrides ``config.encoder`` with an instance (e.g. one built in a test or
-    shared across many recordings). Returns at once if the store is up to date.
+    shared across many recordings). Returns at once if the store is up to date. Runs on the
+    thread pools of :attr:`care.threads.Work.DEFAULT` whoever calls it (the encoder's
+    forward pass on :attr:`~care.threads.Work.ENCODE`'s).
     """
+    with threads_for(Work.DEFAULT):
+        return _run_ingest(config, encoder)
+
+
+def _run_ingest(config: IngestConfig, encoder: Encoder | None) -> Path:
     recording = Path(config.recording)
     if not recording.exists():
         msg = f"{recording}: no such file or directory; check the recording path."

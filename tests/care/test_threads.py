@@ -8,7 +8,7 @@ import multiprocessing as mp
 import pytest
 
 from care.errors import CareError
-from care.threads import THREADS, Work, thread_count
+from care.threads import PINNED, THREADS, Work, thread_count
 
 
 def _pools_in_worker(kind: str, queue) -> None:  # runs in a spawned process
@@ -61,10 +61,14 @@ def test_worker_pools_follow_the_kind_of_work() -> None:
     assert after == (1, 1)  # ...and gives them back
 
 
-def test_environment_overrides_every_count(monkeypatch: pytest.MonkeyPatch) -> None:
-    set_to, torch_threads, blas, arrow, _, _ = _run(Work.FUSE, {"CARE_THREADS": "2"})
+def test_environment_overrides_every_count_but_the_pinned(monkeypatch: pytest.MonkeyPatch) -> None:
+    set_to, torch_threads, blas, arrow, _, _ = _run(Work.DEFAULT, {"CARE_THREADS": "2"})
     assert set_to == torch_threads == arrow == 2
     assert all(n == 2 for n in blas)
+    monkeypatch.setenv("CARE_THREADS", "2")
+    for work in PINNED:  # their results must not depend on the machine
+        assert thread_count(work) == THREADS[work] == 1
+    assert thread_count(Work.ENCODE) == 2
     monkeypatch.setenv("CARE_THREADS", "many")
     with pytest.raises(CareError, match="CARE_THREADS"):
         thread_count(Work.FUSE)
@@ -78,7 +82,9 @@ def test_stage_functions_run_on_their_own_pools(monkeypatch: pytest.MonkeyPatch,
     from threadpoolctl import threadpool_info, threadpool_limits
 
     import fuse.api
+    import fuse.build
     import ingest.api
+    import ingest.pipeline
     from fuse.config import GridConfig, InstanceConfig
     from ingest.pipeline import IngestConfig
 
@@ -91,9 +97,9 @@ def test_stage_functions_run_on_their_own_pools(monkeypatch: pytest.MonkeyPatch,
 
         return record
 
-    monkeypatch.setattr(fuse.api, "build_grid", spy("grid"))
-    monkeypatch.setattr(fuse.api, "build_instances", spy("instances"))
-    monkeypatch.setattr(ingest.api, "run_ingest", spy("ingest"))
+    calls = iter(("grid", "instances"))
+    monkeypatch.setattr(fuse.build, "_build_map", lambda *a: spy(next(calls))())
+    monkeypatch.setattr(ingest.pipeline, "_run_ingest", spy("ingest"))
     monkeypatch.setattr(ingest.api, "Store", lambda path: path)  # nothing was written
     before = torch.get_num_threads()
     torch.set_num_threads(2)
