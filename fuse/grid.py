@@ -126,16 +126,51 @@ class _CellLayers:
         self.num_pixels[ids] += samples.num_pixels
 
 
-def _view_rows(view_id: int, ids: np.ndarray, samples: ViewSamples) -> pa.Table:
-    return pa.table(
-        {
-            "cell_id": pa.array(ids.astype(np.int32)),
-            "view_id": pa.array(np.full(ids.size, view_id, np.int32)),
-            "weight": pa.array(samples.weight.astype(np.float32)),
-            "num_pixels": pa.array(samples.num_pixels.astype(np.int32)),
-        },
-        schema=cell_views_schema(),
-    )
+class _ViewsWriter:
+    """``cell_views.parquet`` written a whole row group (:data:`VIEWS_GROUP_ROWS`) at a
+    time, from column buffers allocated once: the groups are the same whatever the views'
+    sizes, the pass writes without long stalls, and no per-view table is held from one view
+    to the next (small blocks kept alive between the views' temporaries fragmented the
+    heap: 180 MiB more peak memory on a 79k-cell floor)."""
+
+    def __init__(self, path: Path) -> None:
+        self._schema = cell_views_schema()
+        self._columns = {
+            f.name: np.empty(VIEWS_GROUP_ROWS, f.type.to_pandas_dtype()) for f in self._schema
+        }
+        self._rows = 0
+        self._writer = open_writer(path, self._schema)
+
+    def add(self, view_id: int, ids: np.ndarray, samples: ViewSamples) -> None:
+        """One row per sample of the view (``ids``: the samples' cells)."""
+        values = {"cell_id": ids, "weight": samples.weight, "num_pixels": samples.num_pixels}
+        done = 0
+        while done < ids.size:
+            take = min(ids.size - done, VIEWS_GROUP_ROWS - self._rows)
+            rows = slice(self._rows, self._rows + take)
+            for name, column in self._columns.items():
+                column[rows] = view_id if name == "view_id" else values[name][done : done + take]
+            self._rows += take
+            done += take
+            if self._rows == VIEWS_GROUP_ROWS:
+                self._flush()
+
+    def _flush(self) -> None:
+        if self._rows:
+            columns = {name: c[: self._rows] for name, c in self._columns.items()}
+            table = pa.table(columns, schema=self._schema)
+            self._writer.write_table(table, row_group_size=VIEWS_GROUP_ROWS)
+            self._rows = 0
+
+    def __enter__(self) -> _ViewsWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        try:
+            if exc[0] is None:
+                self._flush()
+        finally:
+            self._writer.close()
 
 
 @dataclass
@@ -183,22 +218,6 @@ def _views(store: Store, wanted: set[int] | None = None, desc: str = "fuse grid"
         yield view_id, frame, feature_map
 
 
-def _write_whole_groups(writer: pq.ParquetWriter, pending: list[pa.Table]) -> list[pa.Table]:
-    """Write the whole row groups (:data:`VIEWS_GROUP_ROWS`) ``pending`` holds; returns the
-    rows left over.
-
-    A write as soon as a row group is full keeps the pass free of long stalls, and the
-    groups are the same whatever the views' sizes.
-    """
-    rows = sum(t.num_rows for t in pending)
-    if rows < VIEWS_GROUP_ROWS:
-        return pending
-    table = pa.concat_tables(pending)
-    whole = rows - rows % VIEWS_GROUP_ROWS
-    writer.write_table(table.slice(0, whole), row_group_size=VIEWS_GROUP_ROWS)
-    return [table.slice(whole)] if whole < rows else []
-
-
 def _known_cells(store: Store, index: CellIndex, keys: np.ndarray) -> np.ndarray:
     """Ids of a view's cells in a finished map's ``index``; one that is not there means the
     store or the config is not the map's (a recompute checks both first)."""
@@ -230,9 +249,7 @@ def _fuse_views(
     index = CellIndex() if index is None else index
     layers = _CellLayers() if build else None
     later: dict[int, list[int]] = {}
-    pending: list[pa.Table] = []
-    opened = nullcontext() if views_path is None else open_writer(views_path, cell_views_schema())
-    with opened as writer:
+    with nullcontext() if views_path is None else _ViewsWriter(views_path) as writer:
         for view_id, frame, feature_map in _views(store):
             samples = _samples(config, frame, feature_map, text)
             ids = index.lookup(samples.keys) if build else _known_cells(store, index, samples.keys)
@@ -247,10 +264,7 @@ def _fuse_views(
             if layers is not None:
                 layers.add(ids, samples)
             if writer is not None:
-                pending.append(_view_rows(view_id, ids, samples))
-                pending = _write_whole_groups(writer, pending)
-        if writer is not None and pending:
-            writer.write_table(pa.concat_tables(pending), row_group_size=VIEWS_GROUP_ROWS)
+                writer.add(view_id, ids, samples)
     return _FirstPass(index, layers, later, sums)
 
 

@@ -231,6 +231,22 @@ def test_cell_views_read_as_numbers_by_polars_and_duckdb(tmp_path: Path) -> None
     assert not df.select(["cell_id", "view_id"]).is_duplicated().any()
 
 
+def test_cell_views_row_groups_do_not_change_the_rows(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Row groups smaller than a view's samples (a view split across groups): the same
+    rows as one group holds."""
+    whole = _store(tmp_path / "whole")
+    build_grid(whole, GridConfig(cell_size=0.1))
+    monkeypatch.setattr(grid_module, "VIEWS_GROUP_ROWS", 7)
+    small = _store(tmp_path / "small")
+    build_grid(small, GridConfig(cell_size=0.1))
+    one, many = (pq.ParquetFile(s / "cell_views.parquet") for s in (whole, small))
+    assert one.num_row_groups == 1
+    assert many.num_row_groups == -(-many.metadata.num_rows // 7) > 3
+    assert many.read().equals(one.read())
+
+
 def test_grid_of_an_older_layout_is_rebuilt(tmp_path: Path) -> None:
     """A grid whose cell_views still carries a feature copy (the older layout) is not
     current: `care fuse grid` rebuilds it without --overwrite, to the declared layout."""
