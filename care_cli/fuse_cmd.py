@@ -28,11 +28,11 @@ RrdOpt = Annotated[
 ]
 
 
-def _recompute_opt(views_table: str) -> Any:
+def _recompute_opt(source: str) -> Any:
     return Annotated[
         bool,
         typer.Option(
-            help=f"Only recompute the columns for --vocabulary / --logit-scale from {views_table}."
+            help=f"Only recompute the columns for --vocabulary / --logit-scale from {source}."
         ),
     ]
 
@@ -127,7 +127,9 @@ def _recorded(store: Path, table: str, kind: str) -> bytes | None:
 def grid(
     store: StoreArg,
     settings: Options[GridConfig],
-    recompute: _recompute_opt("cell_views.parquet") = False,
+    recompute: _recompute_opt(
+        "the store's views (the grid's settings as built; the same columns as a rebuild)"
+    ) = False,
     rrd: RrdOpt = None,
     up_axis: UpAxisOpt = None,
     floor_z: FloorOpt = None,
@@ -153,7 +155,9 @@ def grid(
     with _writing(store, rrd):
         _map_frame(store, up_axis, floor_z)
         if recompute:
-            path = recompute_grid(store, *_recompute_args(settings, config))
+            path = recompute_grid(
+                store, *_recompute_args(settings, config), memory_budget=config.memory_budget
+            )
         else:
             path = build_grid(store, config)
         if rrd is not None:

@@ -17,8 +17,8 @@ Each candidate keeps, in float32 unless told otherwise:
 - ``W1, W2`` (float64) and the view count.
 
 At d = 512 and n = 100 that is 8 d + 16 n + 32 = 5,728 bytes per candidate (the float64
-sums it replaces took 12.5 KB). One pass over the views, no per-view state in memory (the
-per-view tables on disk keep the samples for recomputation).
+sums it replaces took 12.5 KB). One pass over the views, no per-view state in memory (a
+recompute streams the grid's views again, or reads the instance map's per-view features).
 
 A sample of a candidate already seen in the same call is merged after the earlier one
 (calls stream views in order; :func:`fuse.recompute.sums_from_views` passes many views at

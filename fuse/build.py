@@ -13,9 +13,11 @@ committed last. Building one always goes the same way, and only here:
    vocabulary) is returned as it is (:meth:`MapSpec.is_current`);
 4. otherwise the builder writes each table to a staged temporary (:class:`StagedMap`), and
    the skeleton checks the main table against its declared columns
-   (:data:`fuse.schemas.MAP_SCHEMAS`, which :func:`query.map.load_map` checks too) and
-   renames them into place in the declared order, the main table last, so an interrupted
-   build leaves the previous map whole.
+   (:data:`fuse.schemas.MAP_SCHEMAS`, which :func:`query.map.load_map` checks too), and a
+   per-view table with a declared layout against it (:data:`fuse.schemas.VIEW_TABLE_SCHEMAS`),
+   and renames them into place in the declared order, the main table last, so an
+   interrupted build leaves the previous map whole. A map whose tables are in another
+   layout (an older program's) is not current: it is rebuilt.
 """
 
 from __future__ import annotations
@@ -38,7 +40,7 @@ from care.store import Store, read_schema
 from care.threads import Work, threads_for
 from fuse.frame import ensure_map_frame, store_stamp
 from fuse.measures import candidate_metadata
-from fuse.schemas import MAP_SCHEMAS, schema_problems
+from fuse.schemas import MAP_SCHEMAS, VIEW_TABLE_SCHEMAS, schema_problems, view_table_problems
 from fuse.vocabulary import vocabulary_text
 
 __all__ = [
@@ -137,6 +139,9 @@ class MapSpec:
         schema = read_schema(paths[-1])
         if schema_problems(schema, self.kind, paths[-1]) is not None:  # an older layout
             return False
+        for name, path in zip(self.tables, paths, strict=True):
+            if name in VIEW_TABLE_SCHEMAS and view_table_problems(read_schema(path), name, path):
+                return False
         found = schema.metadata or {}
         keys = (config_key(self.kind), STORE_KEY, VOCABULARY_KEY)
         return all(found.get(k) == metadata[k] for k in keys)
@@ -170,6 +175,10 @@ class StagedMap:
         problem = schema_problems(
             pq.read_schema(main), self.spec.kind, self.store.table_path(self.spec.table)
         )
+        for table, tmp in self._staged.items():
+            if problem is None and table in VIEW_TABLE_SCHEMAS and tmp.is_file():
+                final = self.store.table_path(table)
+                problem = view_table_problems(pq.read_schema(tmp), table, final)
         if problem is not None:  # a writer out of step with the declaration: a bug
             msg = f"{problem}; the {self.spec.kind} writer does not match fuse.schemas"
             raise FuseError(msg)

@@ -21,6 +21,7 @@ import numpy as np
 import torch
 from scipy import sparse
 
+from care.errors import FuseError
 from care.frames import Frame
 from care.threads import sync_torch
 
@@ -50,6 +51,19 @@ class CellIndex:
     def __init__(self) -> None:
         self._keys = np.empty(0, np.int64)  # sorted
         self._ids = np.empty(0, np.int64)  # id of each sorted key
+
+    @classmethod
+    def from_keys(cls, keys: np.ndarray) -> CellIndex:
+        """The index whose id i is ``keys[i]`` (a finished map's cells, in candidate order);
+        the inverse of :meth:`keys_by_id`. Keys must be distinct."""
+        keys = np.asarray(keys, np.int64)
+        index = cls()
+        order = np.argsort(keys, kind="stable")
+        index._keys, index._ids = keys[order], order.astype(np.int64)
+        if (index._keys[1:] == index._keys[:-1]).any():
+            msg = "cell keys repeat: not the cells of one grid"
+            raise FuseError(msg)
+        return index
 
     @property
     def size(self) -> int:
@@ -91,8 +105,8 @@ class ViewSamples:
     Attributes:
         keys: (k,) packed cell keys, sorted.
         weight: (k,) float32 summed pixel weights.
-        feature: (k, d) float32 mean pixel feature, L2-normalised (``cell_views.parquet``
-            keeps it as float16).
+        feature: (k, d) float32 mean pixel feature, L2-normalised (derived again from the
+            store by a recompute, not stored: ``cell_views.parquet`` lists the samples only).
         num_pixels: (k,) int64 pixels in the sample.
         top_z: (k,) float32 height of the highest pixel of the cell in this view.
         top_rgb: (k, 3) uint8 colour of that pixel.

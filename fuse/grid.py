@@ -1,7 +1,7 @@
 """The VLMaps-style grid map: dense features fused into occupied top-down cells, streaming.
 
 One pass over the store's views: each view becomes its (view, cell) samples
-(:func:`fuse.cells.view_samples`), which are appended to ``cell_views.parquet`` and merged
+(:func:`fuse.cells.view_samples`), which are listed in ``cell_views.parquet`` and merged
 into per-cell streaming statistics (:class:`fuse.accumulate.CandidateSums`, 5.7 KB a cell
 at d = 512, n = 100). Memory grows with the occupied cells, never with the number of views,
 and is capped by ``GridConfig.memory_budget``: cells beyond what the budget holds are fused
@@ -17,12 +17,14 @@ store gets:
   ``care.grid.shape`` ([nx, ny]), ``care.grid.config``.
 - ``cells.query/``: the query sidecar (:mod:`fuse.sidecar`), memory-mapped by
   :func:`query.map.load_map`: per-class log-confidence, features and top classes.
-- ``cell_views.parquet``: every (cell_id, view_id, weight, num_pixels, feature) sample, so
-  the columns can be recomputed for another vocabulary or logit scale
-  (:func:`fuse.recompute.recompute_grid`) without the views. Features are a fixed-size
-  float16 list there;
-  the streaming pass uses them at full precision, so a recompute matches a fresh build up
-  to that rounding (about 1e-3 relative), not bit for bit.
+- ``cell_views.parquet``: every (cell_id, view_id, weight, num_pixels) sample
+  (:data:`fuse.schemas.CELL_VIEWS_FIELDS`): which views saw a cell, with what weight and
+  how many pixels. It holds no copy of the samples' features (a copy cost more to write
+  than the fusion itself, and a megabyte or more a view): they are a function of the store
+  and the config, so a recompute for another vocabulary or logit scale
+  (:func:`fuse.recompute.recompute_grid`) derives them again from the store's views through
+  the same per-view code as the build (:func:`fused_columns`) and gives the same columns
+  as a fresh build, bit for bit.
 - ``grid_rgb.png`` and ``grid_obstacles.png``: the same two layers as images for people;
   row 0 is the largest y (north up), column = ix; and the obstacle layer as a ROS
   ``map_server`` occupancy map, ``map.pgm`` + ``map.yaml`` (:mod:`fuse.rosmap`).
@@ -33,6 +35,8 @@ A finished grid whose config and store match is not rebuilt (``overwrite`` force
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
+from contextlib import nullcontext
 from dataclasses import dataclass
 from itertools import zip_longest
 from pathlib import Path
@@ -46,27 +50,17 @@ from tqdm import tqdm
 from care.errors import FuseError
 from care.malloc import resident_bytes
 from care.outputs import write_atomic
-from care.store import (
-    SCHEMA_VERSION,
-    Store,
-    append_rows,
-    group_rows,
-    open_writer,
-    parquet_options,
-    read_table,
-)
+from care.store import SCHEMA_VERSION, Store, append_rows, open_writer, read_table
 from fuse.accumulate import CandidateSums
 from fuse.budget import check_raster
 from fuse.build import MapBuild, MapSpec, build_map
-from fuse.cells import CellIndex, ViewSamples, unpack_cells, view_samples
+from fuse.cells import CellIndex, ViewSamples, pack_cells, unpack_cells, view_samples
 from fuse.config import GridConfig
 from fuse.frame import check_height_band
 from fuse.layout import CELLS_TABLE, GridLayout
-from fuse.measures import (
-    MAX_TOP_CLASSES,
-    to_float16,
-)
+from fuse.measures import MAX_TOP_CLASSES
 from fuse.rosmap import occupancy_image, write_ros_map
+from fuse.schemas import CELL_VIEWS_FIELDS
 from fuse.sidecar import SidecarWriter, sidecar_path
 
 __all__ = [
@@ -76,41 +70,27 @@ __all__ = [
     "GridConfig",
     "GridLayout",
     "build_grid",
+    "cell_keys",
     "cell_views_schema",
     "cells_per_pass",
     "default_memory_budget",
+    "fused_columns",
     "grid_image",
     "write_grid_images",
 ]
 
 CELL_VIEWS_TABLE = "cell_views"
 
+VIEWS_GROUP_ROWS = 1 << 20
+"""Rows per row group of ``cell_views.parquet`` (16 bytes a row: 16 MiB held at most)."""
 
-def cell_views_schema(dim: int) -> pa.Schema:
-    """``cell_views.parquet``: one row per (view, cell) sample.
 
-    ``feature`` is a fixed-size list of ``dim`` float16: no offsets to write or read, and
-    polars (``Array(Float16, dim)``) and duckdb (``FLOAT[]``) read it as numbers.
-    """
+def cell_views_schema() -> pa.Schema:
+    """``cell_views.parquet``: one row per (view, cell) sample, the columns declared in
+    :data:`fuse.schemas.CELL_VIEWS_FIELDS`, all plain numbers (polars, duckdb)."""
     return pa.schema(
-        [
-            pa.field("cell_id", pa.int32(), nullable=False),
-            pa.field("view_id", pa.int32(), nullable=False),
-            pa.field("weight", pa.float32(), nullable=False),
-            pa.field("num_pixels", pa.int32(), nullable=False),
-            pa.field("feature", pa.list_(pa.float16(), int(dim)), nullable=False),
-        ],
-        metadata={b"care.schema_version": str(SCHEMA_VERSION).encode()},
+        CELL_VIEWS_FIELDS, metadata={b"care.schema_version": str(SCHEMA_VERSION).encode()}
     )
-
-
-def _open_views_writer(path: Path, dim: int) -> pq.ParquetWriter:
-    """The project's Parquet options, without min/max statistics of the feature values:
-    nobody filters on them, and computing them took a sixth of each write."""
-    schema = cell_views_schema(dim)
-    options = parquet_options(schema)
-    options["write_statistics"] = [f.name for f in schema if f.name != "feature"]
-    return pq.ParquetWriter(path, schema, **options)
 
 
 def grid_image(
@@ -146,19 +126,51 @@ class _CellLayers:
         self.num_pixels[ids] += samples.num_pixels
 
 
-def _view_rows(view_id: int, ids: np.ndarray, samples: ViewSamples) -> pa.Table:
-    dim = samples.feature.shape[1]
-    feature = pa.FixedSizeListArray.from_arrays(pa.array(to_float16(samples.feature).ravel()), dim)
-    return pa.table(
-        {
-            "cell_id": pa.array(ids.astype(np.int32)),
-            "view_id": pa.array(np.full(ids.size, view_id, np.int32)),
-            "weight": pa.array(samples.weight.astype(np.float32)),
-            "num_pixels": pa.array(samples.num_pixels.astype(np.int32)),
-            "feature": feature,
-        },
-        schema=cell_views_schema(dim),
-    )
+class _ViewsWriter:
+    """``cell_views.parquet`` written a whole row group (:data:`VIEWS_GROUP_ROWS`) at a
+    time, from column buffers allocated once: the groups are the same whatever the views'
+    sizes, the pass writes without long stalls, and no per-view table is held from one view
+    to the next (small blocks kept alive between the views' temporaries fragmented the
+    heap: 180 MiB more peak memory on a 79k-cell floor)."""
+
+    def __init__(self, path: Path) -> None:
+        self._schema = cell_views_schema()
+        self._columns = {
+            f.name: np.empty(VIEWS_GROUP_ROWS, f.type.to_pandas_dtype()) for f in self._schema
+        }
+        self._rows = 0
+        self._writer = open_writer(path, self._schema)
+
+    def add(self, view_id: int, ids: np.ndarray, samples: ViewSamples) -> None:
+        """One row per sample of the view (``ids``: the samples' cells)."""
+        values = {"cell_id": ids, "weight": samples.weight, "num_pixels": samples.num_pixels}
+        done = 0
+        while done < ids.size:
+            take = min(ids.size - done, VIEWS_GROUP_ROWS - self._rows)
+            rows = slice(self._rows, self._rows + take)
+            for name, column in self._columns.items():
+                column[rows] = view_id if name == "view_id" else values[name][done : done + take]
+            self._rows += take
+            done += take
+            if self._rows == VIEWS_GROUP_ROWS:
+                self._flush()
+
+    def _flush(self) -> None:
+        if self._rows:
+            columns = {name: c[: self._rows] for name, c in self._columns.items()}
+            table = pa.table(columns, schema=self._schema)
+            self._writer.write_table(table, row_group_size=VIEWS_GROUP_ROWS)
+            self._rows = 0
+
+    def __enter__(self) -> _ViewsWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        try:
+            if exc[0] is None:
+                self._flush()
+        finally:
+            self._writer.close()
 
 
 @dataclass
@@ -167,11 +179,12 @@ class _FirstPass:
     later pass must read again (cells beyond the first pass's ``capacity``)."""
 
     index: CellIndex
-    layers: _CellLayers
+    layers: _CellLayers | None
+    """None when not gathered (a recompute keeps the map's own columns)."""
     later: dict[int, list[int]]
     """Pass number (>= 1) -> views with samples in that pass's cells, in view order."""
     sums: CandidateSums | None
-    """The first pass's state; :func:`_write_cells` takes it (and drops it after use)."""
+    """The first pass's state; :func:`_cell_columns` takes it (and drops it after use)."""
 
 
 def _samples(config: GridConfig, frame, feature_map: np.ndarray, text: np.ndarray) -> ViewSamples:
@@ -205,35 +218,41 @@ def _views(store: Store, wanted: set[int] | None = None, desc: str = "fuse grid"
         yield view_id, frame, feature_map
 
 
-def _write_whole_groups(writer: pq.ParquetWriter, pending: list[pa.Table]) -> list[pa.Table]:
-    """Write the whole row groups ``pending`` holds; returns the rows left over.
-
-    A write as soon as a row group is full (a view of a large room fills one alone) keeps
-    the pass free of long stalls, and the groups are the same whatever the views' sizes.
-    """
-    rows = sum(t.num_rows for t in pending)
-    group = group_rows(pending[0])
-    if rows < group:
-        return pending
-    table = pa.concat_tables(pending)
-    whole = rows - rows % group
-    append_rows(writer, table.slice(0, whole))
-    return [table.slice(whole)] if whole < rows else []
+def _known_cells(store: Store, index: CellIndex, keys: np.ndarray) -> np.ndarray:
+    """Ids of a view's cells in a finished map's ``index``; one that is not there means the
+    store or the config is not the map's (a recompute checks both first)."""
+    ids = index.find(keys)
+    if (ids < 0).any():
+        msg = (
+            f"{store.path}: a view has samples in cells the grid does not have; it was built "
+            f"from other views or settings: rebuild it with `care fuse grid {store.path} --overwrite`"
+        )
+        raise FuseError(msg)
+    return ids
 
 
 def _fuse_views(
-    store: Store, config: GridConfig, sums: CandidateSums, views_path: Path, capacity: int
+    store: Store,
+    config: GridConfig,
+    sums: CandidateSums,
+    capacity: int,
+    *,
+    views_path: Path | None = None,
+    index: CellIndex | None = None,
 ) -> _FirstPass:
-    """The streaming pass: every view's samples into ``views_path``, those of cells
-    ``0..capacity-1`` into ``sums``; cells are indexed in order of first appearance."""
+    """The streaming pass: every view's samples, those of cells ``0..capacity-1`` into
+    ``sums``. Without an ``index`` (a build) cells are indexed in order of first appearance,
+    the layers gathered and every sample listed in ``views_path``; with one (a recompute:
+    the map's cells) every sample's cell must be in it."""
     text = sums.text
-    index, layers = CellIndex(), _CellLayers()
+    build = index is None
+    index = CellIndex() if index is None else index
+    layers = _CellLayers() if build else None
     later: dict[int, list[int]] = {}
-    pending: list[pa.Table] = []
-    with _open_views_writer(views_path, sums.dim) as writer:
+    with nullcontext() if views_path is None else _ViewsWriter(views_path) as writer:
         for view_id, frame, feature_map in _views(store):
             samples = _samples(config, frame, feature_map, text)
-            ids = index.lookup(samples.keys)
+            ids = index.lookup(samples.keys) if build else _known_cells(store, index, samples.keys)
             if ids.size and ids.max() >= capacity:
                 keep = np.flatnonzero(ids < capacity)
                 for p in np.unique(ids[ids >= capacity] // capacity):
@@ -242,11 +261,10 @@ def _fuse_views(
                 sums.add(ids[keep], first.weight, first.feature, first.dots)
             else:
                 sums.add(ids, samples.weight, samples.feature, samples.dots)
-            layers.add(ids, samples)
-            pending.append(_view_rows(view_id, ids, samples))
-            pending = _write_whole_groups(writer, pending)
-        if pending:
-            append_rows(writer, pa.concat_tables(pending))
+            if layers is not None:
+                layers.add(ids, samples)
+            if writer is not None:
+                writer.add(view_id, ids, samples)
     return _FirstPass(index, layers, later, sums)
 
 
@@ -267,6 +285,36 @@ def _fuse_pass(
         keep = np.flatnonzero((ids >= first_id) & (ids < last))
         part = samples.take(keep)
         sums.add(ids[keep] - first_id, part.weight, part.feature, part.dots)
+
+
+def _cell_columns(
+    store: Store,
+    config: GridConfig,
+    first: _FirstPass,
+    capacity: int,
+    *,
+    with_log_confidence: bool = False,
+) -> Iterator[tuple[pa.Table, np.ndarray]]:
+    """The common candidate columns of every cell of ``first.index``, chunk by chunk in id
+    order, with each chunk's summed weights: the first pass's cells from ``first.sums``
+    (taken: the only reference, each pass's state is freed), then each later pass's, fused
+    from the views that see them."""
+    n_cells = first.index.size
+    sums, first.sums = first.sums, None
+    assert sums is not None
+    text, scale = sums.text, sums.scale
+    for p, first_id in enumerate(range(0, n_cells, capacity)):
+        size = min(capacity, n_cells - first_id)
+        if p > 0:
+            del sums  # the previous pass's state goes before the next one's is allocated
+            sums = CandidateSums(text.shape[1], text, scale, capacity=size, limit=size)
+        sums.ensure(size)  # the pass's cells (one no sample reached still gets its row)
+        if p > 0:
+            _fuse_pass(store, config, sums, first.index, first_id, first.later.get(p, []))
+        weight = sums.weight
+        for chunk in sums.iter_columns(first_id=first_id, with_log_confidence=with_log_confidence):
+            lo = chunk.column("candidate_id")[0].as_py() - first_id
+            yield chunk, weight[lo : lo + chunk.num_rows]
 
 
 def _layout(index: CellIndex, cell_size: float) -> tuple[GridLayout, np.ndarray, np.ndarray]:
@@ -384,42 +432,32 @@ def _write_cells(
     final: Path,
 ) -> None:
     """Write ``cells.parquet`` (to ``path``, later renamed to ``final``) chunk by chunk in
-    id order, and its query sidecar (:mod:`fuse.sidecar`) beside ``final``: the first
-    pass's cells from ``sums``, then each later pass's, fused from the views that see them."""
+    id order, and its query sidecar (:mod:`fuse.sidecar`) beside ``final``, from
+    :func:`_cell_columns`."""
     layout, grid_ix, grid_iy = _layout(first.index, config.cell_size)
     check_raster((layout.shape[1], layout.shape[0], 3), 1, config.cell_size)  # the images
     metadata = {**metadata, **layout.metadata()}
     n_cells = first.index.size
+    layers = first.layers
+    assert layers is not None  # a build's first pass gathers them
     writer: pq.ParquetWriter | None = None
     n_top = min(len(text), MAX_TOP_CLASSES)
     sidecar = SidecarWriter(sidecar_path(final), n_cells, text.shape[1], n_top, len(text), metadata)
-    sums, first.sums = first.sums, None  # the only reference: each pass's state is freed
     try:
-        for p, first_id in enumerate(range(0, n_cells, capacity)):
-            if p > 0:
-                del sums  # the previous pass's state goes before the next one's is allocated
-                size = min(capacity, n_cells - first_id)
-                sums = CandidateSums(
-                    text.shape[1], text, config.logit_scale, capacity=size, limit=size
-                )
-                sums.ensure(size)
-                _fuse_pass(store, config, sums, first.index, first_id, first.later.get(p, []))
-            weight = sums.weight
-            for chunk in sums.iter_columns(first_id=first_id, with_log_confidence=True):
-                sidecar.write(chunk)
-                if "log_confidence" in chunk.column_names:
-                    chunk = chunk.drop_columns(["log_confidence"])
-                lo = chunk.column("candidate_id")[0].as_py()
-                rows = slice(lo, lo + chunk.num_rows)
-                table = _cells_chunk(
-                    chunk, rows, grid_ix, grid_iy, layout, first.layers, config,
-                    weight[lo - first_id : lo - first_id + chunk.num_rows],
-                )  # fmt: skip
-                if writer is None:
-                    md = {**(table.schema.metadata or {}), **metadata}
-                    md[b"care.schema_version"] = str(SCHEMA_VERSION).encode()
-                    writer = open_writer(path, table.schema.with_metadata(md))
-                append_rows(writer, table.replace_schema_metadata(writer.schema.metadata))
+        for chunk, weight in _cell_columns(
+            store, config, first, capacity, with_log_confidence=True
+        ):
+            sidecar.write(chunk)
+            if "log_confidence" in chunk.column_names:
+                chunk = chunk.drop_columns(["log_confidence"])
+            lo = chunk.column("candidate_id")[0].as_py()
+            rows = slice(lo, lo + chunk.num_rows)
+            table = _cells_chunk(chunk, rows, grid_ix, grid_iy, layout, layers, config, weight)
+            if writer is None:
+                md = {**(table.schema.metadata or {}), **metadata}
+                md[b"care.schema_version"] = str(SCHEMA_VERSION).encode()
+                writer = open_writer(path, table.schema.with_metadata(md))
+            append_rows(writer, table.replace_schema_metadata(writer.schema.metadata))
         sidecar.commit()
     finally:
         sidecar.abort()
@@ -468,8 +506,9 @@ def _fuse_grid(build: MapBuild, config: GridConfig) -> None:
     dim = store.encoder.dim
     capacity = cells_per_pass(config, dim, len(text))
     sums = CandidateSums(dim, text, config.logit_scale, limit=capacity)
-    first = _fuse_views(store, config, sums, build.staged.path(CELL_VIEWS_TABLE), capacity)
-    del sums  # first.sums holds it, until _write_cells lets it go
+    views = build.staged.path(CELL_VIEWS_TABLE)
+    first = _fuse_views(store, config, sums, capacity, views_path=views)
+    del sums  # first.sums holds it, until _cell_columns lets it go
     if first.index.size == 0:
         msg = (
             f"{store.path}: no depth pixel fell between z_min={config.z_min} and "
@@ -479,3 +518,31 @@ def _fuse_grid(build: MapBuild, config: GridConfig) -> None:
     cells = build.staged.path(CELLS_TABLE)
     final = store.table_path(CELLS_TABLE)
     _write_cells(store, config, text, first, capacity, cells, build.metadata, final)
+
+
+def cell_keys(cells: pa.Table) -> np.ndarray:
+    """(N,) packed key (:func:`fuse.cells.pack_cells`) of each row of a grid's cells table:
+    its ``ix, iy`` from the grid origin in its metadata (:class:`GridLayout`)."""
+    layout = GridLayout.from_table(cells)
+    ox = round(layout.origin[0] / layout.cell_size)
+    oy = round(layout.origin[1] / layout.cell_size)
+    ix = cells.column("ix").to_numpy().astype(np.int64) + ox
+    iy = cells.column("iy").to_numpy().astype(np.int64) + oy
+    return pack_cells(ix, iy)
+
+
+def fused_columns(store: Store, config: GridConfig, text: np.ndarray, keys: np.ndarray) -> pa.Table:
+    """The common candidate columns of the cells ``keys`` (packed, row i = candidate i) for
+    the vocabulary embeddings ``text`` at ``config.logit_scale``: the store's views streamed
+    through the build's own per-view code and passes (:func:`_fuse_views`,
+    :func:`_cell_columns`, same memory budget), so a grid built with ``config`` has these
+    columns bit for bit. Every view's cells must be among ``keys`` (the map's own store
+    and config)."""
+    capacity = cells_per_pass(config, store.encoder.dim, len(text))
+    sums = CandidateSums(store.encoder.dim, text, config.logit_scale, limit=capacity)
+    first = _fuse_views(store, config, sums, capacity, index=CellIndex.from_keys(keys))
+    del sums  # first.sums holds it, until _cell_columns lets it go
+    chunks = [chunk for chunk, _ in _cell_columns(store, config, first, capacity)]
+    if not chunks:  # no cells: the empty columns
+        return CandidateSums(store.encoder.dim, text, config.logit_scale).columns()
+    return pa.concat_tables(chunks).combine_chunks()

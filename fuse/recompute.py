@@ -1,30 +1,52 @@
-"""Columns for a new vocabulary or logit scale, from the per-view tables alone.
+"""Columns for a new vocabulary or logit scale, without building the map again.
 
-The per-view tables (``cell_views.parquet``, ``instance_views.parquet``) keep every per-view
-feature, so the candidate columns can be rebuilt without re-reading the recording: the
-same :class:`fuse.accumulate.CandidateSums` as the streaming pass, fed from the table a
-record batch at a time.
+Only the candidate columns depend on the vocabulary and the logit scale; the rest of a map
+(its cells or instances, geometry, masks) is kept in place. Each map gets its per-view
+features its own way:
+
+- the instance map's ``instance_views.parquet`` keeps every per-view feature (one row per
+  instance view, a few thousand at most), fed to the same
+  :class:`fuse.accumulate.CandidateSums` as the build, a record batch at a time
+  (:func:`sums_from_views`);
+- the grid's per-view cell features are a function of the store (its views' depth, pose
+  and patch features) and the grid's config, and a copy of them cost more to write than
+  the fusion (``cell_views.parquet`` lists the samples without features). They are derived
+  again by streaming the store's views through the build's own per-view code
+  (:func:`fuse.grid.fused_columns`), restricted to the map's cells in its
+  ``candidate_id`` order, under the config the map records, so the columns equal a fresh
+  build's with the same settings bit for bit. That needs the store the map was built from:
+  another one (re-ingested, another map frame) is refused in one line.
 """
 
 from __future__ import annotations
 
 import shutil
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 
+from care.config import recorded_fields
 from care.errors import FuseError
 from care.store import Store, iter_batches, read_table, write_table_atomic
 from care.threads import Work, threads_for
 from fuse.accumulate import CandidateSums
-from fuse.build import update_config
+from fuse.build import STORE_KEY, config_json_key, update_config
+from fuse.config import GridConfig
+from fuse.frame import store_stamp
 from fuse.measures import candidate_metadata
 from fuse.sidecar import sidecar_path
 from fuse.vocabulary import vocabulary_text
 
-__all__ = ["recompute_candidates", "recompute_grid", "sums_from_views"]
+__all__ = ["grid_config_of", "recompute_candidates", "recompute_grid", "sums_from_views"]
+
+Columns = Callable[[Store, pa.Table, np.ndarray, float], pa.Table]
+"""``(store, map table, (n, d) text embeddings, scale)`` -> the common candidate columns."""
+
+SAMPLE_FIELDS = ("cell_size", "stride", "z_min", "z_max", "sigma_z", "distance_weighting")
+"""The grid settings that shape its per-view samples: a recompute needs each recorded."""
 
 
 def sums_from_views(
@@ -56,20 +78,55 @@ def sums_from_views(
     return sums
 
 
+def grid_config_of(cells: pa.Table, where: Path) -> GridConfig:
+    """The config a grid's cells table records (``care.grid.config_json``); refused in one
+    line when it lacks a setting of the samples (:data:`SAMPLE_FIELDS`)."""
+    fields = recorded_fields(GridConfig, (cells.schema.metadata or {}).get(config_json_key("grid")))
+    missing = [name for name in SAMPLE_FIELDS if name not in fields]
+    if missing:
+        msg = (
+            f"{where}: the grid does not record the settings it was built with "
+            f"({', '.join(missing)}); rebuild it with `care fuse grid {where.parent} --overwrite`"
+        )
+        raise FuseError(msg)
+    return GridConfig(**fields)
+
+
 def recompute_grid(
-    store_path: Path, vocabulary: Sequence[str] | None = None, logit_scale: float | None = None
+    store_path: Path,
+    vocabulary: Sequence[str] | None = None,
+    logit_scale: float | None = None,
+    *,
+    memory_budget: int | None = None,
+    cells_per_pass: int | None = None,
 ) -> Path:
     """Rewrite the candidate columns of ``cells.parquet`` for another vocabulary or scale.
 
     The grid's own columns (position, colour, obstacle...) are kept; ``None`` keeps the
-    current logit scale, and the store's cached names when ``vocabulary`` is None.
+    current logit scale, and the store's cached names when ``vocabulary`` is None. The
+    per-view cell features come from the store's views again (see the module docstring),
+    fused under ``memory_budget`` as a build would be (default: half the machine;
+    ``cells_per_pass`` overrides it, as in :class:`fuse.config.GridConfig`), on the thread
+    pools of :attr:`care.threads.Work.FUSE` like :func:`fuse.fuse_grid`.
     """
-    from fuse.grid import CELL_VIEWS_TABLE, CELLS_TABLE
+    from fuse.grid import CELLS_TABLE, cell_keys, fused_columns
 
-    return recompute_candidates(
-        store_path, CELLS_TABLE, CELL_VIEWS_TABLE, "cell_id", "grid",
-        weight_column="weight", vocabulary=vocabulary, logit_scale=logit_scale,
-    )  # fmt: skip
+    def columns(store: Store, cells: pa.Table, text: np.ndarray, scale: float) -> pa.Table:
+        path = store.table_path(CELLS_TABLE)
+        config = grid_config_of(cells, path)
+        if (cells.schema.metadata or {}).get(STORE_KEY) != store_stamp(store):
+            msg = (
+                f"{path}: built from another version of the store (its views or map frame "
+                f"changed since); rebuild it with `care fuse grid {store.path} --overwrite`"
+            )
+            raise FuseError(msg)
+        config = replace(
+            config, logit_scale=scale, memory_budget=memory_budget, cells_per_pass=cells_per_pass
+        )
+        with threads_for(Work.FUSE):
+            return fused_columns(store, config, text, cell_keys(cells))
+
+    return _recompute(store_path, CELLS_TABLE, "grid", columns, vocabulary, logit_scale)
 
 
 @threads_for(Work.FUSE)  # the same bytes as a build, whoever calls it (fuse.build.build_map)
@@ -84,7 +141,33 @@ def recompute_candidates(
     vocabulary: Sequence[str] | None = None,
     logit_scale: float | None = None,
 ) -> Path:
-    """Rewrite the common candidate columns of a map table from its per-view table.
+    """Rewrite the common candidate columns of a map table from its per-view table of
+    features (the instance map's ``instance_views.parquet``, :func:`sums_from_views`)."""
+
+    def columns(store: Store, table: pa.Table, text: np.ndarray, scale: float) -> pa.Table:
+        sums = sums_from_views(
+            store.table_path(views_table),
+            id_column,
+            text,
+            scale,
+            num_candidates=table.num_rows,
+            weight_column=weight_column,
+        )
+        return sums.columns()
+
+    return _recompute(store_path, table_name, kind, columns, vocabulary, logit_scale)
+
+
+def _recompute(
+    store_path: Path,
+    table_name: str,
+    kind: str,
+    columns: Columns,
+    vocabulary: Sequence[str] | None,
+    logit_scale: float | None,
+) -> Path:
+    """Replace the common candidate columns of a map table by ``columns``' for the new
+    vocabulary and scale.
 
     Shared by both maps so a grid and an instance map recompute the same way: the map's
     own columns (geometry, masks) are kept in place, the metadata and the map's config
@@ -96,15 +179,7 @@ def recompute_candidates(
     md = dict(table.schema.metadata or {})
     scale = float(md[b"care.logit_scale"]) if logit_scale is None else float(logit_scale)
     names, text = vocabulary_text(store, vocabulary)
-    sums = sums_from_views(
-        store.table_path(views_table),
-        id_column,
-        text,
-        scale,
-        num_candidates=table.num_rows,
-        weight_column=weight_column,
-    )
-    common = sums.columns()
+    common = columns(store, table, text, scale)
     new = pa.table(
         {
             n: (common.column(n) if n in common.column_names else table.column(n))

@@ -4,8 +4,11 @@
 columns of :func:`fuse.measures.candidate_columns` and add their own. The map-build
 skeleton checks every table it commits against its declaration (:mod:`fuse.build`), and
 :func:`query.map.load_map` checks a table against it before reading, so a column renamed
-or retyped on one side is one clear line, not a ``KeyError`` deep in a query. Only pyarrow
-is imported: readers of finished maps load this without the fusion.
+or retyped on one side is one clear line, not a ``KeyError`` deep in a query. A map's
+per-view table with a fixed layout (``cell_views.parquet``) is declared here too
+(:data:`VIEW_TABLE_SCHEMAS`): one written in another layout (an older grid's, with a copy
+of every per-view feature) makes the map out of date, so ``care fuse grid`` rebuilds it.
+Only pyarrow is imported: readers of finished maps load this without the fusion.
 """
 
 from __future__ import annotations
@@ -16,11 +19,14 @@ import pyarrow as pa
 
 __all__ = [
     "CANDIDATE_FIELDS",
+    "CELL_VIEWS_FIELDS",
     "GRID_FIELDS",
     "INSTANCE_FIELDS",
     "MAP_SCHEMAS",
     "QUERY_COLUMNS",
+    "VIEW_TABLE_SCHEMAS",
     "schema_problems",
+    "view_table_problems",
 ]
 
 CANDIDATE_FIELDS = (
@@ -61,6 +67,20 @@ INSTANCE_FIELDS = (
 )
 """The instance map's own columns (see :mod:`fuse.instances`)."""
 
+CELL_VIEWS_FIELDS = (
+    pa.field("cell_id", pa.int32(), nullable=False),
+    pa.field("view_id", pa.int32(), nullable=False),
+    pa.field("weight", pa.float32(), nullable=False),
+    pa.field("num_pixels", pa.int32(), nullable=False),
+)
+"""``cell_views.parquet``, one row per (view, cell) sample of the grid: the cell's
+``candidate_id``, the view, the sample's summed pixel weight and its pixel count. No copy
+of the sample's feature: that is a function of the store and the grid's config
+(:func:`fuse.cells.view_samples`), derived again where needed (:mod:`fuse.recompute`)."""
+
+VIEW_TABLE_SCHEMAS: dict[str, pa.Schema] = {"cell_views": pa.schema(CELL_VIEWS_FIELDS)}
+"""Per-view table name -> its declared schema (exactly these columns, in this order)."""
+
 MAP_SCHEMAS: dict[str, pa.Schema] = {
     "grid": pa.schema([*CANDIDATE_FIELDS, *GRID_FIELDS]),
     "instances": pa.schema([*CANDIDATE_FIELDS, *INSTANCE_FIELDS]),
@@ -95,3 +115,16 @@ def schema_problems(
     if not wrong:
         return None
     return f"{where}: not a {kind} map table as declared ({'; '.join(wrong)})"
+
+
+def view_table_problems(schema: pa.Schema, table: str, where: Path) -> str | None:
+    """How ``schema`` differs from the declared per-view ``table`` (None: the same columns,
+    names and types in order; metadata aside). Tables without a declaration pass."""
+    declared = VIEW_TABLE_SCHEMAS.get(table)
+    if declared is None:
+        return None
+    found = [(f.name, f.type) for f in schema]
+    if found == [(f.name, f.type) for f in declared]:
+        return None
+    names = ", ".join(f"{n}: {t}" for n, t in found)
+    return f"{where}: not a {table} table as declared (columns {names})"

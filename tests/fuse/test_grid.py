@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 from collections import defaultdict
+from dataclasses import replace
 from pathlib import Path
 
 import duckdb
@@ -24,6 +25,7 @@ from care.store import EncoderInfo, StoreWriter, read_table
 from fuse import grid as grid_module
 from fuse.grid import GridConfig, GridLayout, build_grid, grid_image
 from fuse.recompute import recompute_grid
+from fuse.schemas import CELL_VIEWS_FIELDS
 
 H, W, D = 12, 16, 8
 K = np.array([[20.0, 0, 7.3], [0, 20.0, 5.7], [0, 0, 1]])
@@ -202,26 +204,68 @@ def test_grid_layers_and_readers(tmp_path: Path) -> None:
 
 
 def test_cell_views_read_as_numbers_by_polars_and_duckdb(tmp_path: Path) -> None:
-    """The per-view features are a fixed-size float16 list: polars and duckdb, which no one
-    here wrote, read the same numbers as pyarrow."""
+    """The (view, cell) samples, without feature copies: the declared columns, read as the
+    same numbers by polars and duckdb (which no one here wrote) as by pyarrow, and adding
+    up to the cells' weights and pixel counts."""
     store = _store(tmp_path / "s")
-    build_grid(store, GridConfig(cell_size=0.1))
+    cells = read_table(build_grid(store, GridConfig(cell_size=0.1)))
     path = store / "cell_views.parquet"
     table = pq.read_table(path)
-    dim = _text().shape[1]
-    assert table.schema.field("feature").type == pa.list_(pa.float16(), dim)
-    want = table.column("feature").combine_chunks().flatten().to_numpy().astype(np.float64)
-    want = want.reshape(table.num_rows, dim)
+    assert table.schema.equals(pa.schema(CELL_VIEWS_FIELDS))  # no feature column
     df = pl.read_parquet(path)
-    assert df.schema["feature"] == pl.Array(pl.Float16, dim)
-    np.testing.assert_array_equal(df["feature"].to_numpy().astype(np.float64), want)
-    rows = duckdb.sql(
-        f"select feature[1], feature[{dim}], list_sum(feature) from '{path}'"
-    ).fetchall()
-    got = np.array(rows, dtype=np.float64)
-    np.testing.assert_array_equal(got[:, 0], want[:, 0])
-    np.testing.assert_array_equal(got[:, 1], want[:, -1])
-    np.testing.assert_allclose(got[:, 2], want.sum(1), rtol=1e-5, atol=1e-5)
+    assert df.columns == ["cell_id", "view_id", "weight", "num_pixels"]
+    for name in df.columns:
+        np.testing.assert_array_equal(df[name].to_numpy(), table.column(name).to_numpy())
+    got = duckdb.sql(f"select cell_id, view_id, weight, num_pixels from '{path}'").fetchnumpy()
+    for name in df.columns:
+        np.testing.assert_array_equal(got[name], table.column(name).to_numpy())
+    # one row per (view, cell): each cell's samples sum to its weight and pixel count
+    per_cell = duckdb.sql(
+        f"select cell_id, count(*) n, sum(weight) w, sum(num_pixels) p from '{path}' "
+        "group by cell_id order by cell_id"
+    ).fetchnumpy()
+    np.testing.assert_array_equal(per_cell["cell_id"], np.arange(cells.num_rows))
+    np.testing.assert_array_equal(per_cell["n"], cells.column("num_views").to_numpy())
+    np.testing.assert_array_equal(per_cell["p"], cells.column("num_pixels").to_numpy())
+    np.testing.assert_allclose(per_cell["w"], cells.column("weight").to_numpy(), rtol=1e-5)
+    assert not df.select(["cell_id", "view_id"]).is_duplicated().any()
+
+
+def test_cell_views_row_groups_do_not_change_the_rows(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Row groups smaller than a view's samples (a view split across groups): the same
+    rows as one group holds."""
+    whole = _store(tmp_path / "whole")
+    build_grid(whole, GridConfig(cell_size=0.1))
+    monkeypatch.setattr(grid_module, "VIEWS_GROUP_ROWS", 7)
+    small = _store(tmp_path / "small")
+    build_grid(small, GridConfig(cell_size=0.1))
+    one, many = (pq.ParquetFile(s / "cell_views.parquet") for s in (whole, small))
+    assert one.num_row_groups == 1
+    assert many.num_row_groups == -(-many.metadata.num_rows // 7) > 3
+    assert many.read().equals(one.read())
+
+
+def test_grid_of_an_older_layout_is_rebuilt(tmp_path: Path) -> None:
+    """A grid whose cell_views still carries a feature copy (the older layout) is not
+    current: `care fuse grid` rebuilds it without --overwrite, to the declared layout."""
+    store = _store(tmp_path / "s")
+    path = build_grid(store, GridConfig(cell_size=0.1))
+    views = store / "cell_views.parquet"
+    table = pq.read_table(views)
+    feature = pa.FixedSizeListArray.from_arrays(
+        pa.array(np.zeros(table.num_rows * D, np.float16)), D
+    )
+    old = table.append_column("feature", feature).replace_schema_metadata(table.schema.metadata)
+    pq.write_table(old, views)
+    from care.outputs import record_table
+
+    record_table(views)  # whole, as the older program recorded it
+    stamp = path.stat().st_mtime_ns
+    build_grid(store, GridConfig(cell_size=0.1))
+    assert path.stat().st_mtime_ns != stamp
+    assert pq.read_schema(views).names == [f.name for f in CELL_VIEWS_FIELDS]
 
 
 @pytest.mark.parametrize("cells_per_pass", [7, 50])
@@ -297,25 +341,53 @@ def test_interrupted_build_keeps_previous_grid(
     assert not [p for p in store.iterdir() if p.name.startswith(".")]
 
 
-def test_recompute_equals_fresh_build(tmp_path: Path) -> None:
-    store = _store(tmp_path / "s")
-    build_grid(store, GridConfig(cell_size=0.1))
+@pytest.mark.parametrize("cells_per_pass", [None, 7])
+def test_recompute_equals_fresh_build(tmp_path: Path, cells_per_pass: int | None) -> None:
+    """Another vocabulary and logit scale: the recompute streams the store's views through
+    the build's per-view code (in one pass, or several), so its columns are a fresh
+    build's with those settings bit for bit."""
+    config = GridConfig(cell_size=0.1, stride=1, distance_weighting=False, z_min=0.2)
+    store = _store(tmp_path / "s", n=5)
+    build_grid(store, config)
+    views = (store / "cell_views.parquet").read_bytes()
     vocab = ("lamp", "chair", "bed")
-    recomputed = read_table(recompute_grid(store, vocab, logit_scale=30.0))
-    fresh_store = _store(tmp_path / "t")
-    fresh = read_table(
-        build_grid(fresh_store, GridConfig(cell_size=0.1, vocabulary=vocab, logit_scale=30.0))
+    recomputed = read_table(
+        recompute_grid(store, vocab, logit_scale=30.0, cells_per_pass=cells_per_pass)
     )
-    assert recomputed.column_names == fresh.column_names
-    for name in ("top_classes", "num_views", "ix", "iy", "obstacle"):
-        assert recomputed.column(name).to_pylist() == fresh.column(name).to_pylist()
-    # cell_views keeps per-view features as float16: equal up to that rounding
-    for name, atol in (("log_norm", 1e-2), ("entropy", 1e-3), ("stderr", 1e-5), ("pwkl", 1e-3)):
-        got, want = recomputed.column(name).to_numpy(), fresh.column(name).to_numpy()
-        np.testing.assert_allclose(got, want, rtol=1e-2, atol=atol, err_msg=name)
+    fresh_store = _store(tmp_path / "t", n=5)
+    fresh = read_table(build_grid(fresh_store, replace(config, vocabulary=vocab, logit_scale=30.0)))
+    assert recomputed.num_rows > 3 * 7
+    assert recomputed.schema.equals(fresh.schema)  # metadata aside
+    for name in fresh.column_names:
+        assert recomputed.column(name).equals(fresh.column(name)), name
     md = pq.read_schema(store / "cells.parquet").metadata
     assert md[b"care.vocabulary"] == b'["lamp", "chair", "bed"]'
     assert float(md[b"care.logit_scale"]) == 30.0
+    assert (store / "cell_views.parquet").read_bytes() == views  # the samples did not change
+    # back to the store's vocabulary and scale: the first build's columns again
+    first = read_table(build_grid(fresh_store, config))
+    again = read_table(recompute_grid(store, list(NAMES), logit_scale=config.logit_scale))
+    for name in first.column_names:
+        assert again.column(name).equals(first.column(name)), name
+
+
+def test_recompute_needs_the_store_it_was_built_from(tmp_path: Path) -> None:
+    """The per-view features come from the store: a grid moved onto other views (or a
+    store ingested again) is refused in one line, the map left as it was."""
+    store = _store(tmp_path / "s")
+    build_grid(store, GridConfig(cell_size=0.1))
+    other = _store(tmp_path / "t", seed=1)
+    build_grid(other, GridConfig(cell_size=0.1))
+    for name in ("cells.parquet", "cell_views.parquet"):
+        (other / name).write_bytes((store / name).read_bytes())
+    from care.outputs import record_table
+
+    record_table(other / "cells.parquet")
+    record_table(other / "cell_views.parquet")
+    before = (other / "cells.parquet").read_bytes()
+    with pytest.raises(FuseError, match=r"built from another version of the store"):
+        recompute_grid(other, ["lamp", "bed"])
+    assert (other / "cells.parquet").read_bytes() == before
 
 
 def test_views_without_feature_rows_are_one_clear_error(tmp_path: Path) -> None:
