@@ -10,10 +10,10 @@ How it is found (:func:`estimate_map_frame`), from the recording itself:
 1. a first guess of "up" from the cameras: a robot's or a person's camera is held roughly
    level, so the mean of the optical frames' -y axes points up; the second guess is the
    world's +z (REP 103), for cameras that look straight down;
-2. the floor: among the largest planes (seeded RANSAC, :func:`care.planes.fit_plane`) of a bounded
-   sample of the depth points, oriented towards the cameras (so the ceiling, above them,
-   points down), the largest whose normal lies within ``max_tilt`` of the first guess that
-   has one (walls are not horizontal);
+2. the floor: among the largest planes (seeded RANSAC, :func:`care.planes.fit_plane`) of a
+   bounded sample of the depth points, oriented towards the cameras (so the ceiling, above
+   them, points down), the largest whose normal lies within ``max_tilt`` of the first guess
+   that has one (walls are not horizontal);
 3. up = the floor's normal, snapped to a world axis when within ``snap`` of it (so a z-up
    recording keeps its exact axes); the floor's height becomes z = 0, except that a world
    frame already z-up with its floor within ``floor_tolerance`` of 0 is kept as it is;

@@ -18,9 +18,9 @@ views in separate processes. So every kind of work (:class:`Work`) has a thread 
 ``CARE_THREADS=<n>`` overrides the counts (for a machine of your own; 0 = all cores) except
 those of :data:`PINNED` work: BLAS decides the last bits of a float32 product by its thread
 count, so the fusion, the queries and the evaluation keep one thread and their results are
-the same bytes on every machine, worker and setting (``tests/evaluate/test_thread_counts``). Arrow decodes a Parquet
-row group's columns on its own pool (one thread per core): it is sized with the others, so
-"one thread" holds for reading the store too.
+the same bytes on every machine, worker and setting (``tests/evaluate/test_thread_counts``).
+Arrow decodes a Parquet row group's columns on its own pool (one thread per core): it is
+sized with the others, so "one thread" holds for reading the store too.
 """
 
 from __future__ import annotations

@@ -2,12 +2,12 @@
 
 ``PROPOSERS`` maps a method name to a function ``(cloud, store, settings) -> Proposals``:
 
-- ``geometric``: no labels needed. The dominant planes are found with RANSAC
-  (:func:`care.planes.fit_plane`, seeded: the same planes in every process) one after the other; a plane counts as *structure* when it is
-  horizontal at floor or ceiling height, or vertical and at least ``wall_min_height``
-  tall (a wall; a tall flat front such as a wardrobe's can go with it, a known
-  weakness). Only the inliers whose own normal agrees with the plane's are removed, so the
-  sides of an object standing on the floor or against a wall stay. What is left is
+- ``geometric``: no labels needed. The dominant planes are found one after the other with RANSAC
+  (:func:`care.planes.fit_plane`, seeded: the same planes in every process); a plane counts
+  as *structure* when it is horizontal at floor or ceiling height, or vertical and at least
+  ``wall_min_height`` tall (a wall; a tall flat front such as a wardrobe's can go with it, a
+  known weakness). Only the inliers whose own normal agrees with the plane's are removed, so
+  the sides of an object standing on the floor or against a wall stay. What is left is
   clustered with DBSCAN (open3d ``cluster_dbscan``); clusters too small or too large to be
   an object are dropped.
 - ``labels``: oracle masks from the recording's instance-id images (``instance_png``).

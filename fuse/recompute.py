@@ -123,13 +123,11 @@ def recompute_grid(
         config = replace(
             config, logit_scale=scale, memory_budget=memory_budget, cells_per_pass=cells_per_pass
         )
-        with threads_for(Work.FUSE):
-            return fused_columns(store, config, text, cell_keys(cells))
+        return fused_columns(store, config, text, cell_keys(cells))
 
     return _recompute(store_path, CELLS_TABLE, "grid", columns, vocabulary, logit_scale)
 
 
-@threads_for(Work.FUSE)  # the same bytes as a build, whoever calls it (fuse.build.build_map)
 def recompute_candidates(
     store_path: Path,
     table_name: str,
@@ -158,6 +156,7 @@ def recompute_candidates(
     return _recompute(store_path, table_name, kind, columns, vocabulary, logit_scale)
 
 
+@threads_for(Work.FUSE)  # the same bytes as a build, whoever calls it (fuse.build.build_map)
 def _recompute(
     store_path: Path,
     table_name: str,

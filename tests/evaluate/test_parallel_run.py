@@ -122,6 +122,13 @@ def _differences(expected: dict[str, bytes], out: Path) -> list[str]:
     return sorted(set(got) ^ set(expected)) + [k for k in expected if got.get(k) != expected[k]]
 
 
+def _rrd_counts(out: Path) -> dict[str, object]:
+    """Entities and components logged in each Rerun file of a run (its bytes hold times)."""
+    from care.viz import rrd_entity_counts
+
+    return {p.name: rrd_entity_counts(p) for p in sorted(out.glob("*.rrd"))}
+
+
 @pytest.mark.slow
 def test_same_bytes_serial_pool_and_local_ray(
     dataset: Path, serial: dict[str, bytes], ray_session: object
@@ -131,6 +138,12 @@ def test_same_bytes_serial_pool_and_local_ray(
     assert _differences(serial, dataset.parent / "pool") == []
     run_all(dataset, dataset.parent / "ray", replace(CONFIG, ray_address=True))  # shared session
     assert _differences(serial, dataset.parent / "ray") == []
+    # each scene's grid, instance and evaluation recordings, logged by the workers' tasks
+    logged = _rrd_counts(dataset.parent / "serial")
+    assert len(logged) == 3 * 2
+    assert all(sum(c.values()) > 0 for c in logged.values())
+    assert _rrd_counts(dataset.parent / "pool") == logged
+    assert _rrd_counts(dataset.parent / "ray") == logged
 
 
 @pytest.mark.slow
