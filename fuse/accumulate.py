@@ -192,19 +192,26 @@ class CandidateSums:
         a = np.maximum(logits, np.float32(np.log(PROB_FLOOR)), out=logits)
         m_old = old[:, 2]
         m_new = m_old + 1.0
-        crow = classes[ids]
-        # [P - Pbar | a - abar] in one float64 buffer, updated in place
-        delta = np.concatenate([P, a], axis=1, dtype=np.float64)
-        delta -= crow
-        # co-moment: C += m_old / m_new * (P - Pbar) . (a - abar)
-        comoment = np.einsum("ij,ij->i", delta[:, :n], delta[:, n:]) * (m_old / m_new)
-        delta /= m_new[:, None]
-        crow += delta
-        classes[ids] = crow
+        # [P | a] in one float64 buffer: a fresh candidate's means (as for mu, written: its
+        # rows were never touched, and reading them first would fault each page in twice)
+        pa_rows = np.concatenate([P, a], axis=1, dtype=np.float64)
+        if fresh.size:
+            classes[ids[fresh]] = pa_rows if fresh.size == ids.size else pa_rows[fresh]
+        if merge.size:
+            every = merge.size == ids.size
+            rows = ids if every else ids[merge]
+            crow = classes[rows]
+            delta = pa_rows if every else pa_rows[merge]  # [P - Pbar | a - abar], in place
+            delta -= crow
+            m_o, m_n = (m_old, m_new) if every else (m_old[merge], m_new[merge])
+            # co-moment: C += m_old / m_new * (P - Pbar) . (a - abar) (0 for a fresh one)
+            old[merge, 3] += np.einsum("ij,ij->i", delta[:, :n], delta[:, n:]) * (m_o / m_n)
+            delta /= m_n[:, None]
+            crow += delta
+            classes[rows] = crow
         old[:, 0] = w_new
         old[:, 1] += w * w
         old[:, 2] = m_new
-        old[:, 3] += comoment
         scalars[ids] = old
 
     @property

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterator
-from contextlib import nullcontext
+from contextlib import closing, nullcontext
 from dataclasses import dataclass
 from itertools import zip_longest
 from pathlib import Path
@@ -50,6 +50,7 @@ from tqdm import tqdm
 from care.errors import FuseError
 from care.malloc import resident_bytes
 from care.outputs import write_atomic
+from care.readahead import read_ahead
 from care.store import SCHEMA_VERSION, Store, append_rows, open_writer, read_table
 from fuse.accumulate import CandidateSums
 from fuse.budget import check_raster
@@ -200,7 +201,7 @@ def _samples(config: GridConfig, frame, feature_map: np.ndarray, text: np.ndarra
     )
 
 
-def _views(store: Store, wanted: set[int] | None = None, desc: str = "fuse grid"):
+def _views(store: Store, config: GridConfig, wanted: set[int] | None = None):
     """``(view_id, frame, feature map)`` in view order (only ``wanted`` ones when given)."""
     # a store with fewer feature rows than views (or more) is out of step, not a smaller map
     pairs = zip_longest(
@@ -208,14 +209,40 @@ def _views(store: Store, wanted: set[int] | None = None, desc: str = "fuse grid"
         store.iter_features(view_ids=wanted),
         fillvalue=(None, None),
     )
-    total = store.num_views if wanted is None else len(wanted)
-    for (view_id, frame), (feature_id, feature_map) in tqdm(
-        pairs, total=total, desc=desc, unit="view", leave=False
-    ):
+    for (view_id, frame), (feature_id, feature_map) in pairs:
         if view_id != feature_id:
             msg = f"{store.path}: views and features out of step ({view_id} vs {feature_id}); re-run `care ingest`"
             raise FuseError(msg)
         yield view_id, frame, feature_map
+
+
+def _view_samples(
+    store: Store,
+    config: GridConfig,
+    text: np.ndarray,
+    wanted: set[int] | None = None,
+    desc: str = "fuse grid",
+) -> Iterator[tuple[int, ViewSamples]]:
+    """``(view_id, samples)`` of the store's views in view order (only ``wanted`` ones).
+
+    A view's samples depend on that view alone, so they are made ahead of the merge, which
+    must take views in order: with ``config.read_ahead`` > 0 one background thread decodes
+    the store and another computes each view's samples, each up to ``read_ahead`` views
+    ahead (:mod:`care.readahead`), while the caller merges. The three overlap on a
+    machine's cores (the per-view work releases the GIL in its array code); the views, and
+    so the map, are the same bytes either way.
+    """
+    ahead = config.read_ahead
+    decoded = read_ahead(_views(store, config, wanted), ahead)
+
+    def sample() -> Iterator[tuple[int, ViewSamples]]:
+        with closing(decoded):  # the decoding thread ends with this stage
+            for view_id, frame, feature_map in decoded:
+                yield view_id, _samples(config, frame, feature_map, text)
+
+    total = store.num_views if wanted is None else len(wanted)
+    with closing(read_ahead(sample(), ahead)) as samples:  # ended here, even on an error
+        yield from tqdm(samples, total=total, desc=desc, unit="view", leave=False)
 
 
 def _known_cells(store: Store, index: CellIndex, keys: np.ndarray) -> np.ndarray:
@@ -250,8 +277,7 @@ def _fuse_views(
     layers = _CellLayers() if build else None
     later: dict[int, list[int]] = {}
     with nullcontext() if views_path is None else _ViewsWriter(views_path) as writer:
-        for view_id, frame, feature_map in _views(store):
-            samples = _samples(config, frame, feature_map, text)
+        for view_id, samples in _view_samples(store, config, text):
             ids = index.lookup(samples.keys) if build else _known_cells(store, index, samples.keys)
             if ids.size and ids.max() >= capacity:
                 keep = np.flatnonzero(ids < capacity)
@@ -279,8 +305,8 @@ def _fuse_pass(
     """A later pass of bounded-memory fusion: the samples of cells ``first_id..`` (as many
     as ``sums`` holds) from the views that see them, in view order as the first pass."""
     last = first_id + sums.size
-    for _, frame, feature_map in _views(store, set(views), desc=f"fuse grid (cells {first_id}+)"):
-        samples = _samples(config, frame, feature_map, sums.text)
+    desc = f"fuse grid (cells {first_id}+)"
+    for _, samples in _view_samples(store, config, sums.text, set(views), desc):
         ids = index.find(samples.keys)
         keep = np.flatnonzero((ids >= first_id) & (ids < last))
         part = samples.take(keep)

@@ -295,6 +295,25 @@ def test_bounded_memory_passes_give_the_same_map(tmp_path: Path, cells_per_pass:
     assert (part / "cell_views.parquet").read_bytes() == views
 
 
+@pytest.mark.parametrize("cells_per_pass", [None, 7])
+def test_views_prepared_ahead_give_the_same_bytes(
+    tmp_path: Path, cells_per_pass: int | None
+) -> None:
+    """Decoding and sampling views on background threads (the default) or all in one thread,
+    in one pass or in several: the same cells and cell_views bytes."""
+    store = _store(tmp_path / "s", n=5)
+    built = {}
+    for ahead in (0, 1, 2):
+        config = GridConfig(
+            cell_size=0.1, stride=1, cells_per_pass=cells_per_pass, read_ahead=ahead,
+            overwrite=True,
+        )  # fmt: skip
+        cells = build_grid(store, config).read_bytes()
+        built[ahead] = cells, (store / "cell_views.parquet").read_bytes()
+    assert built[1] == built[0]
+    assert built[2] == built[0]
+
+
 def test_memory_budget_too_small_is_one_clear_error(tmp_path: Path) -> None:
     store = _store(tmp_path / "s")
     with pytest.raises(FuseError, match="memory-budget"):
