@@ -21,6 +21,11 @@ count, so the fusion, the queries and the evaluation keep one thread and their r
 the same bytes on every machine, worker and setting (``tests/evaluate/test_thread_counts``).
 Arrow decodes a Parquet row group's columns on its own pool (one thread per core): it is
 sized with the others, so "one thread" holds for reading the store too.
+
+Threads of our own are stages, not pools: the grid's fusion decodes the store and makes
+each view's samples on two background threads ahead of its merge
+(``GridConfig.read_ahead``, :mod:`care.readahead`). Each stage's array work runs on the
+one-thread pools above, so its results do not depend on the stages' overlap.
 """
 
 from __future__ import annotations
