@@ -557,18 +557,30 @@ def cell_keys(cells: pa.Table) -> np.ndarray:
     return pack_cells(ix, iy)
 
 
-def fused_columns(store: Store, config: GridConfig, text: np.ndarray, keys: np.ndarray) -> pa.Table:
+def fused_columns(
+    store: Store,
+    config: GridConfig,
+    text: np.ndarray,
+    keys: np.ndarray,
+    *,
+    with_log_confidence: bool = False,
+) -> pa.Table:
     """The common candidate columns of the cells ``keys`` (packed, row i = candidate i) for
     the vocabulary embeddings ``text`` at ``config.logit_scale``: the store's views streamed
     through the build's own per-view code and passes (:func:`_fuse_views`,
     :func:`_cell_columns`, same memory budget), so a grid built with ``config`` has these
-    columns bit for bit. Every view's cells must be among ``keys`` (the map's own store
-    and config)."""
+    columns bit for bit (and, ``with_log_confidence``, its query sidecar's log-confidence
+    column). Every view's cells must be among ``keys`` (the map's own store and config)."""
     capacity = cells_per_pass(config, store.encoder.dim, len(text))
     sums = CandidateSums(store.encoder.dim, text, config.logit_scale, limit=capacity)
     first = _fuse_views(store, config, sums, capacity, index=CellIndex.from_keys(keys))
     del sums  # first.sums holds it, until _cell_columns lets it go
-    chunks = [chunk for chunk, _ in _cell_columns(store, config, first, capacity)]
+    chunks = [
+        chunk
+        for chunk, _ in _cell_columns(
+            store, config, first, capacity, with_log_confidence=with_log_confidence
+        )
+    ]
     if not chunks:  # no cells: the empty columns
         return CandidateSums(store.encoder.dim, text, config.logit_scale).columns()
     return pa.concat_tables(chunks).combine_chunks()

@@ -32,18 +32,19 @@ from care.config import recorded_fields
 from care.errors import FuseError
 from care.store import Store, iter_batches, read_table, write_table_atomic
 from care.threads import Work, threads_for
-from fuse.accumulate import CandidateSums
+from fuse.accumulate import COLUMN_CHUNK, CandidateSums
 from fuse.build import STORE_KEY, config_json_key, update_config
 from fuse.config import GridConfig
 from fuse.frame import store_stamp
-from fuse.measures import candidate_metadata
-from fuse.sidecar import sidecar_path
+from fuse.measures import MAX_TOP_CLASSES, candidate_metadata
+from fuse.sidecar import SidecarWriter, sidecar_path
 from fuse.vocabulary import vocabulary_text
 
 __all__ = ["grid_config_of", "recompute_candidates", "recompute_grid", "sums_from_views"]
 
 Columns = Callable[[Store, pa.Table, np.ndarray, float], pa.Table]
-"""``(store, map table, (n, d) text embeddings, scale)`` -> the common candidate columns."""
+"""``(store, map table, (n, d) text embeddings, scale)`` -> the common candidate columns;
+with ``log_confidence`` among them, the map's query sidecar is written again from them."""
 
 SAMPLE_FIELDS = ("cell_size", "stride", "z_min", "z_max", "sigma_z", "distance_weighting")
 """The grid settings that shape its per-view samples: a recompute needs each recorded."""
@@ -123,7 +124,7 @@ def recompute_grid(
         config = replace(
             config, logit_scale=scale, memory_budget=memory_budget, cells_per_pass=cells_per_pass
         )
-        return fused_columns(store, config, text, cell_keys(cells))
+        return fused_columns(store, config, text, cell_keys(cells), with_log_confidence=True)
 
     return _recompute(store_path, CELLS_TABLE, "grid", columns, vocabulary, logit_scale)
 
@@ -191,4 +192,25 @@ def _recompute(
     )
     shutil.rmtree(sidecar_path(path), ignore_errors=True)  # it described the map before
     write_table_atomic(new, path, md)
+    if "log_confidence" in common.column_names:
+        _write_sidecar(path, common, text, md)
     return path
+
+
+def _write_sidecar(
+    path: Path, common: pa.Table, text: np.ndarray, metadata: dict[bytes, bytes]
+) -> None:
+    """The query sidecar of the rewritten map table ``path`` (:mod:`fuse.sidecar`), as its
+    build writes it, so a whole-building query opens the recomputed map as fast as a new
+    one. Written after the table: an interrupted recompute leaves a table without a
+    sidecar (queries decode the table), never a sidecar of other columns."""
+    n, d = text.shape
+    writer = SidecarWriter(
+        sidecar_path(path), common.num_rows, d, min(n, MAX_TOP_CLASSES), n, metadata
+    )
+    try:
+        for batch in common.to_batches(max_chunksize=COLUMN_CHUNK):
+            writer.write(pa.Table.from_batches([batch]))
+        writer.commit()
+    finally:
+        writer.abort()

@@ -26,6 +26,7 @@ from fuse import grid as grid_module
 from fuse.grid import GridConfig, GridLayout, build_grid, grid_image
 from fuse.recompute import recompute_grid
 from fuse.schemas import CELL_VIEWS_FIELDS
+from fuse.sidecar import read_sidecar
 
 H, W, D = 12, 16, 8
 K = np.array([[20.0, 0, 7.3], [0, 20.0, 5.7], [0, 0, 1]])
@@ -382,6 +383,16 @@ def test_recompute_equals_fresh_build(tmp_path: Path, cells_per_pass: int | None
     md = pq.read_schema(store / "cells.parquet").metadata
     assert md[b"care.vocabulary"] == b'["lamp", "chair", "bed"]'
     assert float(md[b"care.logit_scale"]) == 30.0
+    # the query sidecar is written again: current for the new columns, a fresh build's arrays
+    sidecar = read_sidecar(store / "cells.parquet", md)
+    assert sidecar is not None
+    fresh_sidecar = read_sidecar(
+        fresh_store / "cells.parquet", pq.read_schema(fresh_store / "cells.parquet").metadata
+    )
+    assert fresh_sidecar is not None
+    for name, values in fresh_sidecar.items():
+        assert sidecar[name].dtype == values.dtype, name
+        assert np.array_equal(sidecar[name], values), name
     assert (store / "cell_views.parquet").read_bytes() == views  # the samples did not change
     # back to the store's vocabulary and scale: the first build's columns again
     first = read_table(build_grid(fresh_store, config))
