@@ -15,7 +15,11 @@ from collections.abc import Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import TypeVar
 
-__all__ = ["read_ahead"]
+__all__ = ["READ_AHEAD", "read_ahead"]
+
+READ_AHEAD = 2
+"""Items produced ahead by default: enough to cover one slow item (a large row group, a
+busy core), few enough that the views in flight stay a few tens of MB at 640x480."""
 
 T = TypeVar("T")
 

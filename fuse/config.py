@@ -18,6 +18,7 @@ from care.checks import check_numbers
 from care.config import member
 from care.errors import FuseError
 from care.fingerprint import config_json, fingerprint
+from care.readahead import READ_AHEAD
 
 __all__ = [
     "DEFAULT_LOGIT_SCALE",
@@ -84,7 +85,7 @@ class GridConfig:
     too large for it is fused in several passes over the views."""
     cells_per_pass: int | None = None
     """Cells fused per pass, overriding what the budget allows (tests, benchmarks)."""
-    read_ahead: int = 2
+    read_ahead: int = READ_AHEAD
     """Views prepared ahead of the fusion's merge: one background thread decodes the store,
     another computes each view's samples, each up to this many views ahead, so the three
     overlap on a machine's cores (0: all in one thread). The map is the same either way."""
@@ -129,7 +130,7 @@ class InstanceConfig:
     """How an instance map is built (shared by ``care fuse instances``, ``care run`` and
     :func:`fuse.instances.build_instances`); the proposers read their settings from it."""
 
-    HOW: ClassVar[tuple[str, ...]] = ("overwrite", "batch_size")
+    HOW: ClassVar[tuple[str, ...]] = ("overwrite", "batch_size", "read_ahead")
     """Fields that change how the map is built, not what it holds (left out of its key)."""
 
     proposals: ProposalMethod = ProposalMethod.GEOMETRIC
@@ -183,6 +184,10 @@ class InstanceConfig:
     names (default: the names cached in the store)."""
     batch_size: int = 8
     """Views projected (and crops encoded) at once."""
+    read_ahead: int = READ_AHEAD
+    """Views decoded ahead of their use on a background thread, overlapping reading the
+    store with the projections on a second core (0: read in the same thread). The map is
+    the same."""
     seed: int = 0
     """Seed of RANSAC (open3d's global random seed)."""
     overwrite: bool = False
@@ -209,6 +214,8 @@ class InstanceConfig:
             "batch_size": self.batch_size,
         }
         bad = [f"{k}={v}" for k, v in sizes.items() if not v > 0]
+        if self.read_ahead < 0:
+            bad.append(f"read_ahead={self.read_ahead} (0 or more)")
         check_numbers(
             FuseError,
             "instance config",
@@ -217,7 +224,7 @@ class InstanceConfig:
             non_negative={"crop_padding": self.crop_padding},
         )  # fmt: skip
         if bad:
-            msg = f"invalid instance config: {', '.join(bad)}; these must be positive"
+            msg = f"invalid instance config: {', '.join(bad)}; sizes must be positive"
             raise FuseError(msg)
 
     def fingerprint(self, names: Sequence[str] | None = None) -> str:

@@ -90,7 +90,11 @@ def _scene_cloud(store: Store, config: InstanceConfig) -> tuple[SceneCloud, dict
         if all(md.get(k) == v for k, v in meta.items()):
             return read_scene_points(path), None
     cloud = fuse_scene_points(
-        store, voxel_size=config.voxel_size, stride=config.stride, max_depth=config.max_depth
+        store,
+        voxel_size=config.voxel_size,
+        stride=config.stride,
+        max_depth=config.max_depth,
+        read_ahead=config.read_ahead,
     )
     return cloud, meta
 
@@ -110,7 +114,12 @@ def _per_view_features(
         return selection.features
     assert encoder is not None  # build_instances made and checked it
     return crop_features(
-        store, selection, encoder, padding=config.crop_padding, batch_size=config.batch_size
+        store,
+        selection,
+        encoder,
+        padding=config.crop_padding,
+        batch_size=config.batch_size,
+        read_ahead=config.read_ahead,
     )
 
 
@@ -218,6 +227,7 @@ def _build(build: MapBuild, config: InstanceConfig, encoder: Encoder | None) -> 
         min_visible_points=config.min_visible_points,
         pool_features=config.features == "masked",
         batch_size=config.batch_size,
+        read_ahead=config.read_ahead,
     )
     if not (selection.view_ids >= 0).any():
         msg = (

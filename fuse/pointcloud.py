@@ -15,6 +15,7 @@ grid (the tests check this against open3d).
 
 from __future__ import annotations
 
+from contextlib import closing
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,6 +25,8 @@ from tqdm import tqdm
 
 from care.errors import FuseError, StoreError
 from care.geometry import backproject, transform_points
+from care.readahead import READ_AHEAD
+from care.readahead import read_ahead as ahead
 from care.store import Store, read_table, write_table_atomic
 
 __all__ = [
@@ -154,6 +157,7 @@ def fuse_scene_points(
     stride: int = 2,
     max_depth: float = 8.0,
     flush_points: int = 2_000_000,
+    read_ahead: int = READ_AHEAD,
     progress: bool = True,
 ) -> SceneCloud:
     """Back-project every view of ``store`` and voxel-average the points into one cloud.
@@ -164,19 +168,24 @@ def fuse_scene_points(
         stride: use every ``stride``-th pixel in both directions.
         max_depth: ignore depth beyond this (metres); far depth is noisy on real sensors.
         flush_points: pending points merged into the voxel sums at a time (memory bound).
+        read_ahead: views decoded ahead on a background thread (:mod:`care.readahead`).
         progress: show a tqdm bar over views.
     """
     if stride < 1:
         msg = f"stride must be >= 1, got {stride}"
         raise FuseError(msg)
     acc = VoxelAccumulator(voxel_size, flush_points=flush_points)
-    frames = store.iter_frames(extras=False)
-    for _, frame in tqdm(frames, total=store.num_views, desc="scene points", disable=not progress):
-        depth = np.where(frame.depth_m <= max_depth, frame.depth_m, 0)
-        pts_cam, pix = backproject(depth, frame.K, stride)
-        if len(pts_cam) == 0:
-            continue
-        acc.add(transform_points(frame.cam_to_world, pts_cam), frame.rgb[pix[:, 1], pix[:, 0]])
+    with closing(
+        ahead(store.iter_frames(extras=False), read_ahead)
+    ) as frames:  # decoded on a thread
+        for _, frame in tqdm(
+            frames, total=store.num_views, desc="scene points", disable=not progress
+        ):
+            depth = np.where(frame.depth_m <= max_depth, frame.depth_m, 0)
+            pts_cam, pix = backproject(depth, frame.K, stride)
+            if len(pts_cam) == 0:
+                continue
+            acc.add(transform_points(frame.cam_to_world, pts_cam), frame.rgb[pix[:, 1], pix[:, 0]])
     if len(acc) == 0:
         msg = f"{store.path}: no valid depth pixel in any view; the scene cloud is empty"
         raise FuseError(msg)

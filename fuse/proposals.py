@@ -206,7 +206,9 @@ def label_proposals(
     counts = np.zeros(0, np.int64)
     seen = False
     bar = tqdm(total=store.num_views, desc="label votes", disable=not progress)
-    for batch in iter_view_batches(store, batch_size=settings.batch_size, extras=("instance",)):
+    for batch in iter_view_batches(
+        store, batch_size=settings.batch_size, extras=("instance",), read_ahead=settings.read_ahead
+    ):
         bar.update(len(batch.view_ids))
         inst = batch.extras.get("instance")
         if inst is None:

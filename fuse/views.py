@@ -16,6 +16,7 @@ each cell weighted by its number of visible points, then L2-normalised.
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
+from contextlib import ExitStack, closing
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,6 +26,8 @@ from tqdm import tqdm
 from care.encoders.base import Encoder, l2_normalise
 from care.errors import FuseError
 from care.frames import Frame
+from care.readahead import READ_AHEAD
+from care.readahead import read_ahead as ahead
 from care.store import Store
 
 __all__ = [
@@ -108,10 +111,36 @@ def iter_view_batches(
     rgb: bool = False,
     extras: Sequence[str] = (),
     features: bool = False,
+    read_ahead: int = READ_AHEAD,
 ) -> Iterator[ViewBatch]:
-    """Stream the store's views as :class:`ViewBatch` es (a new batch at a size change)."""
-    frames = store.iter_frames(batch_size=batch_size, extras=bool(extras))
-    feats = store.iter_features(batch_size=batch_size) if features else None
+    """Stream the store's views as :class:`ViewBatch` es (a new batch at a size change),
+    decoded up to ``read_ahead`` views ahead on background threads (:mod:`care.readahead`)."""
+    with ExitStack() as stack:  # the reading threads end with this generator
+        frames = stack.enter_context(
+            closing(
+                ahead(store.iter_frames(batch_size=batch_size, extras=bool(extras)), read_ahead)
+            )
+        )
+        feats = (
+            stack.enter_context(
+                closing(ahead(store.iter_features(batch_size=batch_size), read_ahead))
+            )
+            if features
+            else None
+        )
+        yield from _batches(store, frames, feats, batch_size=batch_size, rgb=rgb, extras=extras)
+
+
+def _batches(
+    store: Store,
+    frames: Iterator[tuple[int, Frame]],
+    feats: Iterator[tuple[int, np.ndarray]] | None,
+    *,
+    batch_size: int,
+    rgb: bool,
+    extras: Sequence[str],
+) -> Iterator[ViewBatch]:
+    features = feats is not None
     pending: list[tuple[int, Frame, np.ndarray | None]] = []
 
     def emit() -> ViewBatch:
@@ -266,6 +295,7 @@ def select_views(
     min_visible_points: int = 5,
     pool_features: bool = True,
     batch_size: int = 8,
+    read_ahead: int = READ_AHEAD,
     progress: bool = True,
 ) -> ViewSelection:
     """Rank the store's views for each mask by visible point count; keep the best ``top_k``.
@@ -279,6 +309,7 @@ def select_views(
         min_visible_points: a view with fewer visible points of a mask is not its view.
         pool_features: also pool each kept view's dense features inside the mask.
         batch_size: views projected at once.
+        read_ahead: views decoded ahead on background threads (:func:`iter_view_batches`).
         progress: show a tqdm bar over views.
     """
     M = len(masks)
@@ -295,7 +326,9 @@ def select_views(
     best_box = np.zeros((M, 0, 4), np.int64)
     best_feat: np.ndarray | None = None
     bar = tqdm(total=store.num_views, desc="view selection", disable=not progress)
-    for batch in iter_view_batches(store, batch_size=batch_size, features=pool_features):
+    for batch in iter_view_batches(
+        store, batch_size=batch_size, features=pool_features, read_ahead=read_ahead
+    ):
         hits = visible_hits(
             sub, batch.depth, batch.K, batch.cam_to_world, depth_tolerance=depth_tolerance
         )
@@ -356,6 +389,7 @@ def crop_features(
     padding: float = 0.1,
     min_size: int = 8,
     batch_size: int = 8,
+    read_ahead: int = READ_AHEAD,
     progress: bool = True,
 ) -> np.ndarray:
     """Per-view features (M, k, d) from re-encoding the bounding-box crop of each mask.
@@ -370,7 +404,7 @@ def crop_features(
     sel_m, sel_r = np.nonzero(selection.view_ids >= 0)
     sel_view = selection.view_ids[sel_m, sel_r]
     bar = tqdm(total=store.num_views, desc="crops", disable=not progress)
-    for batch in iter_view_batches(store, batch_size=batch_size, rgb=True):
+    for batch in iter_view_batches(store, batch_size=batch_size, rgb=True, read_ahead=read_ahead):
         assert batch.rgb is not None  # requested above
         _, H, W, _ = batch.rgb.shape
         pos = np.searchsorted(batch.view_ids, sel_view)

@@ -316,6 +316,23 @@ def test_build_instances_geometric(room: Path) -> None:
     assert top == [cls for _, _, cls in BOXES]
 
 
+@pytest.mark.parametrize("proposals", ["geometric", "labels"])
+def test_views_read_ahead_give_the_same_map(room: Path, tmp_path: Path, proposals: str) -> None:
+    """Decoding views on background threads (the default) or in the projecting thread: the
+    same scene cloud, instances and per-view table, byte for byte."""
+    import shutil
+
+    built = []
+    for ahead in (0, 2):
+        store = tmp_path / f"ahead{ahead}"
+        shutil.copytree(room, store, ignore=shutil.ignore_patterns("instance*", "scene_points*"))
+        config = InstanceConfig(**{**CONFIG.__dict__, "proposals": proposals, "read_ahead": ahead})
+        build_instances(store, config)
+        names = ("scene_points.parquet", "instances.parquet", "instance_views.parquet")
+        built.append([(store / name).read_bytes() for name in names])
+    assert built[1] == built[0]
+
+
 class ColourCropEncoder(Encoder):
     """Classifies a crop by its median colour against the rendered base colours."""
 
