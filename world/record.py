@@ -279,6 +279,9 @@ def make_dataset(config: DatasetConfig) -> Path:
     if config.width < 16 or config.height < 16:
         msg = f"--width/--height {config.width}x{config.height}: images must be at least 16x16"
         raise WorldError(msg)
+    if config.frames is not None and config.frames < 1:  # before anything is written
+        msg = f"--frames {config.frames}: record at least one frame (leave it out for 25 per room)"
+        raise WorldError(msg)
     if config.num_rooms is not None and not 1 <= config.num_rooms <= 6:
         msg = f"--rooms {config.num_rooms}: the sample world makes 1 to 6 rooms"
         raise WorldError(msg)

@@ -135,7 +135,7 @@ def plan_trajectory(
     from scipy.ndimage import gaussian_filter1d
 
     config = config or TrajectoryConfig()
-    n = num_frames or config.frames_per_room * len(scene.rooms)
+    n = config.frames_per_room * len(scene.rooms) if num_frames is None else num_frames
     pos, yaw = _key_path(scene)
     # effort of each dense sample, then smoothing (sigma ~ 0.2 m of effort) and resampling
     smooth_pos = gaussian_filter1d(pos, 10, axis=0, mode="nearest")

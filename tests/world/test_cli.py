@@ -54,7 +54,10 @@ def test_bad_options_are_one_line_errors(tmp_path: Path) -> None:
     for args, words in (
         (["--format", "zip"], "choose mcap, ros2 or ros1"),
         (["--rooms", "9"], "1 to 6 rooms"),
+        (["--frames", "0"], "at least one frame"),
+        (["--frames", "-3"], "at least one frame"),
     ):
+        out = tmp_path / "out"
         proc = subprocess.run(
             [
                 sys.executable,
@@ -63,7 +66,7 @@ def test_bad_options_are_one_line_errors(tmp_path: Path) -> None:
                 "sample",
                 "make",
                 "--out",
-                str(tmp_path),
+                str(out),
                 *args,
             ],
             capture_output=True,
@@ -73,6 +76,7 @@ def test_bad_options_are_one_line_errors(tmp_path: Path) -> None:
         assert proc.returncode == 1
         assert words in proc.stderr
         assert len(proc.stderr.strip().splitlines()) == 1
+        assert not out.exists()  # refused before anything is written
 
 
 def test_make_exports_the_ground_truth_in_every_format(tmp_path: Path) -> None:
