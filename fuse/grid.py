@@ -422,7 +422,9 @@ def default_memory_budget() -> int:
 
 FIXED_MEMORY = 1536 << 20
 """Bytes of a budget kept for everything but the per-cell state: the program, a view's
-temporaries, the cell_views writer's buffers, one chunk of map columns, the cell index."""
+temporaries and the views in flight in the pipeline (``2 read_ahead + 2`` of them, 30 MB
+each at most in the benchmark's 14 m room), the cell_views writer's buffers, one chunk of
+map columns, the cell index."""
 
 
 def cells_per_pass(config: GridConfig, dim: int, num_classes: int) -> int:
