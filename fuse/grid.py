@@ -471,10 +471,14 @@ def _write_cells(
     writer: pq.ParquetWriter | None = None
     n_top = min(len(text), MAX_TOP_CLASSES)
     sidecar = SidecarWriter(sidecar_path(final), n_cells, text.shape[1], n_top, len(text), metadata)
+    # the next chunk's columns (or a later pass's fusion) are made on a background thread
+    # while this one is encoded and written (Parquet and the sidecar release the GIL)
+    chunks = read_ahead(
+        _cell_columns(store, config, first, capacity, with_log_confidence=True),
+        min(config.read_ahead, 1),
+    )
     try:
-        for chunk, weight in _cell_columns(
-            store, config, first, capacity, with_log_confidence=True
-        ):
+        for chunk, weight in chunks:
             sidecar.write(chunk)
             if "log_confidence" in chunk.column_names:
                 chunk = chunk.drop_columns(["log_confidence"])
@@ -488,6 +492,7 @@ def _write_cells(
             append_rows(writer, table.replace_schema_metadata(writer.schema.metadata))
         sidecar.commit()
     finally:
+        chunks.close()
         sidecar.abort()
         if writer is not None:
             writer.close()
