@@ -338,9 +338,15 @@ def _cell_columns(
         if p > 0:
             _fuse_pass(store, config, sums, first.index, first_id, first.later.get(p, []))
         weight = sums.weight
-        for chunk in sums.iter_columns(first_id=first_id, with_log_confidence=with_log_confidence):
-            lo = chunk.column("candidate_id")[0].as_py() - first_id
-            yield chunk, weight[lo : lo + chunk.num_rows]
+        # the next chunk's columns are made on a background thread while the caller writes
+        # this one (Parquet and the sidecar release the GIL); ended with the pass, so a stop
+        # waits for one chunk at most and the pass's state goes before the next is allocated
+        columns = sums.iter_columns(first_id=first_id, with_log_confidence=with_log_confidence)
+        with closing(read_ahead(columns, min(config.read_ahead, 1))) as chunks:
+            for chunk in chunks:
+                lo = chunk.column("candidate_id")[0].as_py() - first_id
+                yield chunk, weight[lo : lo + chunk.num_rows]
+        del columns, chunks
 
 
 def _layout(index: CellIndex, cell_size: float) -> tuple[GridLayout, np.ndarray, np.ndarray]:
@@ -471,14 +477,10 @@ def _write_cells(
     writer: pq.ParquetWriter | None = None
     n_top = min(len(text), MAX_TOP_CLASSES)
     sidecar = SidecarWriter(sidecar_path(final), n_cells, text.shape[1], n_top, len(text), metadata)
-    # the next chunk's columns (or a later pass's fusion) are made on a background thread
-    # while this one is encoded and written (Parquet and the sidecar release the GIL)
-    chunks = read_ahead(
-        _cell_columns(store, config, first, capacity, with_log_confidence=True),
-        min(config.read_ahead, 1),
-    )
     try:
-        for chunk, weight in chunks:
+        for chunk, weight in _cell_columns(
+            store, config, first, capacity, with_log_confidence=True
+        ):
             sidecar.write(chunk)
             if "log_confidence" in chunk.column_names:
                 chunk = chunk.drop_columns(["log_confidence"])
@@ -492,7 +494,6 @@ def _write_cells(
             append_rows(writer, table.replace_schema_metadata(writer.schema.metadata))
         sidecar.commit()
     finally:
-        chunks.close()
         sidecar.abort()
         if writer is not None:
             writer.close()
