@@ -215,7 +215,8 @@ class InstanceConfig:
         }
         bad = [f"{k}={v}" for k, v in sizes.items() if not v > 0]
         if self.read_ahead < 0:
-            bad.append(f"read_ahead={self.read_ahead} (0 or more)")
+            msg = f"invalid instance config: read_ahead={self.read_ahead}; need 0 or more"
+            raise FuseError(msg)
         check_numbers(
             FuseError,
             "instance config",
@@ -224,7 +225,7 @@ class InstanceConfig:
             non_negative={"crop_padding": self.crop_padding},
         )  # fmt: skip
         if bad:
-            msg = f"invalid instance config: {', '.join(bad)}; sizes must be positive"
+            msg = f"invalid instance config: {', '.join(bad)}; these must be positive"
             raise FuseError(msg)
 
     def fingerprint(self, names: Sequence[str] | None = None) -> str:

@@ -346,7 +346,6 @@ def _cell_columns(
             for chunk in chunks:
                 lo = chunk.column("candidate_id")[0].as_py() - first_id
                 yield chunk, weight[lo : lo + chunk.num_rows]
-        del columns, chunks
 
 
 def _layout(index: CellIndex, cell_size: float) -> tuple[GridLayout, np.ndarray, np.ndarray]:

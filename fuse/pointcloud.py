@@ -175,9 +175,8 @@ def fuse_scene_points(
         msg = f"stride must be >= 1, got {stride}"
         raise FuseError(msg)
     acc = VoxelAccumulator(voxel_size, flush_points=flush_points)
-    with closing(
-        ahead(store.iter_frames(extras=False), read_ahead)
-    ) as frames:  # decoded on a thread
+    # the views are decoded on a background thread while this one back-projects them
+    with closing(ahead(store.iter_frames(extras=False), read_ahead)) as frames:
         for _, frame in tqdm(
             frames, total=store.num_views, desc="scene points", disable=not progress
         ):

@@ -401,6 +401,35 @@ def test_recompute_equals_fresh_build(tmp_path: Path, cells_per_pass: int | None
         assert again.column(name).equals(first.column(name)), name
 
 
+def test_recompute_whose_sidecar_cannot_be_written_leaves_a_whole_map(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The disk fills while the query sidecar is written again: the error comes out, the
+    rewritten table stands whole with no sidecar (queries decode the table) and nothing
+    half-written is left; a re-run writes it."""
+    from fuse import sidecar as sidecar_module
+    from query.map import load_map
+
+    store = _store(tmp_path / "s", n=5)
+    build_grid(store, GridConfig(cell_size=0.1, stride=1))
+    real = sidecar_module.SidecarWriter.write
+
+    def full(self, chunk):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(sidecar_module.SidecarWriter, "write", full)
+    with pytest.raises(OSError, match="No space left"):
+        recompute_grid(store, logit_scale=30.0)
+    md = pq.read_schema(store / "cells.parquet").metadata
+    assert float(md[b"care.logit_scale"]) == 30.0  # the table was rewritten, whole
+    assert read_sidecar(store / "cells.parquet", md) is None
+    assert not [p for p in store.iterdir() if p.name.startswith(".")]  # no temp folder
+    assert load_map(store, "grid").num_candidates > 0  # read from the table
+    monkeypatch.setattr(sidecar_module.SidecarWriter, "write", real)
+    recompute_grid(store, logit_scale=30.0)
+    assert read_sidecar(store / "cells.parquet", md) is not None
+
+
 def test_recompute_needs_the_store_it_was_built_from(tmp_path: Path) -> None:
     """The per-view features come from the store: a grid moved onto other views (or a
     store ingested again) is refused in one line, the map left as it was."""
@@ -439,6 +468,8 @@ def test_bad_inputs_raise_one_clear_error(tmp_path: Path) -> None:
         build_grid(store, GridConfig(z_min=5.0, z_max=6.0))
     with pytest.raises(FuseError, match="invalid grid config"):
         GridConfig(cell_size=0.0)
+    with pytest.raises(FuseError, match="read_ahead=-1; need 0 or more"):
+        GridConfig(read_ahead=-1)
     with pytest.raises(FuseError, match="cannot embed"):
         build_grid(store, GridConfig(vocabulary=("unicorn",)))
 

@@ -408,6 +408,8 @@ def test_bad_config_is_one_clear_error() -> None:
         InstanceConfig(proposals="magic")
     with pytest.raises(FuseError, match="voxel_size"):
         InstanceConfig(voxel_size=0)
+    with pytest.raises(FuseError, match="read_ahead=-1; need 0 or more"):
+        InstanceConfig(read_ahead=-1)
 
 
 # ---------------------------------------------------------------- the sample world
