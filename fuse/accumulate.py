@@ -31,10 +31,10 @@ from collections.abc import Iterator
 
 import numpy as np
 import pyarrow as pa
-import torch
 
 from care.threads import sync_torch
 from fuse.measures import PROB_FLOOR, candidate_columns, pwkl_comoment, stderr_from_moments
+from fuse.welford import merge_moments
 
 sync_torch()  # the process's thread count, now that torch is here (care.threads)
 
@@ -151,7 +151,7 @@ class CandidateSums:
     ) -> None:
         """Chan's merge of one sample into each of the distinct candidates ``ids``."""
         moments, classes, scalars = self._tables
-        d, n = self.dim, self.num_classes
+        n = self.num_classes
         old = scalars[ids]  # (k, 4) gathered
         w_old = old[:, 0]
         w_new = w_old + w
@@ -159,26 +159,16 @@ class CandidateSums:
         # a candidate's first sample is its mean (M2 stays 0): written, not merged
         seen = old[:, 2] > 0
         fresh = np.flatnonzero(~seen)
-        # rows are gathered and scattered by numpy's fancy indexing (numpy 2: 2-4x faster
-        # than torch's index_select/index_copy_ on these row sizes, one thread)
-        if fresh.size:
-            moments[ids[fresh], :d] = features if fresh.size == ids.size else features[fresh]
         merge = np.flatnonzero(seen)
-        if merge.size:  # torch: two fused multiply-adds on the gathered rows
-            every = merge.size == ids.size  # most views after the first few: no row copies
-            rows = ids if every else ids[merge]
-            row = torch.from_numpy(moments[rows])
-            mu, m2 = row[:, :d], row[:, d:]
-            mine = np.asarray(features if every else features[merge], dtype=moments.dtype)
-            if not mine.flags.writeable:  # torch wraps writable arrays only (it reads it)
-                mine = mine.copy()
-            delta = torch.from_numpy(mine) - mu
-            c_m2 = (share * w_old).astype(moments.dtype)[:, None]
-            c_mu = share.astype(moments.dtype)[:, None]
-            c_m2, c_mu = (torch.from_numpy(c if every else c[merge]) for c in (c_m2, c_mu))
-            m2.addcmul_(delta, delta * c_m2)
-            mu.addcmul_(delta, c_mu)
-            moments[rows] = row.numpy()
+        dtype = moments.dtype
+        merge_moments(
+            moments,
+            ids,
+            np.ascontiguousarray(features, dtype=dtype),
+            seen,
+            share.astype(dtype),
+            (share * w_old).astype(dtype),
+        )
         # the view's class distribution P and a = log max(P, floor) by a stable softmax, in
         # the precision of the dot products (the grid passes float32 ones)
         given = dots is not None

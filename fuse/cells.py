@@ -24,6 +24,7 @@ from scipy import sparse
 from care.errors import FuseError
 from care.frames import Frame
 from care.threads import sync_torch
+from fuse.pixels import cell_tops, pixel_runs, run_sums
 
 sync_torch()  # the process's thread count, now that torch is here (care.threads)
 
@@ -175,98 +176,6 @@ def _patch_of_pixel(height: int, width: int, fh: int, fw: int, stride: int) -> n
     return plane
 
 
-def _world_cells(
-    frame: Frame, stride: int, cell_size: float, z_min: float, z_max: float
-) -> tuple[np.ndarray | None, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Kept pixels (flat index into the strided image; None when every pixel is kept),
-    their depth, world height and cell.
-
-    A pixel's world point is ``z * R (xn, yn, 1) + t`` with normalised image coordinates
-    ``xn`` of its column and ``yn`` of its row, so each world axis is a depth-scaled ray plane
-    built by broadcasting a column term and a row term: a few passes over the image instead
-    of an (N, 3) @ (3, 3) product. Height comes first so only pixels in the band go on; a
-    view whose pixels all lie in the band (most views of a room) skips the gathers.
-    """
-    K = frame.K
-    R, t = frame.cam_to_world[:3, :3], frame.cam_to_world[:3, 3]
-    xn = (np.arange(0, frame.width, stride) - K[0, 2]) / K[0, 0]
-    yn = (np.arange(0, frame.height, stride) - K[1, 2]) / K[1, 1]
-
-    def ray(axis: int) -> np.ndarray:
-        plane = (R[axis, 0] * xn)[None, :] + (R[axis, 1] * yn + R[axis, 2])[:, None]
-        return plane.reshape(-1)
-
-    z = frame.depth_m[::stride, ::stride].astype(np.float64).reshape(-1)
-    height = z * ray(2)
-    height += t[2]
-    # NaN depths fail every comparison; an infinite one gives an infinite or NaN height,
-    # which only an infinite bound lets through
-    keep = height >= z_min
-    keep &= height <= z_max
-    keep &= z > 0
-    if not (np.isfinite(z_min) and np.isfinite(z_max)):
-        keep &= z < np.inf
-    idx = None if keep.all() else np.flatnonzero(keep)
-    if idx is not None:
-        z, height = z[idx], height[idx]
-
-    def cell(axis: int) -> np.ndarray:
-        c = ray(axis) if idx is None else ray(axis)[idx]
-        c *= z
-        c += t[axis]
-        c /= cell_size
-        return np.floor(c, out=c).astype(np.int64)
-
-    return idx, z, height, cell(0), cell(1)
-
-
-def _runs(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Start and length of every run of equal consecutive values of ``key``."""
-    change = np.empty(key.size, bool)
-    change[0] = True
-    np.not_equal(key[1:], key[:-1], out=change[1:])
-    starts = np.flatnonzero(change)
-    return starts, np.diff(starts, append=key.size)
-
-
-def _run_reduce(values: np.ndarray, lengths: np.ndarray, reduce: str) -> np.ndarray:
-    """``np.<reduce>.reduceat`` over consecutive runs of ``lengths`` (all > 0), by torch's
-    segment reduction: the same left-to-right order (the same bits), a third faster."""
-    return torch.segment_reduce(
-        torch.from_numpy(values), reduce, lengths=torch.from_numpy(lengths), unsafe=True
-    ).numpy()
-
-
-def _first_highest(
-    height: np.ndarray, starts: np.ndarray, lengths: np.ndarray, run_cell: np.ndarray, k: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """Per cell: its greatest height and the first pixel (row-major) that reaches it.
-
-    Works on runs: the maximum of each run, the first run of each cell reaching the cell's
-    maximum, then a scan of those k runs only.
-    """
-    run_top = _run_reduce(height, lengths, "max")
-    top_z = torch.full((k,), -torch.inf, dtype=torch.float64)
-    top_z = top_z.scatter_reduce_(
-        0, torch.from_numpy(run_cell), torch.from_numpy(run_top), "amax"
-    ).numpy()
-    reaching = np.flatnonzero(run_top == top_z[run_cell])
-    # (k,) the first reaching run of each cell (runs are in pixel order), cells in order
-    best = torch.full((k,), starts.size, dtype=torch.int64)
-    best = best.scatter_reduce_(
-        0, torch.from_numpy(run_cell[reaching]), torch.from_numpy(reaching), "amin"
-    ).numpy()
-    lens = lengths[best]
-    ends = np.cumsum(lens)
-    seg = np.repeat(np.arange(k), lens)
-    pixel = np.arange(ends[-1]) + np.repeat(starts[best] - (ends - lens), lens)
-    hit = np.flatnonzero(height[pixel] == top_z[seg])
-    # seg is sorted and every cell has a hit: the first hit of each is where seg changes
-    seg_hit = seg[hit]
-    first_hit = np.flatnonzero(np.r_[True, seg_hit[1:] != seg_hit[:-1]])
-    return top_z, pixel[hit[first_hit]]
-
-
 def _patch_counts(
     run_cell: np.ndarray,
     run_patch: np.ndarray,
@@ -347,41 +256,44 @@ def view_samples(
     samples' dot products with the vocabulary come along (``ViewSamples.dots``). The top of
     a cell is its highest pixel, the first in row-major order among equals.
 
-    Neighbouring pixels of a row mostly share their cell and patch, so after the geometry
-    the work is on runs of equal (cell, patch), several times fewer than pixels.
+    The pixels are read once, by a compiled loop (:func:`fuse.pixels.pixel_runs`), into runs
+    of neighbours that share their cell and patch, several times fewer than pixels; the rest
+    of the work is on runs.
     """
     fh, fw, dim = feature_map.shape
-    idx, z, height, ix, iy = _world_cells(frame, stride, cell_size, z_min, z_max)
-    if z.size == 0:
+    runs = pixel_runs(
+        frame.depth_m,
+        frame.K,
+        frame.cam_to_world,
+        stride,
+        cell_size,
+        z_min,
+        z_max,
+        _patch_of_pixel(frame.height, frame.width, fh, fw, stride),
+    )
+    if runs.size == 0:
         return _empty(dim, None if text is None else len(text))
-    lo_x, lo_y = ix.min(), iy.min()
-    nx, ny = int(ix.max() - lo_x) + 1, int(iy.max() - lo_y) + 1
-    num_patches = fh * fw
-    key = ix  # (local cell) * patches + patch, built in place
-    key -= lo_x
-    key *= ny
-    iy -= lo_y
-    key += iy
-    key *= num_patches
-    patch = _patch_of_pixel(frame.height, frame.width, fh, fw, stride)
-    key += patch if idx is None else patch[idx]
-    starts, lengths = _runs(key)
-    run_local, run_patch = np.divmod(key[starts], num_patches)
+    lo_x, lo_y = runs.ix.min(), runs.iy.min()
+    nx, ny = int(runs.ix.max() - lo_x) + 1, int(runs.iy.max() - lo_y) + 1
+    run_local = runs.ix - lo_x  # (local cell) = (ix - lo_x) * ny + (iy - lo_y), in place
+    run_local *= ny
+    run_local += runs.iy
+    run_local -= lo_y
     local, run_cell = _compact(run_local, nx * ny)
     k = local.size
     keys = pack_cells(lo_x + local // ny, lo_y + local % ny)  # sorted: local order is (ix, iy)
+    lengths = runs.lengths
     num_pixels = np.bincount(run_cell, weights=lengths, minlength=k).astype(np.int64)
     if sigma_z is None:
         weight = num_pixels.astype(np.float32)
     else:
-        w = z.astype(np.float32)
-        np.square(w, out=w)
+        w = np.square(runs.depth, dtype=np.float32)
         w *= np.float32(-0.5 / sigma_z**2)
         np.exp(w, out=w)
-        run_w = _run_reduce(w.astype(np.float64), lengths, "sum")
+        run_w = run_sums(w, runs.starts, lengths)
         weight = np.bincount(run_cell, weights=run_w, minlength=k).astype(np.float32)
-    top_z, top = _first_highest(height, starts, lengths, run_cell, k)
-    counts = _patch_counts(run_cell, run_patch, lengths, k, num_patches)
+    top_z, top = cell_tops(run_cell, runs.top, runs.top_at, k)
+    counts = _patch_counts(run_cell, runs.patch, lengths, k, fh * fw)
     feature, dots = _mean_features(counts, feature_map, text)
     rgb = frame.rgb[::stride, ::stride].reshape(-1, 3)
     return ViewSamples(
@@ -390,6 +302,6 @@ def view_samples(
         feature=feature,
         num_pixels=num_pixels,
         top_z=top_z.astype(np.float32),
-        top_rgb=rgb[top if idx is None else idx[top]],
+        top_rgb=rgb[runs.pixel[top]],
         dots=dots,
     )

@@ -131,3 +131,18 @@ def test_cell_index_ids_follow_first_appearance() -> None:
         (-4, 0),
         (2, 7),
     ]
+
+
+@pytest.mark.parametrize("band", [(-np.inf, np.inf), (-np.inf, 0.9), (-0.1, np.inf)])
+def test_an_open_band_keeps_every_finite_depth_only(band) -> None:
+    """Infinite depths give infinite heights, which only an open band would let through."""
+    rng = np.random.default_rng(11)
+    frame = _frame(rng, _tilted_pose(rng), False)
+    feats = rng.normal(size=(3, 4, 6)).astype(np.float32)
+    got = view_samples(frame, feats, cell_size=0.1, z_min=band[0], z_max=band[1])
+    ref = _plain(frame, feats, 0.1, 1, band, 2.5)
+    ix, iy = unpack_cells(got.keys)
+    assert list(zip(ix.tolist(), iy.tolist(), strict=True)) == sorted(ref)
+    assert got.num_pixels.tolist() == [ref[key]["n"] for key in sorted(ref)]
+    if np.isinf(band).all():  # every positive finite depth: all but the 5 zeros, NaN, inf
+        assert int(got.num_pixels.sum()) == int(np.isfinite(frame.depth_m).sum()) - 5
