@@ -10,6 +10,8 @@ outputs agree. ``care fuse ... --up-axis/--floor-z`` replaces it (and so rebuild
 from __future__ import annotations
 
 import json
+from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +39,9 @@ SAMPLE_POINTS = 30_000
 """Most points handed to the plane fit (a fixed-seed subset)."""
 _PIXELS_ACROSS = 60
 """Sampled depth pixels across the shorter image side (stride 8 at 640 x 480)."""
+_DECODERS = 2
+"""Threads decoding the sampled depth images (each view's points are its own: the sample is
+the same whatever the count)."""
 
 
 def sample_points(store: Store) -> tuple[np.ndarray, np.ndarray]:
@@ -64,18 +69,25 @@ def _sample_points(store: Store) -> tuple[np.ndarray, np.ndarray]:
     poses = store.poses(in_map=False)
     keep = set(np.linspace(0, len(poses) - 1, min(len(poses), SAMPLE_VIEWS)).round().astype(int))
     pf = pq.ParquetFile(store.table_path("views"))
-    chunks, row = [], 0
-    for batch in pf.iter_batches(batch_size=16, columns=["depth_png", "depth_scale", "K"]):
-        for item in batch.to_pylist():
-            if row in keep:
-                depth = decode_png(item["depth_png"]).astype(np.float32) * np.float32(
-                    item["depth_scale"]
-                )
-                K = np.asarray(item["K"], np.float64).reshape(3, 3)
-                stride = max(1, min(depth.shape) // _PIXELS_ACROSS)
-                pts, _ = backproject(depth, K, stride=stride)
-                chunks.append(transform_points(poses[row], pts))
-            row += 1
+
+    def sampled() -> Iterator[tuple[int, bytes, float, list]]:
+        row = 0
+        for batch in pf.iter_batches(batch_size=16, columns=["depth_png", "depth_scale", "K"]):
+            for item in batch.to_pylist():
+                if row in keep:
+                    yield row, item["depth_png"], item["depth_scale"], item["K"]
+                row += 1
+
+    def points_of(view: tuple[int, bytes, float, list]) -> np.ndarray:
+        row, png, scale, K = view
+        depth = decode_png(png).astype(np.float32) * np.float32(scale)
+        stride = max(1, min(depth.shape) // _PIXELS_ACROSS)
+        pts, _ = backproject(depth, np.asarray(K, np.float64).reshape(3, 3), stride=stride)
+        return transform_points(poses[row], pts)
+
+    # the PNG decoding (most of the time, and free of the GIL) on two threads, in view order
+    with ThreadPoolExecutor(_DECODERS, thread_name_prefix="care-sample") as pool:
+        chunks = list(pool.map(points_of, sampled()))
     points = np.concatenate(chunks) if chunks else np.zeros((0, 3))
     if len(points) > SAMPLE_POINTS:
         pick = np.random.default_rng(0).choice(len(points), SAMPLE_POINTS, replace=False)

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import closing, nullcontext
 from dataclasses import dataclass
 from itertools import zip_longest
@@ -60,6 +61,7 @@ from fuse.config import GridConfig
 from fuse.frame import check_height_band
 from fuse.layout import CELLS_TABLE, GridLayout
 from fuse.measures import MAX_TOP_CLASSES
+from fuse.pixels import warm_up
 from fuse.rosmap import occupancy_image, write_ros_map
 from fuse.schemas import CELL_VIEWS_FIELDS
 from fuse.sidecar import SidecarWriter, sidecar_path
@@ -427,8 +429,8 @@ def default_memory_budget() -> int:
 
 FIXED_MEMORY = 1536 << 20
 """Bytes of a budget kept for everything but the per-cell state: the program, a view's
-temporaries and the views in flight in the pipeline (``2 read_ahead + 2`` of them, 30 MB
-each at most in the benchmark's 14 m room), the cell_views writer's buffers, one chunk of
+temporaries and the views in flight in the pipeline (``2 read_ahead + 2`` of them, 10 by
+default, 30 MB each at most in the benchmark's 14 m room), the cell_views writer's buffers, one chunk of
 map columns, the cell index."""
 
 
@@ -535,6 +537,11 @@ def build_grid(store_path: Path, config: GridConfig | None = None, rrd: Path | N
 def _fuse_grid(build: MapBuild, config: GridConfig) -> None:
     """Stage ``cell_views`` and ``cells`` (and commit the query sidecar) of a new grid."""
     store, text = build.store, build.text
+    # the kernels load on their own thread while the check decodes its sample (not awaited:
+    # a kernel's first call waits for its loading, under numba's lock)
+    loading = ThreadPoolExecutor(1, thread_name_prefix="care-kernels")
+    loading.submit(warm_up)
+    loading.shutdown(wait=False)  # its thread ends with the loading
     check_height_band(store, config.z_min, config.z_max)  # before any work
     dim = store.encoder.dim
     capacity = cells_per_pass(config, dim, len(text))

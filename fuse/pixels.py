@@ -226,3 +226,28 @@ def cell_tops(
     """Per cell (``run_cell`` numbers the runs' cells 0..num_cells-1): its greatest height
     and the first pixel, in row-major order, that reaches it."""
     return _cell_tops(run_cell, top, top_at, num_cells)
+
+
+def warm_up() -> None:
+    """Load (or compile) the kernels for the types a fusion passes them.
+
+    A process's first call of a numba function loads numba's CPU target (about half a
+    second, in Python) and the cached machine code. :func:`fuse.grid.build_grid` calls this
+    on a background thread while it samples the store for the height-band check, so that
+    time overlaps the check's PNG decoding instead of stalling the first view.
+    """
+    from fuse.welford import merge_moments
+
+    plane = np.zeros(4, np.int64)
+    plane.flags.writeable = False  # as the patch-plane cache hands it out
+    runs = pixel_runs(np.ones((2, 2), np.float32), np.eye(3), np.eye(4), 1, 1.0, -2.0, 2.0, plane)
+    run_sums(np.ones(runs.size, np.float32), runs.starts, runs.lengths)
+    cell_tops(np.zeros(runs.starts.size, np.int64), runs.top, runs.top_at, 1)
+    merge_moments(
+        np.zeros((1, 2), np.float32),
+        np.zeros(1, np.int64),
+        np.ones((1, 1), np.float32),
+        np.ones(1, bool),
+        np.ones(1, np.float32),
+        np.ones(1, np.float32),
+    )
