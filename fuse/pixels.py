@@ -12,18 +12,18 @@ and runs are the same bits, and so is the map. The weight's ``exp`` stays in Num
 float32 ``exp`` is not libm's, so its bits would differ), as does the rest of the sample
 arithmetic, which works on runs, several times fewer than pixels.
 
-``nogil``: the grid pipeline computes a view's samples on a background thread while the
-main thread merges the previous view (:func:`fuse.grid._view_samples`).
-``cache``: compiled once per machine (next to this file, or numba's user cache directory
-when that is read-only), not once per process.
+The kernels are built by :func:`care.jit.kernel`: ``nogil`` (the grid's pipeline computes
+a view's samples on a background thread while the main thread merges the previous view,
+:func:`fuse.grid._view_samples`) and cached on disk, compiled once per machine.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
+
+from care.jit import kernel
 
 __all__ = ["PixelRuns", "cell_tops", "pixel_runs", "run_sums"]
 
@@ -59,7 +59,7 @@ class PixelRuns:
         return int(self.pixel.size)
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel
 def _pixel_runs(depth, stride, xn, yn, R, t, cell_size, z_min, z_max, check_inf, patch_of_pixel):
     rows, cols = yn.size, xn.size
     limit = rows * cols
@@ -191,7 +191,7 @@ def _read_only(values: np.ndarray) -> np.ndarray:
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel
 def _run_sums(values, starts, lengths):
     out = np.empty(starts.size, np.float64)
     for i in range(starts.size):
@@ -208,7 +208,7 @@ def run_sums(values: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -> np.
     return _run_sums(values, starts, lengths)
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel
 def _cell_tops(run_cell, top, top_at, num_cells):
     top_z = np.full(num_cells, -np.inf)
     first = np.zeros(num_cells, np.int64)

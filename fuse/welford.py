@@ -14,10 +14,11 @@ depend on which instructions the machine has (LLVM's ``fma`` is exact everywhere
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 from numba import types
 from numba.core.extending import intrinsic
+
+from care.jit import kernel
 
 __all__ = ["merge_moments"]
 
@@ -34,7 +35,7 @@ def _fma(typingctx, a, b, c):
     return a(a, b, c), codegen
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel
 def _merge(moments, ids, features, seen, c_mu, c_m2):
     d = features.shape[1]
     for i in range(ids.size):
