@@ -160,8 +160,8 @@ def pixel_runs(
     R = np.ascontiguousarray(cam_to_world[:3, :3], dtype=np.float64)
     t = np.ascontiguousarray(cam_to_world[:3, 3], dtype=np.float64)
     depth = np.asarray(depth_m)
-    if depth.dtype not in (np.float32, np.float64):  # the store's is float32
-        depth = depth.astype(np.float64)
+    if depth.dtype not in (np.float32, np.float64):  # the store's is float32; integer depth
+        depth = depth.astype(np.float64)  # or another byte order: exactly, as the loop reads it
     check_inf = not (np.isfinite(z_min) and np.isfinite(z_max))
     pixel, depth, starts, ix, iy, patch, top, top_at = _pixel_runs(
         depth,

@@ -146,3 +146,19 @@ def test_an_open_band_keeps_every_finite_depth_only(band) -> None:
     assert got.num_pixels.tolist() == [ref[key]["n"] for key in sorted(ref)]
     if np.isinf(band).all():  # every positive finite depth: all but the 5 zeros, NaN, inf
         assert int(got.num_pixels.sum()) == int(np.isfinite(frame.depth_m).sum()) - 5
+
+
+def test_depth_in_any_layout_gives_the_same_samples() -> None:
+    """Big-endian, integer-valued or strided depth images: the same samples, bit for bit."""
+    rng = np.random.default_rng(5)
+    frame = _frame(rng, _tilted_pose(rng), True)
+    feats = rng.normal(size=(3, 4, 6)).astype(np.float32)
+    band = {"cell_size": 0.1, "z_min": -0.1, "z_max": 0.9}
+    ref = view_samples(frame, feats, **band)
+    wide = np.zeros((H, 2 * W), np.float32)
+    wide[:, ::2] = frame.depth_m
+    for depth in (frame.depth_m.astype(">f4"), frame.depth_m.astype(np.float64), wide[:, ::2]):
+        other = Frame(0, frame.rgb, depth, K, frame.cam_to_world)
+        got = view_samples(other, feats, **band)
+        for name in ("keys", "weight", "feature", "num_pixels", "top_z", "top_rgb"):
+            assert getattr(got, name).tobytes() == getattr(ref, name).tobytes(), name
