@@ -24,6 +24,7 @@ from care.outputs import atomic_write_text
 from care.store import MAP_FRAME_FILE, Store, decode_png
 
 __all__ = [
+    "DECODERS",
     "MIN_BAND_SHARE",
     "SAMPLE_POINTS",
     "SAMPLE_VIEWS",
@@ -39,14 +40,15 @@ SAMPLE_POINTS = 30_000
 """Most points handed to the plane fit (a fixed-seed subset)."""
 _PIXELS_ACROSS = 60
 """Sampled depth pixels across the shorter image side (stride 8 at 640 x 480)."""
-_DECODERS = 2
-"""Threads decoding the sampled depth images (each view's points are its own: the sample is
-the same whatever the count)."""
+DECODERS = 2
+"""Threads decoding the sampled depth images by default (each view's points are its own: the
+sample is the same whatever the count)."""
 
 
-def sample_points(store: Store) -> tuple[np.ndarray, np.ndarray]:
+def sample_points(store: Store, decoders: int = DECODERS) -> tuple[np.ndarray, np.ndarray]:
     """(P, 3) world points from up to :data:`SAMPLE_VIEWS` views and the (V, 4, 4) world poses
-    of every view; only the sampled views' depth is decoded.
+    of every view; only the sampled views' depth is decoded, on ``decoders`` threads (1: in
+    the caller's).
 
     The last store's sample is kept while its views table is unchanged (callers get
     copies): the first fusion of a store finds the map frame and then checks the height
@@ -56,7 +58,7 @@ def sample_points(store: Store) -> tuple[np.ndarray, np.ndarray]:
     stat = path.stat()
     key = (str(path.resolve()), stat.st_ino, stat.st_size, stat.st_mtime_ns)
     if not (_LAST_SAMPLE and _LAST_SAMPLE[0] == key):
-        _LAST_SAMPLE[:] = [key, _sample_points(store)]
+        _LAST_SAMPLE[:] = [key, _sample_points(store, decoders)]
     points, poses = _LAST_SAMPLE[1]
     return points.copy(), poses.copy()
 
@@ -65,7 +67,7 @@ _LAST_SAMPLE: list = []
 """``[key of a views table, its sample]`` (:func:`sample_points`)."""
 
 
-def _sample_points(store: Store) -> tuple[np.ndarray, np.ndarray]:
+def _sample_points(store: Store, decoders: int) -> tuple[np.ndarray, np.ndarray]:
     poses = store.poses(in_map=False)
     keep = set(np.linspace(0, len(poses) - 1, min(len(poses), SAMPLE_VIEWS)).round().astype(int))
     pf = pq.ParquetFile(store.table_path("views"))
@@ -85,9 +87,11 @@ def _sample_points(store: Store) -> tuple[np.ndarray, np.ndarray]:
         pts, _ = backproject(depth, np.asarray(K, np.float64).reshape(3, 3), stride=stride)
         return transform_points(poses[row], pts)
 
-    # the PNG decoding (most of the time, and free of the GIL) on two threads, in view order
-    with ThreadPoolExecutor(_DECODERS, thread_name_prefix="care-sample") as pool:
-        chunks = list(pool.map(points_of, sampled()))
+    if decoders <= 1:
+        chunks = [points_of(view) for view in sampled()]
+    else:  # the PNG decoding (most of the time, and free of the GIL) on threads, in view order
+        with ThreadPoolExecutor(decoders, thread_name_prefix="care-sample") as pool:
+            chunks = list(pool.map(points_of, sampled()))
     points = np.concatenate(chunks) if chunks else np.zeros((0, 3))
     if len(points) > SAMPLE_POINTS:
         pick = np.random.default_rng(0).choice(len(points), SAMPLE_POINTS, replace=False)
@@ -126,12 +130,12 @@ band; below it the map frame (or the band) is wrong and the map would be a slice
 (a y-down trajectory read as z-up keeps a fifth of the room, the first release's bug)."""
 
 
-def check_height_band(store: Store, z_min: float, z_max: float) -> float:
+def check_height_band(store: Store, z_min: float, z_max: float, decoders: int = DECODERS) -> float:
     """The share of sampled depth points between the floor (or ``z_min`` below it) and
     ``z_max`` in the map frame, or one clear error when it is below :data:`MIN_BAND_SHARE`."""
     from care.errors import FuseError
 
-    points, _ = sample_points(store)
+    points, _ = sample_points(store, decoders)
     frame = store.map_frame
     z = points @ frame.map_from_world[2, :3] + frame.map_from_world[2, 3]
     lo, hi = min(z_min, 0.0) - 0.1, max(z_max, 0.0)  # the floor, with its noise

@@ -58,7 +58,7 @@ from fuse.budget import check_raster
 from fuse.build import MapBuild, MapSpec, build_map
 from fuse.cells import CellIndex, ViewSamples, pack_cells, unpack_cells, view_samples
 from fuse.config import GridConfig
-from fuse.frame import check_height_band
+from fuse.frame import DECODERS, check_height_band
 from fuse.layout import CELLS_TABLE, GridLayout
 from fuse.measures import MAX_TOP_CLASSES
 from fuse.pixels import warm_up
@@ -537,12 +537,14 @@ def build_grid(store_path: Path, config: GridConfig | None = None, rrd: Path | N
 def _fuse_grid(build: MapBuild, config: GridConfig) -> None:
     """Stage ``cell_views`` and ``cells`` (and commit the query sidecar) of a new grid."""
     store, text = build.store, build.text
-    # the kernels load on their own thread while the check decodes its sample (not awaited:
-    # a kernel's first call waits for its loading, under numba's lock)
-    loading = ThreadPoolExecutor(1, thread_name_prefix="care-kernels")
-    loading.submit(warm_up)
-    loading.shutdown(wait=False)  # its thread ends with the loading
-    check_height_band(store, config.z_min, config.z_max)  # before any work
+    if config.read_ahead > 0:  # else everything in this thread (the kernels load on first use)
+        # the kernels load on their own thread while the check decodes its sample (not
+        # awaited: a kernel's first call waits for its loading, under numba's lock)
+        loading = ThreadPoolExecutor(1, thread_name_prefix="care-kernels")
+        loading.submit(warm_up)
+        loading.shutdown(wait=False)  # its thread ends with the loading
+    decoders = DECODERS if config.read_ahead > 0 else 1
+    check_height_band(store, config.z_min, config.z_max, decoders)  # before any work
     dim = store.encoder.dim
     capacity = cells_per_pass(config, dim, len(text))
     sums = CandidateSums(dim, text, config.logit_scale, limit=capacity)

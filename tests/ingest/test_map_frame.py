@@ -87,6 +87,15 @@ def test_up_axis_and_floor_found_from_the_data(stores) -> None:
     assert heights.max() < 1.8
 
 
+def test_the_sample_is_the_same_on_any_number_of_decoding_threads(stores) -> None:
+    from fuse.frame import _sample_points
+
+    one, two, five = (_sample_points(Store(stores["mcap"]), n) for n in (1, 2, 5))
+    for other in (two, five):
+        assert other[0].tobytes() == one[0].tobytes()
+        assert other[1].tobytes() == one[1].tobytes()
+
+
 def test_every_format_and_frame_gives_the_same_grid(stores) -> None:
     def cells_in_ydown_map(name: str) -> np.ndarray:
         table = read_table(stores[name] / "cells.parquet", ["x", "y", "z_max"])
