@@ -9,9 +9,10 @@ folder, as a user would type it:
 2. a local process pool: ``--workers N`` (default 2);
 3. a local Ray started by the run itself: ``--ray`` (its start-up is in the figure).
 
-It prints each wall time, the speed-up over serial (target: close to the worker count),
-the load average around the runs (the machine may be shared), and checks that the stores
-and ``eval/attempts.parquet`` are byte-identical across the three.
+It prints each wall time and CPU time, the speed-up over serial (target: close to the worker
+count), how many cores each way keeps busy (serial already uses more than one: the grid
+fusion is a pipeline), the load average around the runs (the machine may be shared), and
+checks that the stores and ``eval/attempts.parquet`` are byte-identical across the three.
 
 Next to them it measures the machine's own ceiling: the same number of processes running a
 compute-bound kernel (a Python loop) and a memory-bound one (numpy streaming over 160 MB)
@@ -25,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import resource
 import shutil
 import subprocess
 import sys
@@ -75,15 +77,24 @@ def _ceiling(kernel: str, workers: int, repeats: int = 3) -> float:
     return workers * min(alone) / min(together)
 
 
-def _run(dataset: Path, out: Path, seeds: int, how: list[str]) -> float:
+def _cpu_of_children() -> float:
+    """User + system CPU seconds of every finished child this process waited for, with the
+    descendants they waited for in turn (a pool's workers; Ray's daemons only as far as
+    they are reaped at its shutdown)."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def _run(dataset: Path, out: Path, seeds: int, how: list[str]) -> tuple[float, float]:
+    """``care run`` in a fresh process: (wall seconds, CPU seconds)."""
     cmd = [sys.executable, "-m", "care_cli.main", "run", str(dataset), "--out", str(out)]
     cmd += ["--seeds", str(seeds), *how]
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), _cpu_of_children()
     done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, _cpu_of_children() - c0
     if done.returncode != 0:
         sys.exit(f"{' '.join(how)}: care run failed:\n{done.stderr[-3000:]}")
-    return wall
+    return wall, cpu
 
 
 def main() -> None:
@@ -122,16 +133,23 @@ def main() -> None:
             "local Ray": ["--ray"],
         }
         load_before = os.getloadavg()
-        walls = {name: _run(dataset, tmp / name.split()[0], args.seeds, how)
+        times = {name: _run(dataset, tmp / name.split()[0], args.seeds, how)
                  for name, how in ways.items()}  # fmt: skip
         ceilings = {name: _ceiling(kernel, args.workers) for name, kernel in _KERNELS.items()}
         load_after = os.getloadavg()
-        serial = walls["serial"]
-        for name, wall in walls.items():
-            print(f"  {name:<20} {wall:7.1f} s   x{serial / wall:.2f} vs serial")
+        serial, serial_cpu = times["serial"]
+        for name, (wall, cpu) in times.items():
+            print(
+                f"  {name:<20} {wall:7.1f} s   x{serial / wall:.2f} vs serial   "
+                f"CPU {cpu:6.1f} s ({cpu / wall:.2f} cores busy)"
+            )
+        cores = min(args.workers, os.cpu_count() or 1)
         print(
             f"  this machine's ceiling for {args.workers} processes: "
             + ", ".join(f"x{v:.2f} {k}" for k, v in ceilings.items())
+            + f"; serial keeps {serial_cpu / serial:.2f} cores busy by itself, so {cores} "
+            f"cores can do at most x{cores * serial / serial_cpu:.2f} its work at the same "
+            "CPU cost per recording"
         )
         print(
             f"  load average (1 min) {load_before[0]:.2f} before, {load_after[0]:.2f} after "

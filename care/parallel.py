@@ -15,7 +15,7 @@ import contextlib
 import os
 import socket
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import Executor, ProcessPoolExecutor, as_completed
+from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, TypeVar
@@ -30,6 +30,7 @@ __all__ = [
     "ray_runtime_env",
     "run_tasks",
     "setup_worker",
+    "start_task",
 ]
 
 T = TypeVar("T")
@@ -147,6 +148,48 @@ def run_tasks(fn: Callable[[T], R], items: Sequence[T], runner: Runner) -> Itera
             yield from _run_pool(fn, items, pool)
 
 
+def start_task(fn: Callable[..., R], *args: Any, runner: Runner) -> Future[R]:
+    """``fn(*args)`` started on ``runner`` now, its result for later (``.result()``), so
+    the caller does other work meanwhile: on the runner's open pool
+    (:func:`open_runner`) or as a Ray task. Without either it runs here, before this
+    returns (its error, if any, is raised by ``.result()`` as from a pool).
+
+    A task's project error (:class:`care.errors.CareError`) comes out of ``.result()`` as
+    itself, whichever runner ran it.
+    """
+    if runner.uses_ray:
+        ray = _ray(runner)
+        task = ray.remote(_in_worker).options(
+            runtime_env=ray_runtime_env(), num_cpus=runner.num_cpus, max_retries=0
+        )
+        return _unwrapped(task.remote(fn, *args).future())
+    if runner.executor is not None:
+        return runner.executor.submit(fn, *args)
+    done: Future[R] = Future()
+    try:
+        done.set_result(fn(*args))
+    except Exception as err:
+        done.set_exception(err)
+    return done
+
+
+def _unwrapped(future: Future) -> Future:
+    """``future`` with a Ray task's :class:`care.errors.CareError` raised as itself."""
+    out: Future = Future()
+
+    def settle(done: Future) -> None:
+        err = done.exception()
+        if err is None:
+            out.set_result(done.result())
+        else:
+            out.set_exception(
+                err.cause if isinstance(getattr(err, "cause", None), CareError) else err
+            )
+
+    future.add_done_callback(settle)
+    return out
+
+
 def _run_pool(fn: Callable[[T], R], items: Sequence[T], pool: Executor) -> Iterator[tuple[T, R]]:
     futures = {pool.submit(fn, item): item for item in items}
     for future in as_completed(futures):
@@ -190,10 +233,10 @@ def _run_ray(fn: Callable[[T], R], items: Sequence[T], runner: Runner) -> Iterat
         yield refs[done[0]], result
 
 
-def _in_worker(fn: Callable[[T], R], item: T) -> R:
+def _in_worker(fn: Callable[..., R], *args: Any) -> R:
     """A Ray task: the process settings (again, should the hook not have run), then ``fn``."""
     setup_worker()
-    return fn(item)
+    return fn(*args)
 
 
 def _check_reachable(address: str) -> None:

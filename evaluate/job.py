@@ -25,7 +25,7 @@ from tqdm import tqdm
 from care.errors import CareError, EvalError
 from care.fingerprint import content_digest, fingerprint
 from care.outputs import evaluation_output, read_marker
-from care.parallel import Runner, run_tasks
+from care.parallel import Runner, open_runner, run_tasks
 from care.store import META_FILE, read_table, source_recording, write_table_atomic
 from evaluate.config import NO_CRITERION, EvalConfig
 from evaluate.groundtruth import GtSource, check_ground_truth, gt_files
@@ -500,11 +500,9 @@ def run_eval(
     scenes = with_ground_truth(scenes_of(dataset), gt, gt_defaults)
     left_out = check_scenes(scenes, config)
     out = Path(out)
-    with evaluation_output(out, [s.store for s in scenes]):
-        attempts = run_scenes(
-            scenes, config, out, workers=workers, ray_address=ray_address, progress=progress,
-            runner=runner,
-        )  # fmt: skip
+    runner = runner or Runner(workers=workers or os.cpu_count() or 1, ray_address=ray_address)
+    with evaluation_output(out, [s.store for s in scenes]), open_runner(runner) as live:
+        attempts = run_scenes(scenes, config, out, progress=progress, runner=live)
         ks = {kind: config.ks(kind) for kind in MAP_TABLES}
         header = describe(config, scenes, attempts)
         dropped = {name: classes for name, classes in left_out.items() if classes}
@@ -514,4 +512,6 @@ def run_eval(
                 + "; ".join(f"{name}: {', '.join(classes)}" for name, classes in dropped.items())
                 + "\n"
             )
-        return write_report(attempts, out, ks, bootstrap=config.bootstrap, header=header)
+        return write_report(
+            attempts, out, ks, bootstrap=config.bootstrap, header=header, runner=live
+        )

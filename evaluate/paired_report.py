@@ -13,7 +13,7 @@ from evaluate.config import NO_CRITERION
 from evaluate.paired import compare, comparison_rng
 from replan.strategies import STRATEGIES, Criterion, StrategyName
 
-__all__ = ["CARE_STRATEGIES", "outcomes", "paired_markdown", "paired_table"]
+__all__ = ["CARE_STRATEGIES", "Outcomes", "outcomes", "paired_markdown", "paired_table"]
 
 QUERY_KEYS = ("scene", "map", "protocol", "unit", "query")
 
@@ -23,10 +23,19 @@ CARE_STRATEGIES = tuple(
 """The CARe rules: a measure chosen over a candidate set (ablations included)."""
 
 
-def outcomes(attempts: pa.Table) -> tuple[dict, dict]:
+Outcomes = tuple[dict, dict]
+"""What :func:`outcomes` returns: ``(solved, first)``."""
+
+
+def outcomes(attempts: pa.Table) -> Outcomes:
     """``solved[(map, protocol)][(strategy, criterion, k)][query key]`` (mean over seeds of
     "some attempt succeeded", as :func:`evaluate.report.per_query`) and ``first[...]`` (the
-    first attempt succeeded), grouped by Arrow rather than row by row."""
+    first attempt succeeded), grouped by Arrow rather than row by row.
+
+    Plain dicts, not the defaultdicts they are built in: the report hands one result to its
+    five tables (:func:`evaluate.report.write_report`; half a second a table at 8 scenes),
+    and a read of a missing key must not add it for the next table.
+    """
     from evaluate.report import per_query
 
     rule_keys = ["strategy", "criterion", "k"]
@@ -47,7 +56,11 @@ def outcomes(attempts: pa.Table) -> tuple[dict, dict]:
         rule = (r["strategy"], r["criterion"], r["k"])
         solved[r["map"], r["protocol"]][rule][query] = r["solved"]
         first[r["map"], r["protocol"]][rule][query] = bool(firsts.get((query, rule), False))
-    return solved, first
+    return _plain(solved), _plain(first)
+
+
+def _plain(nested: dict) -> dict:
+    return {key: dict(rules) for key, rules in nested.items()}
 
 
 def _best(rules: dict, strategy: str) -> tuple[str, str, int] | None:
@@ -58,12 +71,19 @@ def _best(rules: dict, strategy: str) -> tuple[str, str, int] | None:
     return max(cands, key=lambda c: (c[0], -c[1][2]))[1]
 
 
-def paired_table(attempts: pa.Table, *, bootstrap: int = 10_000, seed: int = 0) -> pa.Table:
+def paired_table(
+    attempts: pa.Table,
+    *,
+    bootstrap: int = 10_000,
+    seed: int = 0,
+    known: Outcomes | None = None,
+) -> pa.Table:
     """One row per (map, protocol, CARe strategy, criterion, k, baseline): the paired
     difference in success, its bootstrap interval, discordant counts, first-attempt ties
     and McNemar's p. Baselines: ``max_confidence`` and the best ``random_topk`` (the
-    criterion and k with the highest success in that map and protocol)."""
-    solved, first = outcomes(attempts)
+    criterion and k with the highest success in that map and protocol). ``known``: the
+    :func:`outcomes` of ``attempts``, when the caller has them."""
+    solved, first = known or outcomes(attempts)
     rows = []
     for (kind, protocol), rules in sorted(solved.items()):
         baselines = []

@@ -5,6 +5,10 @@ Chains the stage functions: :func:`ingest.ingest`, :func:`fuse.fuse_grid` and
 local process pool or on Ray: :mod:`care.parallel`), then :func:`evaluate.evaluate`. Every
 stage skips work that is already done, so re-running is cheap and an interrupted run
 resumes. With no recording it runs on the bundled sample (``data/sample``).
+
+The stages a task runs (ingest, fusion, the Rerun logging) are imported by the task, not by
+this module: the driver of a process pool or of Ray never fuses, and importing torch, numba
+and Rerun there cost it about 3.5 s on one core before the workers got their first task.
 """
 
 from __future__ import annotations
@@ -28,13 +32,7 @@ from evaluate.config import RunConfig
 from evaluate.groundtruth import GtSource
 from evaluate.job import Scene, with_ground_truth
 from evaluate.report import Report
-from evaluate.viz import write_evaluation_rrd
-from fuse.api import fuse_grid, fuse_instances
-from fuse.viz_grid import log_grid
-from ingest.api import ingest
-from ingest.pipeline import IngestConfig
 from ingest.readers import is_recording, recordings_in
-from query.map import load_map
 from world.dataset_index import INDEX_NAME, read_index
 
 __all__ = [
@@ -160,6 +158,10 @@ class RecordingTask:
             return RecordingOutcome(self.name, error=why)
 
     def _run(self) -> RecordingOutcome:
+        from fuse.api import fuse_grid, fuse_instances
+        from ingest.api import ingest
+        from ingest.pipeline import IngestConfig
+
         config, out, name = self.config, self.out, self.name
         ingest_rrd = out / f"{name}.ingest.rrd" if config.rrd_ingest else None
         store = ingest(
@@ -214,6 +216,10 @@ class SceneLogTask:
         return self.grid_rrd is not None or self.eval_rrd is not None
 
     def __call__(self) -> None:
+        from evaluate.viz import write_evaluation_rrd
+        from fuse.viz_grid import log_grid
+        from query.map import load_map
+
         if self.grid_rrd is not None:
             target = list(self.target) if self.target else None
             log_grid(self.store, self.grid_rrd, target=target, scene=self.name)

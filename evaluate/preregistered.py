@@ -31,7 +31,7 @@ import pyarrow as pa
 from care.store import write_table_atomic
 from evaluate.config import NO_CRITERION
 from evaluate.paired import compare, comparison_rng, holm, mcnemar_exact
-from evaluate.paired_report import CARE_STRATEGIES, outcomes
+from evaluate.paired_report import CARE_STRATEGIES, Outcomes, outcomes
 from replan.strategies import STRATEGIES, Criterion, StrategyName
 
 __all__ = [
@@ -144,11 +144,14 @@ def headline_table(
     *,
     bootstrap: int = 2000,
     seed: int = 0,
+    known: Outcomes | None = None,
 ) -> pa.Table:
     """The pre-registered rules and the non-CARe baselines against max confidence and the
-    best random top-k, per map and protocol; Holm over each (map, protocol, baseline)."""
+    best random top-k, per map and protocol; Holm over each (map, protocol, baseline).
+    ``known``, here and below: the :func:`~evaluate.paired_report.outcomes` of
+    ``attempts``, when the caller has them."""
     settings = PAPER_SETTINGS if settings is None else settings
-    solved, first = outcomes(attempts)
+    solved, first = known or outcomes(attempts)
     rows = []
     for (kind, protocol), rules in sorted(solved.items()):
         bases = [b for b in (MAX_CONF, _best_random(rules)) if b is not None and b in rules]
@@ -163,10 +166,12 @@ def headline_table(
     return pa.Table.from_pylist(_with_holm(rows, ("map", "protocol", "baseline", "family")))
 
 
-def best_of_k_table(attempts: pa.Table, *, bootstrap: int = 2000, seed: int = 0) -> pa.Table:
+def best_of_k_table(
+    attempts: pa.Table, *, bootstrap: int = 2000, seed: int = 0, known: Outcomes | None = None
+) -> pa.Table:
     """Every CARe setting tried against max confidence, Holm-corrected over all of them
     (per map and protocol); ``best`` marks each strategy's best setting."""
-    solved, first = outcomes(attempts)
+    solved, first = known or outcomes(attempts)
     rows = []
     for (kind, protocol), rules in sorted(solved.items()):
         if MAX_CONF not in rules:
@@ -192,12 +197,15 @@ def best_of_k_table(attempts: pa.Table, *, bootstrap: int = 2000, seed: int = 0)
 
 
 def by_class_table(
-    attempts: pa.Table, settings: dict[str, tuple[Rule, ...]] | None = None
+    attempts: pa.Table,
+    settings: dict[str, tuple[Rule, ...]] | None = None,
+    *,
+    known: Outcomes | None = None,
 ) -> pa.Table:
     """Success (%) per target class of max confidence and each pre-registered rule, with the
     queries each rule wins and loses against max confidence."""
     settings = PAPER_SETTINGS if settings is None else settings
-    solved, _ = outcomes(attempts)
+    solved, _ = known or outcomes(attempts)
     targets = _targets(attempts)
     rows = []
     for (kind, protocol), rules in sorted(solved.items()):
@@ -230,13 +238,16 @@ def _targets(attempts: pa.Table) -> dict[tuple, str]:
 
 
 def query_breakdown(
-    attempts: pa.Table, settings: dict[str, tuple[Rule, ...]] | None = None
+    attempts: pa.Table,
+    settings: dict[str, tuple[Rule, ...]] | None = None,
+    *,
+    known: Outcomes | None = None,
 ) -> pa.Table:
     """Per map and protocol: queries, those no strategy can solve (the oracle fails), and,
     under the ``instance`` protocol, those whose first pick was a same-class sibling, with
     how often each baseline and pre-registered rule recovers them."""
     settings = PAPER_SETTINGS if settings is None else settings
-    solved, first = outcomes(attempts)
+    solved, first = known or outcomes(attempts)
     targets = _targets(attempts)
     class_first: dict[tuple, bool] = {}
     for (kind, protocol), f in first.items():
@@ -369,17 +380,23 @@ class PreregisteredResult:
 
 
 def write_preregistered(
-    attempts: pa.Table, out: Path, *, bootstrap: int = 2000, seed: int = 0
+    attempts: pa.Table,
+    out: Path,
+    *,
+    bootstrap: int = 2000,
+    seed: int = 0,
+    known: Outcomes | None = None,
 ) -> PreregisteredResult:
     """Write ``preregistered.parquet``, ``best_of_k.parquet``, ``by_class.parquet`` and
     ``query_breakdown.parquet`` under ``out``; returns them and their markdown."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    known = known or outcomes(attempts)
     tables = (
-        headline_table(attempts, bootstrap=bootstrap, seed=seed),
-        best_of_k_table(attempts, bootstrap=bootstrap, seed=seed),
-        by_class_table(attempts),
-        query_breakdown(attempts),
+        headline_table(attempts, bootstrap=bootstrap, seed=seed, known=known),
+        best_of_k_table(attempts, bootstrap=bootstrap, seed=seed, known=known),
+        by_class_table(attempts, known=known),
+        query_breakdown(attempts, known=known),
     )
     names = ("preregistered", "best_of_k", "by_class", "query_breakdown")
     paths = tuple(out / f"{n}.parquet" for n in names)

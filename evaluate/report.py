@@ -17,9 +17,10 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from care.outputs import atomic_write_text, write_atomic
+from care.parallel import Runner, start_task
 from care.store import write_table_atomic
 from evaluate.config import NO_CRITERION
-from evaluate.paired_report import paired_markdown, paired_table
+from evaluate.paired_report import outcomes, paired_markdown, paired_table
 from replan.strategies import CRITERIA, STRATEGIES, StrategyName
 
 __all__ = [
@@ -460,16 +461,22 @@ def write_report(
     *,
     bootstrap: int = 1000,
     header: str = "",
+    runner: Runner | None = None,
 ) -> Report:
     """Write ``attempts.parquet``, ``summary.parquet``, ``per_scene.parquet``,
-    ``auroc.parquet``, ``paired.parquet``, ``results.md`` and ``plots/*.png`` under ``out``."""
+    ``auroc.parquet``, ``paired.parquet``, ``results.md`` and ``plots/*.png`` under ``out``;
+    the plots on ``runner`` (its open pool or Ray) while the tables are made here."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     queries = per_query(attempts)
     summary = summarise(queries, bootstrap=bootstrap)
+    # the plots (matplotlib: about 4 s at 8 scenes) on another worker while the tables are
+    # made here; without a pool or Ray they are drawn now, in this process
+    plotting = start_task(plot_success, summary, ks, out / "plots", runner=runner or Runner())
     scenes = summarise(queries, by_scene=True)
     aucs = auroc_table(attempts)
-    paired = paired_table(attempts, bootstrap=bootstrap)
+    known = outcomes(attempts)  # once for the paired and the four pre-registered tables
+    paired = paired_table(attempts, bootstrap=bootstrap, known=known)
     paths = [
         out / "attempts.parquet",
         out / "summary.parquet",
@@ -479,11 +486,11 @@ def write_report(
     ]
     for table, path in zip((attempts, summary, scenes, aucs, paired), paths, strict=True):
         write_table_atomic(table, path)
-    plots = plot_success(summary, ks, out / "plots")
     tables = markdown_tables(summary, ks)
     from evaluate.preregistered import write_preregistered
 
-    prereg = write_preregistered(attempts, out, bootstrap=min(bootstrap, 2000))
+    prereg = write_preregistered(attempts, out, bootstrap=min(bootstrap, 2000), known=known)
+    plots = plotting.result()
     md = "\n".join(
         [
             header,

@@ -38,9 +38,11 @@ def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def _outputs(out: Path) -> dict[str, bytes]:
-    """Every file of the stores, and the attempts table, by path relative to ``out``."""
-    files = [p for p in (out / "stores").rglob("*") if p.is_file()]
-    files.append(out / "eval" / "attempts.parquet")
+    """Every file of the stores and of the evaluation (its tables, ``results.md`` and the
+    plots, drawn by a worker in a pool or on Ray), by path relative to ``out``."""
+    files = [p for d in ("stores", "eval") for p in (out / d).rglob("*") if p.is_file()]
+    assert out / "eval" / "attempts.parquet" in files
+    assert any(p.suffix == ".png" for p in files)
     return {str(p.relative_to(out)): p.read_bytes() for p in files}
 
 
@@ -200,3 +202,37 @@ def test_workers_start_with_the_process_settings(ray_session: object) -> None:
         # depend on it; two workers on two cores would otherwise run four threads)
         assert got["OMP_NUM_THREADS"] == openmp_threads() == "1", runner
     assert os.environ.get("TQDM_DISABLE") is None
+
+
+def test_a_started_task_runs_on_the_runner_and_keeps_its_one_line_error(
+    ray_session: object,
+) -> None:
+    """:func:`care.parallel.start_task` (the report draws its plots so): on an open pool or
+    on Ray the task runs in a worker while the caller goes on; without either, here. A
+    project error comes out of ``result()`` as itself, not wrapped by the pool or Ray."""
+    from care.errors import StoreError
+    from care.parallel import Runner, open_runner, start_task
+    from care.store import Store
+
+    for runner in (Runner(workers=1), Runner(workers=2), Runner(ray_address=True)):
+        with open_runner(runner) as live:
+            pid = start_task(os.getpid, runner=live).result()
+            assert (pid == os.getpid()) == (runner.workers == 1 and not runner.uses_ray)
+            assert start_task(divmod, 17, 5, runner=live).result() == (3, 2)
+            failing = start_task(Store, Path("/nowhere/store"), runner=live)
+            with pytest.raises(StoreError, match=r"^/nowhere/store: not a complete feature store"):
+                failing.result()
+
+
+def test_the_driver_of_a_run_imports_no_stage() -> None:
+    """``care run``'s module leaves the stages (torch, numba, Rerun) to the tasks: a pool's
+    or Ray's driver, which never fuses, started its workers 3.5 s later when it imported
+    them."""
+    code = (
+        "import sys, evaluate.pipeline; "
+        "print(sorted(m for m in ('torch', 'numba', 'rerun', 'open3d') if m in sys.modules))"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, check=True
+    )
+    assert done.stdout.strip() == "[]"
