@@ -12,7 +12,7 @@ folder, as a user would type it:
 It prints each wall time and CPU time, the speed-up over serial (target: close to the worker
 count), how many cores each way keeps busy (serial already uses more than one: the grid
 fusion is a pipeline), the load average around the runs (the machine may be shared), and
-checks that the stores and ``eval/attempts.parquet`` are byte-identical across the three.
+checks that the stores and every file of ``eval/`` are byte-identical across the three.
 
 Next to them it measures the machine's own ceiling: the same number of processes running a
 compute-bound kernel (a Python loop) and a memory-bound one (numpy streaming over 160 MB)
@@ -41,9 +41,9 @@ from world.record import DatasetConfig, make_dataset  # noqa: E402
 
 
 def _outputs(out: Path) -> dict[str, bytes]:
-    """Every file of the stores and the attempts table, by path relative to ``out``."""
-    files = [p for p in (out / "stores").rglob("*") if p.is_file()]
-    files.append(out / "eval" / "attempts.parquet")
+    """Every file of the stores and of the evaluation (``attempts.parquet``, the other
+    tables, ``results.md``, the plots), by path relative to ``out``."""
+    files = [p for d in ("stores", "eval") for p in (out / d).rglob("*") if p.is_file()]
     return {str(p.relative_to(out)): p.read_bytes() for p in files}
 
 
@@ -139,10 +139,13 @@ def main() -> None:
         load_after = os.getloadavg()
         serial, serial_cpu = times["serial"]
         for name, (wall, cpu) in times.items():
-            print(
-                f"  {name:<20} {wall:7.1f} s   x{serial / wall:.2f} vs serial   "
-                f"CPU {cpu:6.1f} s ({cpu / wall:.2f} cores busy)"
+            # Ray's workers are children of its raylet, reaped after `care run` has exited
+            busy = (
+                "CPU: Ray's workers are not counted"
+                if name == "local Ray"
+                else f"CPU {cpu:6.1f} s ({cpu / wall:.2f} cores busy)"
             )
+            print(f"  {name:<20} {wall:7.1f} s   x{serial / wall:.2f} vs serial   {busy}")
         cores = min(args.workers, os.cpu_count() or 1)
         print(
             f"  this machine's ceiling for {args.workers} processes: "
@@ -162,7 +165,7 @@ def main() -> None:
                 k for k in expected if got.get(k) != expected[k]
             ]
             state = "byte-identical" if not bad else f"DIFFERENT: {bad[:5]}"
-            print(f"  {name}: {len(expected)} files (stores + attempts.parquet) {state}")
+            print(f"  {name}: {len(expected)} files (stores + eval/) {state}")
             if bad:
                 sys.exit(1)
     finally:
