@@ -17,6 +17,12 @@ fresh process (so memory figures are its own) and prints:
 
 Targets (issue 14): < 15 ms per attempt at 1M cells for a vocabulary class, < 50 ms for
 free text. Run: ``python bench/query.py`` (``--sizes 5000 50000`` for a quick look).
+
+A second table times the goal a navigation stack gets for an attempt
+(``query.goals.FreeSpace.approach``: the free cell nearest the object that keeps 0.3 m from
+every obstacle) on floors of rooms with walls and clutter, at the same sizes and at 4M cells
+(100 m x 100 m): the clearance computed around the goal against a distance transform of the
+whole floor (the way before), the two goals compared.
 """
 
 from __future__ import annotations
@@ -180,6 +186,64 @@ def _run_size(folder: str, n_cells: int, legacy: bool, queue) -> None:
     queue.put(out)
 
 
+def _floor(n: int, seed: int = 0):
+    """A square floor of about ``n`` 5 cm cells: 4 m rooms walled on two sides with a 1 m
+    door each, and 1% clutter, all seen."""
+    from fuse.layout import GridLayout
+    from query.goals import FreeSpace
+
+    side = int(np.sqrt(n))
+    ix, iy = (a.reshape(-1) for a in np.meshgrid(np.arange(side), np.arange(side), indexing="ij"))
+    room = int(4 / CELL)
+    door = (ix % room > room // 2) & (ix % room < room // 2 + int(1 / CELL))
+    wall = (ix % room == 0) & ~(iy % room > 20) | (iy % room == 0) & ~door
+    clutter = np.random.default_rng(seed).random(ix.size) < 0.01
+    return FreeSpace.from_cells(GridLayout(CELL, (0.0, 0.0), (side, side)), ix, iy, wall | clutter)
+
+
+def bench_goals(sizes) -> None:
+    """Goal poses: clearance around each goal against the whole floor's distance transform
+    (computed once per ``care query`` before), the goals compared whole."""
+    from dataclasses import dataclass
+
+    from scipy import ndimage
+
+    from query.goals import FreeSpace, GoalConfig
+
+    @dataclass(frozen=True)
+    class WholeFloor(FreeSpace):
+        """The way before: every cell's clearance from one transform of the whole floor."""
+
+        whole: np.ndarray | None = None
+
+        def clearance(self, xs: slice, ys: slice, margin: int) -> tuple[np.ndarray, float]:
+            return self.whole[xs, ys], np.inf
+
+    print("\n## goal pose for an attempt (0.3 m clearance, 1 m reach), 20 objects")
+    print(
+        "| cells | around the goal ms | whole floor ms (the way before) | speed-up | same goals |"
+    )
+    print("| --- | --- | --- | --- | --- |")
+    config = GoalConfig()
+    for n in sizes:
+        space = _floor(n)
+        side = space.layout.shape[0] * CELL
+        targets = [tuple(xy) for xy in np.random.default_rng(1).uniform(0.5, side - 0.5, (20, 2))]
+        t = time.perf_counter()
+        goals = [space.approach(xy, config) for xy in targets]
+        ours = (time.perf_counter() - t) / len(targets) * 1e3
+        t = time.perf_counter()
+        whole = ndimage.distance_transform_edt(~space.blocked) * CELL
+        before = WholeFloor(space.layout, space.free, space.blocked, whole)
+        old = [before.approach(xy, config) for xy in targets]
+        old_ms = (time.perf_counter() - t) * 1e3  # the transform once: a query's first goal
+        same = sum(a == b for a, b in zip(goals, old, strict=True))
+        print(
+            f"| {space.layout.shape[0] ** 2:,} | {ours:.2f} | {old_ms:,.0f} | "
+            f"x{old_ms / ours:,.0f} | {same}/{len(goals)} |"
+        )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=list(SIZES))
@@ -219,6 +283,7 @@ def main() -> None:
                 f"| {n:,} | {r['load_ms']:.0f} | {r['load_mb']:.0f} | {label} | {first:.2f} | "
                 f"{replan:.2f} | {after10:.2f} | {old} |"
             )
+    bench_goals([*args.sizes, 4_000_000])
 
 
 if __name__ == "__main__":

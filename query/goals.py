@@ -140,13 +140,22 @@ class Goal:
 
 @dataclass(frozen=True)
 class FreeSpace:
-    """The grid's free cells and each one's distance to the nearest obstacle."""
+    """The grid's free cells and its obstacles; each cell's clearance (distance to the nearest
+    obstacle) is computed where a goal is sought, not over the whole floor.
+
+    A goal needs the clearance of the cells within ``reach`` of one object. A Euclidean
+    distance transform of the whole grid cost 0.17 s at 1M cells and 0.7 s at 4M (a
+    100 m x 100 m floor) on every ``care query``; :meth:`clearance` transforms the reach
+    window and a margin of obstacles around it instead, widening the margin only while a value
+    the goal depends on could still be changed by an obstacle beyond it. The goal is the one
+    the whole grid's transform gives, clearance included, bit for bit (tested against it).
+    """
 
     layout: GridLayout
     free: np.ndarray
     """(nx, ny) bool: seen and not an obstacle."""
-    clearance: np.ndarray
-    """(nx, ny) float32 metres from the cell centre to the nearest obstacle cell's centre."""
+    blocked: np.ndarray
+    """(nx, ny) bool: obstacle cells."""
 
     @classmethod
     def from_cells(
@@ -157,13 +166,28 @@ class FreeSpace:
         blocked = np.zeros((nx, ny), bool)
         seen[ix, iy] = True
         blocked[ix[obstacle], iy[obstacle]] = True
-        if blocked.any():
+        return cls(layout, seen & ~blocked, blocked)
+
+    def clearance(self, xs: slice, ys: slice, margin: int) -> tuple[np.ndarray, float]:
+        """Metres from each cell of ``[xs, ys]`` to the nearest obstacle within ``margin``
+        cells of that window (float64; inf where there is none), and the distance up to which
+        these are every obstacle's: an obstacle beyond the margin is at least ``(margin + 1)``
+        cells away (inf once the margin reaches the grid's edges, where nothing lies beyond).
+        A value at most that distance is the whole grid's own.
+        """
+        nx, ny = self.layout.shape
+        x0, x1 = max(xs.start - margin, 0), min(xs.stop + margin, nx)
+        y0, y1 = max(ys.start - margin, 0), min(ys.stop + margin, ny)
+        window = self.blocked[x0:x1, y0:y1]
+        if window.any():
             from scipy import ndimage  # at first use: keeps `import query.goals` light
 
-            dist = ndimage.distance_transform_edt(~blocked) * layout.cell_size
+            dist = ndimage.distance_transform_edt(~window) * self.layout.cell_size
         else:
-            dist = np.full((nx, ny), np.inf)
-        return cls(layout, seen & ~blocked, dist.astype(np.float32))
+            dist = np.full(window.shape, np.inf)
+        whole = (x0, x1, y0, y1) == (0, nx, 0, ny)
+        exact = np.inf if whole else (margin + 1) * self.layout.cell_size
+        return dist[xs.start - x0 : xs.stop - x0, ys.start - y0 : ys.stop - y0], exact
 
     @classmethod
     def from_store(cls, store: Path) -> FreeSpace | None:
@@ -207,12 +231,20 @@ class FreeSpace:
         ok = self.free[x0:x1, y0:y1] & (dist <= config.reach)
         if not ok.any():
             return None
-        clear = self.clearance[x0:x1, y0:y1]
-        safe = ok & (clear >= config.clearance)
-        if safe.any():
+        # a margin past the clearance asked for: every value below it is then exact, so which
+        # cells are safe is decided; only the chosen cell's own clearance may need more
+        margin = math.ceil(config.clearance / size) + 2
+        while True:
+            metres, exact = self.clearance(slice(x0, x1), slice(y0, y1), margin)
+            clear = metres.astype(np.float32)  # the precision goals have always reported
+            safe = ok & (clear >= config.clearance)
+            if not safe.any():  # every clearance in reach is below the one asked for: exact
+                best = np.flatnonzero(ok.reshape(-1))[np.argmax(clear[ok])]
+                break
             best = np.flatnonzero(safe.reshape(-1))[np.argmin(dist[safe])]
-        else:
-            best = np.flatnonzero(ok.reshape(-1))[np.argmax(clear[ok])]
+            if metres.flat[best] <= exact:
+                break
+            margin *= 2
         return float(px.flat[best]), float(py.flat[best]), float(clear.flat[best])
 
 

@@ -109,3 +109,55 @@ def test_goal_dataclass_round_trips_as_json() -> None:
 
     goal = Goal(2, "map", 10, (1.0, 2.0, 0.5), (0.5, 2.0, 0.0), 0.0, True, 0.4)
     assert json.loads(json.dumps(goal.as_dict()))["pose_stamped"]["pose"]["orientation"]["w"] == 1.0
+
+
+def _whole_grid_approach(space: FreeSpace, target, config: GoalConfig):
+    """The approach point from a distance transform of the whole grid (scipy's), as goals
+    were made before the clearance was computed around each goal."""
+    from scipy import ndimage
+
+    size, (ox, oy) = space.layout.cell_size, space.layout.origin
+    blocked = space.blocked
+    whole = ndimage.distance_transform_edt(~blocked) * size if blocked.any() else None
+    clearance = (np.full(blocked.shape, np.inf) if whole is None else whole).astype(np.float32)
+    nx, ny = blocked.shape
+    cx, cy, r = (target[0] - ox) / size, (target[1] - oy) / size, config.reach / size
+    x0, x1 = max(math.floor(cx - r), 0), min(math.ceil(cx + r) + 1, nx)
+    y0, y1 = max(math.floor(cy - r), 0), min(math.ceil(cy + r) + 1, ny)
+    gx, gy = np.meshgrid(np.arange(x0, x1), np.arange(y0, y1), indexing="ij")
+    px, py = ox + (gx + 0.5) * size, oy + (gy + 0.5) * size
+    dist = np.hypot(px - target[0], py - target[1])
+    ok = space.free[x0:x1, y0:y1] & (dist <= config.reach)
+    if not ok.any():
+        return None
+    clear = clearance[x0:x1, y0:y1]
+    safe = ok & (clear >= config.clearance)
+    if safe.any():
+        best = np.flatnonzero(safe.reshape(-1))[np.argmin(dist[safe])]
+    else:
+        best = np.flatnonzero(ok.reshape(-1))[np.argmax(clear[ok])]
+    return float(px.flat[best]), float(py.flat[best]), float(clear.flat[best])
+
+
+@pytest.mark.parametrize("density", [0.0, 0.0005, 0.01, 0.2])
+def test_clearance_around_a_goal_is_the_whole_grids(density: float) -> None:
+    """Clearance is computed in a window around each goal, widened while an obstacle beyond
+    it could matter: the goals, clearance included, equal those of a distance transform of
+    the whole grid, on grids from obstacle-free to cluttered (far obstacles force widening)."""
+    rng = np.random.default_rng(int(density * 1e4))
+    nx, ny, size = 300, 220, 0.05
+    layout = GridLayout(size, (-3.0, 1.0), (nx, ny))
+    ix, iy = (a.reshape(-1) for a in np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij"))
+    seen = rng.random(ix.size) < 0.9
+    obstacle = rng.random(ix.size) < density
+    obstacle[(ix > 140) & (ix < 150) & (iy > 60) & (iy < 160)] |= density > 0  # a wall
+    space = FreeSpace.from_cells(layout, ix[seen], iy[seen], obstacle[seen])
+    for _ in range(40):
+        target = (
+            -3.0 + rng.uniform(-0.5, nx * size + 0.5),
+            1.0 + rng.uniform(-0.5, ny * size + 0.5),
+        )
+        config = GoalConfig(clearance=float(rng.choice([0.0, 0.3, 1.2, 4.0])), reach=1.0)
+        got = space.approach(target, config)
+        want = _whole_grid_approach(space, target, config)
+        assert got == want, (target, config)
