@@ -113,29 +113,22 @@ def test_goal_dataclass_round_trips_as_json() -> None:
 
 def _whole_grid_approach(space: FreeSpace, target, config: GoalConfig):
     """The approach point from a distance transform of the whole grid (scipy's), as goals
-    were made before the clearance was computed around each goal."""
+    were made before the clearance was computed around each goal, searched over every cell
+    (row-major, as a window is: the same first cell among ties)."""
     from scipy import ndimage
 
     size, (ox, oy) = space.layout.cell_size, space.layout.origin
-    blocked = space.blocked
-    whole = ndimage.distance_transform_edt(~blocked) * size if blocked.any() else None
-    clearance = (np.full(blocked.shape, np.inf) if whole is None else whole).astype(np.float32)
-    nx, ny = blocked.shape
-    cx, cy, r = (target[0] - ox) / size, (target[1] - oy) / size, config.reach / size
-    x0, x1 = max(math.floor(cx - r), 0), min(math.ceil(cx + r) + 1, nx)
-    y0, y1 = max(math.floor(cy - r), 0), min(math.ceil(cy + r) + 1, ny)
-    gx, gy = np.meshgrid(np.arange(x0, x1), np.arange(y0, y1), indexing="ij")
-    px, py = ox + (gx + 0.5) * size, oy + (gy + 0.5) * size
+    whole = ndimage.distance_transform_edt(~space.blocked) * size
+    clear = (whole if space.blocked.any() else np.full(whole.shape, np.inf)).astype(np.float32)
+    cx, cy = (a + 0.5 for a in np.indices(space.blocked.shape))
+    px, py = ox + cx * size, oy + cy * size
     dist = np.hypot(px - target[0], py - target[1])
-    ok = space.free[x0:x1, y0:y1] & (dist <= config.reach)
+    ok = (space.free & (dist <= config.reach)).reshape(-1)
     if not ok.any():
         return None
-    clear = clearance[x0:x1, y0:y1]
-    safe = ok & (clear >= config.clearance)
-    if safe.any():
-        best = np.flatnonzero(safe.reshape(-1))[np.argmin(dist[safe])]
-    else:
-        best = np.flatnonzero(ok.reshape(-1))[np.argmax(clear[ok])]
+    safe = ok & (clear.reshape(-1) >= config.clearance)
+    pool, key = (safe, dist.reshape(-1)) if safe.any() else (ok, -clear.reshape(-1))
+    best = np.flatnonzero(pool)[np.argmin(key[pool])]
     return float(px.flat[best]), float(py.flat[best]), float(clear.flat[best])
 
 
