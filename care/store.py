@@ -304,12 +304,17 @@ def _readable(path: Path) -> Path:
 
 
 def read_table(path: Path, columns: Sequence[str] | None = None) -> pa.Table:
-    """Read a Parquet table of this project, refusing missing files and other schema versions."""
+    """Read a Parquet table of this project, refusing missing files and other schema versions.
+
+    ``columns=None`` reads every column; ``[]`` none (the rows' count and the schema's
+    metadata only: a grid's layout without decoding its million features, which ``[]``
+    read as "all" did on every goal query until the sixth session).
+    """
     path = _readable(path)
     with reading(path), pq.ParquetFile(path) as table:
         # one file: ParquetFile, not pq.read_table and its dataset layer (slower to open)
         _check_version(table.schema_arrow, path)
-        return table.read(columns=list(columns) if columns else None)
+        return table.read(columns=None if columns is None else list(columns))
 
 
 def iter_batches(
@@ -324,7 +329,7 @@ def iter_batches(
     """
     pf = pq.ParquetFile(path)
     for group in range(pf.num_row_groups):
-        table = pf.read_row_group(group, columns=list(columns) if columns else None)
+        table = pf.read_row_group(group, columns=None if columns is None else list(columns))
         yield from table.to_batches(max_chunksize=batch_size)
 
 

@@ -19,6 +19,7 @@ from care.store import (
     Store,
     StoreWriter,
     group_rows,
+    iter_batches,
     read_table,
     write_table_atomic,
 )
@@ -77,6 +78,18 @@ def test_round_trip(tmp_path: Path) -> None:
     assert names == ["chair", "table"]
     assert emb.shape == (2, 8)
     assert store.poses().shape == (5, 4, 4)
+
+
+def test_no_columns_reads_no_columns(tmp_path: Path) -> None:
+    """``read_table(path, [])`` is the rows' count and the metadata, not every column: a
+    goal query read a grid's layout so, and decoded the map's features with it."""
+    _write(tmp_path / "s")
+    path = tmp_path / "s" / "features.parquet"
+    header = read_table(path, [])
+    assert (header.num_columns, header.num_rows) == (0, 5)
+    assert header.schema.metadata == pq.read_schema(path).metadata
+    assert read_table(path, None).num_columns == len(pq.read_schema(path).names)
+    assert [b.num_columns for b in iter_batches(path, 2, [])] == [0, 0, 0]
 
 
 def test_readable_by_polars_and_duckdb(tmp_path: Path) -> None:
