@@ -473,23 +473,27 @@ def write_report(
     # the plots (matplotlib: about 4 s at 8 scenes) on another worker while the tables are
     # made here; without a pool or Ray they are drawn now, in this process
     plotting = start_task(plot_success, summary, ks, out / "plots", runner=runner or Runner())
-    scenes = summarise(queries, by_scene=True)
-    aucs = auroc_table(attempts)
-    known = outcomes(attempts)  # once for the paired and the four pre-registered tables
-    paired = paired_table(attempts, bootstrap=bootstrap, known=known)
-    paths = [
-        out / "attempts.parquet",
-        out / "summary.parquet",
-        out / "per_scene.parquet",
-        out / "auroc.parquet",
-        out / "paired.parquet",
-    ]
-    for table, path in zip((attempts, summary, scenes, aucs, paired), paths, strict=True):
-        write_table_atomic(table, path)
-    tables = markdown_tables(summary, ks)
-    from evaluate.preregistered import write_preregistered
+    try:
+        scenes = summarise(queries, by_scene=True)
+        aucs = auroc_table(attempts)
+        known = outcomes(attempts)  # once for the paired and the four pre-registered tables
+        paired = paired_table(attempts, bootstrap=bootstrap, known=known)
+        paths = [
+            out / "attempts.parquet",
+            out / "summary.parquet",
+            out / "per_scene.parquet",
+            out / "auroc.parquet",
+            out / "paired.parquet",
+        ]
+        for table, path in zip((attempts, summary, scenes, aucs, paired), paths, strict=True):
+            write_table_atomic(table, path)
+        tables = markdown_tables(summary, ks)
+        from evaluate.preregistered import write_preregistered
 
-    prereg = write_preregistered(attempts, out, bootstrap=min(bootstrap, 2000), known=known)
+        prereg = write_preregistered(attempts, out, bootstrap=min(bootstrap, 2000), known=known)
+    except Exception:
+        plotting.exception()  # a failed report writes nothing after its error
+        raise
     plots = plotting.result()
     md = "\n".join(
         [

@@ -236,3 +236,30 @@ def test_the_driver_of_a_run_imports_no_stage() -> None:
         [sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, check=True
     )
     assert done.stdout.strip() == "[]"
+
+
+def test_a_failing_report_leaves_no_plot_to_land_after_its_error(
+    serial_run: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The report's plots are drawn on a worker while the driver makes its tables: when a
+    table fails, the error leaves only once the plots are written, so nothing lands in the
+    output after the run has said it failed."""
+    import pyarrow.parquet as pq
+
+    import evaluate.preregistered
+    from care.parallel import Runner, open_runner
+    from evaluate.report import write_report
+    from query.map import MAP_TABLES
+
+    def broken(*args: object, **kwargs: object) -> None:
+        raise RuntimeError("a table failed")
+
+    monkeypatch.setattr(evaluate.preregistered, "write_preregistered", broken)
+    attempts = pq.read_table(serial_run / "eval" / "attempts.parquet")
+    ks = {kind: CONFIG.evaluation.ks(kind) for kind in MAP_TABLES}
+    with open_runner(Runner(workers=2)) as live:
+        with pytest.raises(RuntimeError, match="a table failed"):
+            write_report(attempts, tmp_path / "eval", ks, runner=live)
+        drawn = sorted(p.name for p in (tmp_path / "eval" / "plots").glob("*.png"))
+    assert drawn == sorted(p.name for p in (serial_run / "eval" / "plots").glob("*.png"))
+    assert drawn
