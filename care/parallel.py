@@ -158,10 +158,7 @@ def start_task(fn: Callable[..., R], *args: Any, runner: Runner) -> Future[R]:
     itself, whichever runner ran it.
     """
     if runner.uses_ray:
-        ray = _ray(runner)
-        task = ray.remote(_in_worker).options(
-            runtime_env=ray_runtime_env(), num_cpus=runner.num_cpus, max_retries=0
-        )
+        _, task = _ray_task(runner)
         return _unwrapped(task.remote(fn, *args).future())
     if runner.executor is not None:
         return runner.executor.submit(fn, *args)
@@ -182,9 +179,7 @@ def _unwrapped(future: Future) -> Future:
         if err is None:
             out.set_result(done.result())
         else:
-            out.set_exception(
-                err.cause if isinstance(getattr(err, "cause", None), CareError) else err
-            )
+            out.set_exception(_own_error(err))
 
     future.add_done_callback(settle)
     return out
@@ -214,22 +209,35 @@ def _ray(runner: Runner) -> Any:
     return ray
 
 
-def _run_ray(fn: Callable[[T], R], items: Sequence[T], runner: Runner) -> Iterator[tuple[T, R]]:
+def _ray_task(runner: Runner) -> tuple[Any, Any]:
+    """Ray (started or joined) and our task on it: :func:`_in_worker` with the runtime
+    environment and the resources ``runner`` declares."""
     ray = _ray(runner)
     options: dict[str, Any] = {"num_cpus": runner.num_cpus, "max_retries": 0}
     if runner.memory:
         options["memory"] = int(runner.memory)
-    task = ray.remote(_in_worker).options(runtime_env=ray_runtime_env(), **options)
+    return ray, ray.remote(_in_worker).options(runtime_env=ray_runtime_env(), **options)
+
+
+def _own_error(err: BaseException) -> BaseException:
+    """A failed Ray task's own project error (its one line), else Ray's exception as is."""
+    cause = getattr(err, "cause", None)
+    return cause if isinstance(cause, CareError) else err
+
+
+def _run_ray(fn: Callable[[T], R], items: Sequence[T], runner: Runner) -> Iterator[tuple[T, R]]:
+    ray, task = _ray_task(runner)
     refs = {task.remote(fn, item): item for item in items}
     pending = list(refs)
     while pending:
         done, pending = ray.wait(pending, num_returns=1)
         try:
             result = ray.get(done[0])
-        except ray.exceptions.RayTaskError as err:  # the task's own one-line error, not Ray's
-            if isinstance(err.cause, CareError):
-                raise err.cause from None
-            raise
+        except ray.exceptions.RayTaskError as err:
+            own = _own_error(err)
+            if own is err:
+                raise
+            raise own from None
         yield refs[done[0]], result
 
 

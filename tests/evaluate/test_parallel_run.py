@@ -209,9 +209,10 @@ def test_a_started_task_runs_on_the_runner_and_keeps_its_one_line_error(
 ) -> None:
     """:func:`care.parallel.start_task` (the report draws its plots so): on an open pool or
     on Ray the task runs in a worker while the caller goes on; without either, here. A
-    project error comes out of ``result()`` as itself, not wrapped by the pool or Ray."""
+    project error comes out of ``result()``, and out of :func:`~care.parallel.run_tasks`, as
+    itself, not wrapped by the pool or Ray."""
     from care.errors import StoreError
-    from care.parallel import Runner, open_runner, start_task
+    from care.parallel import Runner, open_runner, run_tasks, start_task
     from care.store import Store
 
     for runner in (Runner(workers=1), Runner(workers=2), Runner(ray_address=True)):
@@ -222,6 +223,8 @@ def test_a_started_task_runs_on_the_runner_and_keeps_its_one_line_error(
             failing = start_task(Store, Path("/nowhere/store"), runner=live)
             with pytest.raises(StoreError, match=r"^/nowhere/store: not a complete feature store"):
                 failing.result()
+            with pytest.raises(StoreError, match=r"^/nowhere/store: not a complete feature store"):
+                list(run_tasks(Store, [Path("/nowhere/store"), Path("/nowhere/store")], live))
 
 
 def test_the_driver_of_a_run_imports_no_stage() -> None:
