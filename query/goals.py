@@ -25,6 +25,7 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -178,16 +179,25 @@ class FreeSpace:
         nx, ny = self.layout.shape
         x0, x1 = max(xs.start - margin, 0), min(xs.stop + margin, nx)
         y0, y1 = max(ys.start - margin, 0), min(ys.stop + margin, ny)
-        window = self.blocked[x0:x1, y0:y1]
-        if window.any():
-            from scipy import ndimage  # at first use: keeps `import query.goals` light
-
-            dist = ndimage.distance_transform_edt(~window) * self.layout.cell_size
-        else:
-            dist = np.full(window.shape, np.inf)
-        whole = (x0, x1, y0, y1) == (0, nx, 0, ny)
-        exact = np.inf if whole else (margin + 1) * self.layout.cell_size
+        if 4 * (x1 - x0) * (y1 - y0) >= nx * ny:  # a small grid: its transform, once for all
+            return self._whole_clearance[xs, ys], np.inf
+        dist = self._transform(self.blocked[x0:x1, y0:y1])
+        exact = (margin + 1) * self.layout.cell_size
         return dist[xs.start - x0 : xs.stop - x0, ys.start - y0 : ys.stop - y0], exact
+
+    @cached_property
+    def _whole_clearance(self) -> np.ndarray:
+        """The whole grid's clearance, for grids hardly larger than one goal's window (a batch
+        of goals on a room-sized map would transform most of it again for each)."""
+        return self._transform(self.blocked)
+
+    def _transform(self, blocked: np.ndarray) -> np.ndarray:
+        """Metres from each cell of ``blocked`` to its nearest obstacle cell (inf: none)."""
+        if not blocked.any():
+            return np.full(blocked.shape, np.inf)
+        from scipy import ndimage  # at first use: keeps `import query.goals` light
+
+        return ndimage.distance_transform_edt(~blocked) * self.layout.cell_size
 
     @classmethod
     def from_store(cls, store: Path) -> FreeSpace | None:
