@@ -11,7 +11,12 @@ sibling ``.<name>.lock``; a second writer waits for the first and then finds its
 
 Temporaries are named ``.<name>.tmp-<pid>`` (also ``.old-<pid>``, ``.building-<pid>``),
 removed on every error path (:func:`staged`), and those of processes that no longer run are
-swept at the start of the next run in the same place (:func:`sweep_stale`).
+swept at the start of the next run in the same place (:func:`sweep_stale`), except the
+previous version ``.<name>.old-<pid>`` of an output that is itself missing: it is put back.
+
+An output of many files (an evaluation) changes as one unit (:func:`whole_output`): the new
+version is staged whole in ``.<name>.tmp-<pid>`` and swapped in (:func:`swap_in`), so a kill
+at any instant leaves the old version or the new, never a mix.
 
 Integrity: :func:`file_digest` (size + BLAKE2b) is the one checksum of a table; a store's
 ``meta.json`` lists its tables' digests at commit, and tables written into a marked
@@ -22,6 +27,7 @@ compares them with what is on disk.
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import errno
 import fcntl
 import hashlib
@@ -34,7 +40,7 @@ from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
-from care.errors import OutputError
+from care.errors import CareError, OutputError
 
 __all__ = [
     "MARKER",
@@ -52,9 +58,14 @@ __all__ = [
     "pid_alive",
     "rebuild_hint",
     "record_table",
+    "refuse_link",
     "remove_path",
+    "restore_stale",
+    "seal",
     "staged",
+    "swap_in",
     "sweep_stale",
+    "whole_output",
     "write_atomic",
     "write_marker",
 ]
@@ -107,7 +118,12 @@ def remove_path(path: Path) -> None:
 def sweep_stale(directory: Path, name: str | None = None) -> list[Path]:
     """Remove staged temporaries in ``directory`` whose process no longer runs; with
     ``name``, only those of that output (``.<name>.tmp-<pid>``, ...): a directory that is not
-    ours may hold the user's own files of a similar pattern."""
+    ours may hold the user's own files of a similar pattern.
+
+    A dead process's ``.<name>.old-<pid>`` whose output ``<name>`` is missing is the previous
+    version of an output killed between the two renames of :func:`swap_in`'s fallback: it
+    is put back (:func:`restore_stale`), not removed.
+    """
     directory = Path(directory)
     removed: list[Path] = []
     if not directory.is_dir():
@@ -116,16 +132,61 @@ def sweep_stale(directory: Path, name: str | None = None) -> list[Path]:
         entries = list(directory.iterdir())
     except OSError:
         return removed
-    for entry in entries:
+    for entry in sorted(entries, key=lambda e: _OLD.match(e.name) is None):  # .old-<pid> first
         m = _STALE.match(entry.name)
         if m is None or (name is not None and not entry.name.startswith(f".{name}.")):
             continue
         pid = int(m.group(1))
         if pid == os.getpid() or pid_alive(pid):
             continue
+        if _restore(entry):
+            continue
         remove_path(entry)
         removed.append(entry)
     return removed
+
+
+_OLD = re.compile(r"^\.(?P<name>.+)\.old-(?P<pid>\d+)$")
+"""The previous version of output ``<name>``, moved aside by process ``<pid>``."""
+
+
+def _restore(entry: Path) -> bool:
+    """Put a dead process's ``.<name>.old-<pid>`` back as ``<name>`` if that is missing."""
+    m = _OLD.match(entry.name)
+    if m is None or pid_alive(int(m.group("pid"))) or int(m.group("pid")) == os.getpid():
+        return False
+    target = entry.with_name(m.group("name"))
+    if os.path.lexists(target):
+        return False
+    try:
+        _renameat2(entry, target, _RENAME_NOREPLACE)
+    except OSError as err:
+        if err.errno not in _UNSUPPORTED:
+            return False  # appeared meanwhile (EEXIST) or cannot be moved: leave it be
+        if os.path.lexists(target):
+            return False
+        try:
+            entry.rename(target)
+        except OSError:
+            return False
+    return True
+
+
+def restore_stale(path: Path) -> bool:
+    """Put back the previous version of output ``path`` that a killed process had moved
+    aside (``.<name>.old-<pid>``) when ``path`` itself is missing; whether one was."""
+    path = Path(path)
+    if os.path.lexists(path) or not path.parent.is_dir():
+        return False
+    try:
+        entries = sorted(path.parent.iterdir())
+    except OSError:
+        return False
+    for entry in entries:
+        m = _OLD.match(entry.name)
+        if m is not None and m.group("name") == path.name and _restore(entry):
+            return True
+    return False
 
 
 def _tree_size(path: Path) -> int:
@@ -215,6 +276,87 @@ def atomic_write_text(path: Path, text: str) -> None:
         tmp.replace(path)
 
 
+# -- replacing a directory in one step ---------------------------------------------------
+
+_RENAME_NOREPLACE = 1
+_RENAME_EXCHANGE = 2
+_AT_FDCWD = -100
+_UNSUPPORTED = {errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP, errno.ENOTSUP}
+"""What ``renameat2`` fails with where the kernel, libc or filesystem lacks a flag."""
+
+
+def _renameat2(src: Path, dst: Path, flags: int) -> None:
+    """Linux's ``renameat2(2)`` through libc; ENOSYS where there is none (another OS, an
+    older libc)."""
+    try:
+        fn = ctypes.CDLL(None, use_errno=True).renameat2
+    except (OSError, AttributeError):
+        raise OSError(errno.ENOSYS, "renameat2 is not available", str(src)) from None
+    fn.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+    fn.restype = ctypes.c_int
+    if fn(_AT_FDCWD, os.fsencode(src), _AT_FDCWD, os.fsencode(dst), flags) != 0:
+        code = ctypes.get_errno()
+        raise OSError(code, os.strerror(code), str(src), None, str(dst))
+
+
+def exchange(a: Path, b: Path) -> None:
+    """Swap two existing paths in one atomic step (``RENAME_EXCHANGE``); OSError EINVAL or
+    ENOSYS where the filesystem or system cannot."""
+    _renameat2(a, b, _RENAME_EXCHANGE)
+
+
+def swap_in(new: Path, out: Path) -> None:
+    """Put the complete directory ``new`` (a staged sibling of ``out``) at ``out``, whose
+    previous version, if any, is removed; a kill at any instant leaves one or the other.
+
+    With a previous version the two are exchanged atomically (:func:`exchange`); the staged
+    name then holds the old version until it is removed, and a kill before that leaves
+    only a stale temporary that the next run sweeps. Where the exchange is unavailable, the
+    old version is renamed aside to ``.<name>.old-<pid>`` and the new one renamed into
+    place: a kill between the two leaves ``out`` missing and the old version aside, which
+    the next run (:func:`sweep_stale`) or ``care check`` (:func:`restore_stale`) puts back.
+    """
+    new, out = Path(new), Path(out)
+    if not os.path.lexists(out):
+        new.rename(out)
+        return
+    try:
+        exchange(new, out)
+    except OSError as err:
+        if err.errno not in _UNSUPPORTED:
+            raise
+    else:
+        remove_path(new)  # the previous version
+        return
+    old = out.with_name(f".{out.name}.old-{os.getpid()}")
+    remove_path(old)
+    out.rename(old)
+    try:
+        new.rename(out)
+    finally:
+        if not os.path.lexists(out):  # the new version did not go in: the old one goes back
+            old.rename(out)
+    remove_path(old)
+
+
+def _link_tree(src: Path, dst: Path) -> None:
+    """``dst``: a copy of the directory ``src`` made of hard links (a copy where links are
+    refused), leaving out temporaries and locks. Safe for staging a new version because our
+    writers never write a file in place: each is staged and renamed over the old one, which
+    gives it a new inode and leaves ``src``'s file as it was."""
+
+    def link(s: str, d: str) -> None:
+        try:
+            os.link(s, d)
+        except OSError:
+            shutil.copy2(s, d)
+
+    def skip(_dir: str, names: list[str]) -> set[str]:
+        return {n for n in names if _STALE.match(n) or n.endswith(".lock")}
+
+    shutil.copytree(src, dst, symlinks=True, copy_function=link, ignore=skip)
+
+
 def file_digest(path: Path) -> dict[str, Any]:
     """``{"size": bytes, "blake2b": hex}`` of a file: the one checksum of a table."""
     h = hashlib.blake2b(digest_size=16)
@@ -265,6 +407,23 @@ def record_table(path: Path) -> None:
     if marker is None or path.name.startswith("."):  # not ours, or a staged temporary
         return
     write_marker(path.parent, marker.get("kind", "store"), {path.name: file_digest(path)})
+
+
+def seal(directory: Path, kind: str) -> None:
+    """Record every file of ``directory`` (subdirectories too, by relative path; not the
+    marker, temporaries or locks) in its marker, replacing what it listed: the whole
+    version, so :func:`damaged` (``care check``) finds any file missing or changed."""
+    directory = Path(directory)
+    files = {}
+    for path in sorted(directory.rglob("*")):
+        rel = path.relative_to(directory)
+        if any(part.startswith(".") for part in rel.parts) or rel.as_posix() == MARKER:
+            continue
+        if path.is_file() and not path.is_symlink():
+            files[rel.as_posix()] = file_digest(path)
+    marker = read_marker(directory) or {}
+    marker.update(kind=kind, tables=files)
+    atomic_write_text(directory / MARKER, json.dumps(marker, indent=1, sort_keys=True))
 
 
 def _recorded(directory: Path) -> dict[str, dict[str, Any]]:
@@ -326,14 +485,37 @@ def _same_or_under(a: Path, b: Path) -> bool:
     return a == b or b in a.parents
 
 
+def refuse_link(path: Path, flag: str) -> None:
+    """Refuse an output path that is itself a symbolic link (dangling or not).
+
+    An output is replaced whole (staged beside it, then renamed over it), which would
+    replace the user's link by a directory or file of ours; writing through the link
+    instead would put our output wherever it points. Neither is asked for, so the user is
+    told the real path to give. Links among the path's parents are harmless: the staged
+    sibling and the rename both stay inside the directory they lead to.
+    """
+    path = Path(path)
+    if not path.is_symlink():
+        return
+    target = path.readlink()
+    real = (path.parent / target).resolve()
+    if real.exists():
+        how = f"give the path it points to ({real}) or another {flag}"
+    else:
+        how = f"it points to {real}, which does not exist; give a real path as {flag}"
+    msg = f"{flag} {path}: is a symbolic link; not replaced or followed ({how})"
+    raise OutputError(msg)
+
+
 def check_output(out: Path, *, kind: str, inputs: Iterable[Path] = (), flag: str = "--out") -> None:
     """Refuse, in one line, an output directory this command must not replace or fill.
 
-    Refused: a regular file (or a path under one), an input or a path inside an input or
-    an ancestor of one, an unwritable parent, and an existing non-empty directory without
-    our marker of ``kind``.
+    Refused: a symbolic link (:func:`refuse_link`), a regular file (or a path under one),
+    an input or a path inside an input or an ancestor of one, an unwritable parent, and an
+    existing non-empty directory without our marker of ``kind``.
     """
     out = Path(out)
+    refuse_link(out, flag)
     resolved = out.resolve()
     for inp in inputs:
         r = Path(inp).resolve()
@@ -376,9 +558,10 @@ def check_file_output(
     flag: str = "--rrd",
     magic: tuple[bytes, ...] = _RRD_MAGIC,
 ) -> None:
-    """Refuse an output file that is a directory, an input, or an existing file of other
-    content (one whose first bytes are not ``magic``)."""
+    """Refuse an output file that is a symbolic link (:func:`refuse_link`), a directory, an
+    input, or an existing file of other content (one whose first bytes are not ``magic``)."""
     path = Path(path)
+    refuse_link(path, flag)
     resolved = path.resolve()
     for inp in inputs:
         r = Path(inp).resolve()
@@ -472,8 +655,58 @@ def owned_output(out: Path, kind: str, inputs: Iterable[Path] = ()) -> Iterator[
             raise
 
 
+@contextlib.contextmanager
+def whole_output(out: Path, kind: str, inputs: Iterable[Path] = ()) -> Iterator[Path]:
+    """Check ``out`` (:func:`check_output`) and lock it; yield a staged directory to write
+    the new version into, which replaces ``out`` as one unit when the block succeeds.
+
+    The staged directory ``.<name>.tmp-<pid>`` starts as a copy of the previous version
+    (hard links, :func:`_link_tree`: what the new one reuses, such as cached results, and
+    what it does not rewrite stays as before), is sealed (:func:`seal`: every file's size
+    and checksum in the marker) and swapped in (:func:`swap_in`). A kill at any instant
+    leaves the previous version or the new one, never a mix, and at most a temporary the
+    next run sweeps; on an error the temporary is removed and ``out`` is as it was. An
+    error naming a staged file names the file of ``out`` instead.
+    """
+    out = Path(out)
+    check_output(out, kind=kind, inputs=inputs)
+    with output_lock(out):
+        check_output(out, kind=kind, inputs=inputs)
+        tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
+        remove_path(tmp)
+        try:
+            if out.is_dir():
+                _link_tree(out, tmp)
+            else:
+                tmp.mkdir()
+            if not is_ours(tmp, kind):
+                write_marker(tmp, kind)
+            yield tmp
+            seal(tmp, kind)
+            swap_in(tmp, out)
+        except BaseException as err:
+            remove_path(tmp)
+            if is_disk_full(err):
+                raise disk_full(out, 0, err) from err  # type: ignore[arg-type]
+            if isinstance(err, CareError) and str(tmp) in str(err):
+                renamed = _renamed(err, str(err).replace(str(tmp), str(out)))
+                if renamed is not None:
+                    raise renamed from err
+            raise
+        remove_path(tmp)
+
+
+def _renamed(err: CareError, message: str) -> CareError | None:
+    """``err``'s kind of error with another message (None if it cannot be made)."""
+    try:
+        return type(err)(message)
+    except Exception:
+        return None
+
+
 def evaluation_output(
     out: Path, stores: Iterable[Path] = ()
 ) -> contextlib.AbstractContextManager[Path]:
-    """An evaluation directory of ours at ``out`` (never one of the ``stores`` or inside one)."""
-    return owned_output(out, "eval", stores)
+    """An evaluation directory of ours at ``out`` (never one of the ``stores`` or inside one),
+    replaced as one unit: write into the yielded staged directory (:func:`whole_output`)."""
+    return whole_output(out, "eval", stores)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import socket
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
@@ -31,6 +32,7 @@ __all__ = [
     "run_tasks",
     "setup_worker",
     "start_task",
+    "stop_pool",
 ]
 
 T = TypeVar("T")
@@ -44,6 +46,13 @@ _ROOT = Path(__file__).resolve().parents[1]
 nodes started with ``ray start`` in another directory find them there)."""
 
 
+def ignore_interrupt() -> None:
+    """A worker's Ctrl-C handling: none. Ctrl-C reaches every process of the terminal's
+    group; the program stops the pool (:func:`stop_pool`) and says so in one line, where a
+    worker's own KeyboardInterrupt would only add tracebacks."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def setup_worker() -> None:
     """The process settings of every worker: freed memory kept mapped (:mod:`care.malloc`)
     and the thread pools of :attr:`care.threads.Work.DEFAULT` (:mod:`care.threads`); no
@@ -53,6 +62,7 @@ def setup_worker() -> None:
 
     keep_freed_memory()
     use_threads(Work.DEFAULT)
+    ignore_interrupt()
     # read by open3d's OpenMP runtime when it loads, after this hook (a Ray worker has it
     # from the runtime environment already)
     os.environ["OMP_NUM_THREADS"] = openmp_threads()
@@ -98,8 +108,22 @@ def open_runner(runner: Runner) -> Iterator[Runner]:
     if runner.uses_ray or runner.workers <= 1 or runner.executor is not None:
         yield runner
         return
-    with _pool(runner.workers) as pool:
+    pool = _pool(runner.workers)
+    try:
         yield replace(runner, executor=pool)
+    except BaseException:  # an error or Ctrl-C: stop the workers, do not wait for their tasks
+        stop_pool(pool)
+        raise
+    pool.shutdown()
+
+
+def stop_pool(pool: ProcessPoolExecutor) -> None:
+    """Cancel the pool's waiting tasks and end its workers now. What a worker was staging
+    stays as a temporary named for its (now dead) process, swept by the next run there."""
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        with contextlib.suppress(OSError, ValueError):
+            process.terminate()
 
 
 def _pool(workers: int) -> ProcessPoolExecutor:

@@ -45,6 +45,7 @@ from care.outputs import (
     record_table,
     remove_path,
     staged,
+    swap_in,
     write_marker,
 )
 
@@ -69,6 +70,7 @@ __all__ = [
     "group_rows",
     "iter_batches",
     "open_writer",
+    "read_map_frame",
     "read_schema",
     "read_table",
     "source_recording",
@@ -383,6 +385,10 @@ class StoreMeta:
     topics: dict[str, Any] = dataclasses.field(default_factory=dict)
     world_frame: str | None = None
     camera_frame: str | None = None
+    distortion: list[dict[str, Any]] | None = None
+    """The lens distortions removed from the images at ingest, ``{"model", "D"}`` as the
+    camera info gave them, in order of first appearance; empty: zero D, the images are as
+    recorded; None: a store made before ingest read D."""
     label_names: tuple[str, ...] = ()
     vocabulary: tuple[str, ...] = ()
     counts: dict[str, Any] = dataclasses.field(default_factory=dict)
@@ -406,6 +412,12 @@ class StoreMeta:
         """Parse ``meta.json``'s content; one line naming ``where`` when it is not a store's."""
         if not isinstance(data, dict):
             msg = f"{where}: not a JSON object; rebuild the store with {rebuild_hint(where.parent, 'meta')}"
+            raise StoreError(msg)
+        if "schema_version" not in data:  # a store's meta always has it: this one is damaged
+            msg = (
+                f"{where}: damaged (no schema_version, {len(data)} of a store's fields); "
+                f"rebuild the store with {rebuild_hint(where.parent, 'meta')}"
+            )
             raise StoreError(msg)
         if data.get("schema_version") != SCHEMA_VERSION:
             msg = (
@@ -588,11 +600,8 @@ class StoreWriter:
         record = StoreMeta.from_json(full, self.tmp / META_FILE)
         (self.tmp / META_FILE).write_text(record.to_json())
         write_marker(self.tmp, "store", source=record.source.path)
-        old = self.path.with_name(f".{self.path.name}.old-{os.getpid()}")
-        if self.path.exists():
-            self.path.rename(old)
-        self.tmp.rename(self.path)
-        remove_path(old)
+        # in one step: a kill leaves the previous store or this one (swap_in)
+        swap_in(self.tmp, self.path)
 
     def __exit__(
         self,
@@ -626,6 +635,27 @@ MAP_FRAME_FILE = "map_frame.json"
 """The store's map frame (:class:`care.mapframe.MapFrame` and the options it was found with)."""
 
 
+def read_map_frame(store: Path) -> MapFrame:
+    """The gravity-aligned map frame of the store directory ``store`` (``map_frame.json``,
+    written by its first fusion; the world frame itself until then), checked: every reader
+    of positions goes through here, so a damaged frame is one line, not a failed solver."""
+    path = Path(store) / MAP_FRAME_FILE
+    if not path.is_file():
+        return MapFrame.identity()
+    try:
+        frame = MapFrame.from_json(json.loads(path.read_text())["frame"])
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        msg = f"{path}: unreadable map frame ({err}); delete it and re-run `care fuse`"
+        raise StoreError(msg) from err
+    if not (np.isfinite(frame.map_from_world).all() and np.isfinite(frame.floor)):
+        msg = (
+            f"{path}: the map frame holds non-finite numbers; delete it and re-run "
+            "`care fuse grid STORE` (with --up-axis/--floor-z if the automatic frame is wrong)"
+        )
+        raise StoreError(msg)
+    return frame
+
+
 class Store:
     """A complete store on disk; opening checks completeness and schema version."""
 
@@ -650,6 +680,10 @@ class Store:
             f"it with {rebuild_hint(self.path, name)}"
             for name in damaged(self.path)
         ]
+        try:
+            self.map_frame  # noqa: B018 - reads and checks map_frame.json
+        except StoreError as err:
+            problems.append(str(err))
         named = {p.split(":")[0] for p in problems}
         for path in sorted(self.path.glob("*.parquet")):
             if str(path) in named:
@@ -672,14 +706,7 @@ class Store:
     def map_frame(self) -> MapFrame:
         """The store's gravity-aligned map frame (``map_frame.json``, written by the first
         fusion; the world frame itself until then)."""
-        path = self.path / MAP_FRAME_FILE
-        if not path.is_file():
-            return MapFrame.identity()
-        try:
-            return MapFrame.from_json(json.loads(path.read_text())["frame"])
-        except (OSError, ValueError, KeyError, TypeError) as err:
-            msg = f"{path}: unreadable map frame ({err}); delete it and re-run `care fuse`"
-            raise StoreError(msg) from err
+        return read_map_frame(self.path)
 
     def poses(self, *, in_map: bool = True) -> np.ndarray:
         """(V, 4, 4) camera poses in view order: camera-to-map (``in_map``), or camera-to-world

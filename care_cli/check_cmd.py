@@ -1,4 +1,5 @@
-"""``care check STORE``: verify a store and its maps (sizes, checksums, Parquet footers)."""
+"""``care check PATH``: verify a store and its maps, an evaluation folder, or a ``care run``
+output (sizes, checksums, Parquet footers)."""
 
 from __future__ import annotations
 
@@ -10,30 +11,75 @@ import typer
 __all__ = ["register"]
 
 
-def check(
-    stores: Annotated[
-        list[Path], typer.Argument(help="Store directories written by `care ingest`.")
-    ],
-) -> None:
-    """Verify stores and their maps: every table whole, as it was written; exit 1 if not."""
-    from care.errors import CareError, StoreError
+def _store_problems(path: Path) -> list[str]:
+    from care.errors import CareError
     from care.store import Store
 
+    try:
+        return Store(path).verify()
+    except CareError as err:  # Store raises StoreError
+        return [str(err)]
+
+
+def _eval_problems(path: Path, command: str) -> list[str]:
+    """One line naming the evaluation's missing or changed files (none: it is whole)."""
+    from care.outputs import damaged
+
+    bad = damaged(path)
+    if not bad:
+        return []
+    more = f" (and {len(bad) - 1} more: {', '.join(bad[1:])})" if len(bad) > 1 else ""
+    return [
+        f"{path / bad[0]}: missing, truncated or altered since it was written{more}; "
+        f"re-run `{command}` with --out {path} to write it again"
+    ]
+
+
+def _verify(path: Path) -> tuple[list[str], str]:
+    """The problems of ``path`` (a store, evaluation or run output) and its ok line."""
+    from care.outputs import read_marker
+
+    kind = (read_marker(path) or {}).get("kind")
+    if kind == "eval":
+        files = len((read_marker(path) or {}).get("tables") or {})
+        return _eval_problems(path, "care eval"), f"{path}: ok ({files} files verified)"
+    if kind == "run":
+        stores = sorted(p.parent for p in path.glob("stores/*/meta.json"))
+        problems = [line for store in stores for line in _store_problems(store)]
+        if (path / "eval").is_dir():
+            problems += _eval_problems(path / "eval", "care run")
+        evaluated = " and its evaluation" if (path / "eval").is_dir() else ""
+        return problems, f"{path}: ok ({len(stores)} stores{evaluated} verified)"
+    tables = sorted(p.name for p in Path(path).glob("*.parquet"))
+    return _store_problems(path), f"{path}: ok ({len(tables)} tables verified)"
+
+
+def check(
+    paths: Annotated[
+        list[Path],
+        typer.Argument(
+            help="Store directories (`care ingest`), evaluation folders (`care eval`) or "
+            "`care run` outputs."
+        ),
+    ],
+) -> None:
+    """Verify stores and their maps, evaluations and `care run` outputs: every file whole,
+    as it was written; exit 1 if not.
+
+    An output whose previous version a killed process had moved aside (and not yet put
+    back) is restored first."""
+    from care.outputs import restore_stale
+
     bad = 0
-    for path in stores:
-        try:
-            problems = Store(path).verify()
-        except StoreError as err:
-            problems = [str(err)]
-        except CareError as err:  # pragma: no cover - Store raises StoreError
-            problems = [str(err)]
+    for path in paths:
+        restore_stale(path)
+        problems, ok = _verify(path)
         if problems:
             bad += 1
             for line in problems:
                 typer.echo(f"error: {line}", err=True)
         else:
-            tables = sorted(p.name for p in Path(path).glob("*.parquet"))
-            typer.echo(f"{path}: ok ({len(tables)} tables verified)")
+            typer.echo(ok)
     if bad:
         raise typer.Exit(1)
 

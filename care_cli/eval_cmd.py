@@ -24,6 +24,7 @@ from evaluate.config import EvalConfig, RunConfig
 from query.goals import GoalConfig
 from replan.attempts import ReplanConfig
 from replan.batch import BatchConfig
+from truth.load import GtFormat
 
 __all__ = ["register"]
 
@@ -60,9 +61,10 @@ GtOpt = Annotated[
     ),
 ]
 GtFormatOpt = Annotated[
-    str | None,
+    GtFormat | None,
     typer.Option(
-        help="Format of the ground truth (default: detected): native, annotations, ply, scannet, matterport, replica."
+        help=with_choices("Format of the ground truth (default: detected).", GtFormat),
+        case_sensitive=False,
     ),
 ]
 GtTransformOpt = Annotated[
@@ -253,6 +255,7 @@ def _batch(
     """``care query --batch``: read the queries, answer them all, write one table."""
     import time
 
+    from care.outputs import check_file_output
     from care.store import write_table_atomic
     from query import load_map
     from replan.batch import plan_batch, read_queries
@@ -261,6 +264,7 @@ def _batch(
     if not queries:
         _fail(f"{batch}: no queries in it")
     out = out or batch.with_name(f"{batch.stem}.answers.parquet")
+    check_file_output(out, inputs=[store, batch], flag="--out", magic=(b"PAR1",))
     cmap = load_map(store, kind, weights=weights)  # type: ignore[arg-type]
     start = time.perf_counter()
     table = plan_batch(cmap, queries, config, goals=_goal_maker(store, goal), progress=True)

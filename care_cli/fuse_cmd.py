@@ -9,7 +9,9 @@ made. The stage modules are imported inside the commands so ``care --help`` stay
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -59,13 +61,17 @@ FloorOpt = Annotated[
 ]
 
 
-def _map_frame(store: Path, up_axis: UpAxis | None, floor_z: float | None) -> None:
-    """Find the store's map frame anew when asked (a later build then uses it), and say it."""
-    from fuse.frame import ensure_map_frame
+@contextlib.contextmanager
+def _map_frame(store: Path, up_axis: UpAxis | None, floor_z: float | None) -> Iterator[None]:
+    """Find the store's map frame anew when asked (the build in the block then uses it) and
+    say it; put the old one back if the block fails."""
+    from fuse.frame import reframed
 
     if up_axis is None and floor_z is not None:
         up_axis = UpAxis.AUTO
-    typer.echo(ensure_map_frame(store, up_axis, floor_z).describe())
+    with reframed(store, up_axis, floor_z) as frame:
+        typer.echo(frame.describe())
+        yield
 
 
 def _bytes(value: str) -> int:
@@ -152,8 +158,7 @@ def grid(
 
     # options checked (GridConfig.__post_init__) before any work
     config = settings.config(_recorded(store, "cells", "grid"))
-    with _writing(store, rrd):
-        _map_frame(store, up_axis, floor_z)
+    with _writing(store, rrd), _map_frame(store, up_axis, floor_z):
         if recompute:
             path = recompute_grid(
                 store, *_recompute_args(settings, config), memory_budget=config.memory_budget
@@ -215,8 +220,7 @@ def instances(
         _recorded(store, "instances", "instances"),
         **_field_values(InstanceConfig, set_ or []),
     )
-    with _writing(store, rrd):
-        _map_frame(store, up_axis, floor_z)
+    with _writing(store, rrd), _map_frame(store, up_axis, floor_z):
         if recompute:
             path = recompute_instances(store, *_recompute_args(settings, config))
             if rrd is not None:

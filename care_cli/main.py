@@ -8,20 +8,59 @@ holding its full traceback (``--debug`` anywhere on the command line shows it in
 
 from __future__ import annotations
 
+import _thread
+import atexit
 import datetime
 import errno
 import json
 import os
+import signal
 import sys
 import tempfile
+import threading
 import traceback
 from pathlib import Path
+from typing import Any
 
 import typer
 
 from care.errors import CareError
 from care.malloc import keep_freed_memory
 from care.threads import Work, use_threads
+from care_cli import INTERRUPTED as _INTERRUPTED
+from care_cli import INTERRUPTED_LINE as _INTERRUPTED_LINE
+from care_cli import stop_while_loading
+from care_cli.options import finite_numbers
+
+_GRACE_S = 0.8
+"""How long a Ctrl-C may take to unwind (staged outputs removed on the way) before the
+process leaves anyway: a long call in compiled code does not see the KeyboardInterrupt
+until it returns. What such an exit leaves is a temporary named for a dead process, which
+the next run in that place sweeps."""
+
+
+_SAID = threading.Event()
+"""Set once the interruption's line is on stderr (it is said once, whoever says it)."""
+_PROGRAM = (__name__ == "__main__" or sys.argv[0].rsplit("/", 1)[-1] == "care") and (
+    __import__("multiprocessing").parent_process() is None
+)
+"""Whether this process is the ``care`` program: not a caller of :func:`main` (a test), nor
+one of its worker processes (which leave the interruption to the program)."""
+_PID = os.getpid()
+"""The program's process (a forked worker inherits the handlers, not the role)."""
+_watchdog: threading.Timer | None = None
+
+
+def _stop_now(signum: int, frame: object) -> None:
+    """Leave at once with exit code 130: the end of the grace after a Ctrl-C, or a Ctrl-C
+    while the program exits."""
+    if os.getpid() != _PID:  # a forked worker: the program says it
+        os._exit(_INTERRUPTED)
+    if not _SAID.is_set():
+        _SAID.set()
+        os.write(2, _INTERRUPTED_LINE)
+    os._exit(_INTERRUPTED)
+
 
 __all__ = ["app", "main", "one_line"]
 
@@ -33,10 +72,6 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
     add_completion=False,
 )
-
-
-_INTERRUPTED = 130
-"""Exit code of a run stopped by Ctrl-C (128 + SIGINT), as shells report it."""
 
 
 def _register() -> None:
@@ -100,20 +135,84 @@ def _write_traceback(err: BaseException) -> Path:
     return Path(name)
 
 
+def _interrupt(signum: int, frame: object) -> None:
+    """Ctrl-C while a command runs: unwind with KeyboardInterrupt (every staged output is
+    removed on the way), and leave within :data:`_GRACE_S` of the first Ctrl-C whatever
+    happens."""
+    global _watchdog
+    if os.getpid() != _PID:  # a forked worker: its task ends, the program decides
+        raise KeyboardInterrupt
+    if _watchdog is None:
+        _watchdog = threading.Timer(_GRACE_S, _stop_now, args=(signum, None))
+        _watchdog.daemon = True
+        _watchdog.start()
+    raise KeyboardInterrupt
+
+
+def _raise_again(unraisable: Any) -> None:
+    """``sys.unraisablehook`` of the program: a KeyboardInterrupt that Python had to drop (it
+    came while a weakref callback or a ``__del__`` ran, say, during an import) is raised
+    again in the main thread instead of printed as "Exception ignored"; anything else is
+    reported as Python reports it."""
+    if isinstance(unraisable.exc_value, KeyboardInterrupt):
+        _thread.interrupt_main(signal.SIGINT)
+        return
+    sys.__unraisablehook__(unraisable)
+
+
 def main() -> None:
     """Run the CLI, turning every fault into one line and a non-zero exit."""
+    if threading.current_thread() is not threading.main_thread():
+        _main()
+        return
+    _SAID.clear()
+    previous = signal.getsignal(signal.SIGINT)
+    if previous in (_stop_now, stop_while_loading):
+        previous = signal.default_int_handler
+    if previous is not signal.SIG_IGN:  # a job started to ignore Ctrl-C keeps ignoring it
+        signal.signal(signal.SIGINT, _interrupt)
+        if _PROGRAM:
+            sys.unraisablehook = _raise_again
+    try:
+        _main()
+    except SystemExit as done:
+        if not _PROGRAM:
+            raise
+        _leave(done.code)
+    finally:
+        if previous is not signal.SIG_IGN:
+            signal.signal(signal.SIGINT, previous)
+        if _watchdog is not None:
+            _watchdog.cancel()
+
+
+def _leave(code: object) -> None:
+    """End the program with ``code`` here, with Ctrl-C still answered, instead of in the
+    interpreter's teardown: that resets the signal handlers before it frees the modules
+    (torch's take a while), and a Ctrl-C then would end the process by the signal, without
+    its line. The exit functions (a local Ray's shutdown, the pools' joins) run first."""
+    signal.signal(signal.SIGINT, _stop_now)
+    atexit._run_exitfuncs()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code if isinstance(code, int) else 0 if code is None else 1)
+
+
+def _main() -> None:
     debug = "--debug" in sys.argv[1:] or os.environ.get("CARE_DEBUG") == "1"
     sys.argv = [a for a in sys.argv if a != "--debug"]
-    keep_freed_memory()  # per-frame stages reuse resident pages (see care.malloc)
-    use_threads(Work.DEFAULT)  # thread pools sized by kind of work (see care.threads)
     try:  # typer vendors click
         from typer._click import exceptions as click_errors
     except ImportError:  # pragma: no cover - older typer
         from click import exceptions as click_errors
 
     try:
+        keep_freed_memory()  # per-frame stages reuse resident pages (see care.malloc)
+        use_threads(Work.DEFAULT)  # thread pools sized by kind of work (see care.threads)
         _register()
-        code = app(standalone_mode=False)
+        command = typer.main.get_command(app)
+        finite_numbers(command)  # NaN and infinities are usage errors, for every option
+        code = command(standalone_mode=False)
         if code == _INTERRUPTED:  # typer turns Ctrl-C into exit code 130, silently
             raise KeyboardInterrupt
         sys.exit(code if isinstance(code, int) else 0)
@@ -125,7 +224,15 @@ def main() -> None:
         typer.echo(f"error: {_first_line(err.format_message())} (see `{command} --help`)", err=True)
         sys.exit(err.exit_code)
     except (KeyboardInterrupt, typer.Abort):
-        typer.echo("error: interrupted; nothing half-written was left behind", err=True)
+        if not _SAID.is_set():
+            _SAID.set()
+            typer.echo(_INTERRUPTED_LINE.decode().rstrip(), err=True)
+        if _PROGRAM:  # the outputs are unwound; an interpreter whose KeyboardInterrupt went
+            # through an exec() of text (numpy's and scipy's imports do) would end by the
+            # signal instead of exit code 130 (CPython's unhandled-interrupt flag)
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(_INTERRUPTED)
         sys.exit(_INTERRUPTED)
     except Exception as err:
         if debug:

@@ -19,6 +19,7 @@ import dataclasses
 import enum
 import functools
 import inspect
+import math
 import types
 import typing
 from collections.abc import Callable, Iterable, Mapping
@@ -34,6 +35,7 @@ __all__ = [
     "Options",
     "config_options",
     "csv_choices",
+    "finite_numbers",
     "generated_options",
     "with_choices",
 ]
@@ -252,3 +254,43 @@ def _given(ctx: typer.Context, name: str, value: Any) -> bool:
 def generated_options(command: Callable[..., Any]) -> tuple[GeneratedOption, ...]:
     """The options :func:`config_options` made for a command (its callback, or typer's)."""
     return tuple(getattr(command, "__care_options__", ()))
+
+
+def finite_numbers(command: Any) -> None:
+    """Make every numeric option of ``command`` and of its subcommands refuse NaN and
+    infinities as a usage error (exit 2), before the command runs.
+
+    The one place this is checked for every command: a config's ``__post_init__`` checks
+    ranges, but some options belong to no config, and a NaN passes comparisons in neither
+    direction, so a check written as ``x > 0`` elsewhere would let it through to a file.
+    Wraps each parameter's ``process_value`` (conversion and parser callbacks included), so
+    parsed tuples of numbers are covered too.
+    """
+    for param in command.params:
+        _refuse_non_finite(param)
+    for sub in getattr(command, "commands", {}).values():
+        finite_numbers(sub)
+
+
+def _numbers(value: Any) -> list[float]:
+    if isinstance(value, bool):
+        return []
+    if isinstance(value, float):
+        return [value]
+    if isinstance(value, tuple | list):
+        return [n for v in value for n in _numbers(v)]
+    return []
+
+
+def _refuse_non_finite(param: Any) -> None:
+    convert = param.process_value
+
+    def process_value(ctx: Any, value: Any) -> Any:
+        value = convert(ctx, value)
+        bad = [v for v in _numbers(value) if not math.isfinite(v)]
+        if bad:
+            msg = f"{bad[0]!r} is not a finite number"
+            raise typer.BadParameter(msg, ctx=ctx, param=param)
+        return value
+
+    param.process_value = process_value

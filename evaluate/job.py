@@ -10,6 +10,7 @@ criterion, k, seed index) alone, so results are bit-identical whichever way they
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import zlib
 from collections.abc import Sequence
@@ -24,7 +25,7 @@ from tqdm import tqdm
 
 from care.errors import CareError, EvalError
 from care.fingerprint import content_digest, fingerprint
-from care.outputs import evaluation_output, read_marker
+from care.outputs import damaged, evaluation_output, read_marker
 from care.parallel import Runner, open_runner, run_tasks
 from care.store import META_FILE, read_table, source_recording, write_table_atomic
 from evaluate.config import NO_CRITERION, EvalConfig
@@ -345,10 +346,15 @@ def _scene_key(scene: Scene, config: EvalConfig) -> bytes:
 
 
 def _cached(out: Path, scene: Scene, config: EvalConfig) -> bool:
+    """Whether ``out`` holds the scene's attempts for ``config``, whole (a cached table
+    that is damaged, or unreadable, is evaluated again)."""
     path = _cache_path(out, scene)
-    if not path.is_file():
+    if not path.is_file() or damaged(out, [path.relative_to(out).as_posix()], checksum=False):
         return False
-    md = pq.read_schema(path).metadata or {}
+    try:
+        md = pq.read_schema(path).metadata or {}
+    except (OSError, pa.ArrowException):
+        return False
     return md.get(b"care.eval.scene_key") == _scene_key(scene, config)
 
 
@@ -501,8 +507,10 @@ def run_eval(
     left_out = check_scenes(scenes, config)
     out = Path(out)
     runner = runner or Runner(workers=workers or os.cpu_count() or 1, ray_address=ray_address)
-    with evaluation_output(out, [s.store for s in scenes]), open_runner(runner) as live:
-        attempts = run_scenes(scenes, config, out, progress=progress, runner=live)
+    # written into a staged copy of ``out`` that replaces it whole at the end: a kill at any
+    # instant leaves the previous results or the new ones, never some of each
+    with evaluation_output(out, [s.store for s in scenes]) as staged, open_runner(runner) as live:
+        attempts = run_scenes(scenes, config, staged, progress=progress, runner=live)
         ks = {kind: config.ks(kind) for kind in MAP_TABLES}
         header = describe(config, scenes, attempts)
         dropped = {name: classes for name, classes in left_out.items() if classes}
@@ -512,6 +520,8 @@ def run_eval(
                 + "; ".join(f"{name}: {', '.join(classes)}" for name, classes in dropped.items())
                 + "\n"
             )
-        return write_report(
-            attempts, out, ks, bootstrap=config.bootstrap, header=header, runner=live
+        report = write_report(
+            attempts, staged, ks, bootstrap=config.bootstrap, header=header, runner=live
         )
+    paths = tuple(out / p.relative_to(staged) for p in report.paths)
+    return dataclasses.replace(report, paths=paths)

@@ -307,7 +307,17 @@ def run_all(source: Path | None, out: Path, config: RunConfig | None = None) -> 
     another, in a local process pool (``config.workers``) or on Ray (``config.ray_address``,
     each task declaring ``config.task_cpus`` and ``config.task_memory``); then the
     evaluation runs the same way. A recording that fails is reported in one line and left
-    out (:attr:`RunResult.failed`); the others complete."""
+    out (:attr:`RunResult.failed`); the others complete.
+
+    What a kill at any instant leaves in ``out``: ``out/eval`` is the previous evaluation
+    or the new one, whole (:func:`care.outputs.whole_output`); each store's recording
+    tables and ``meta.json`` are the previous ones or the new ones (staged, then swapped
+    in); each map table is replaced by a rename, the map's main table last, so a map
+    whose main table is the previous one is not current and the next run builds it
+    again. The folder as a whole is not one unit, on purpose: the stores finished before
+    the kill stay, and the next run resumes from them instead of starting over; it then
+    brings every part to the new version. The ``.rrd`` files are streamed as they are
+    logged (a kill can leave one cut short)."""
     config = config or RunConfig()
     out = Path(out)
     recordings = recordings_of(source or SAMPLE)

@@ -9,6 +9,7 @@ outputs agree. ``care fuse ... --up-axis/--floor-z`` replaces it (and so rebuild
 
 from __future__ import annotations
 
+import contextlib
 import json
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -30,6 +31,7 @@ __all__ = [
     "SAMPLE_VIEWS",
     "check_height_band",
     "ensure_map_frame",
+    "reframed",
     "sample_points",
     "store_stamp",
 ]
@@ -122,6 +124,33 @@ def ensure_map_frame(
     frame = estimate_map_frame(points, poses, up_axis=up_axis, floor=floor_z)
     atomic_write_text(path, json.dumps({"options": options, "frame": frame.as_json()}, indent=2))
     return frame
+
+
+@contextlib.contextmanager
+def reframed(
+    store_path: Path, up_axis: UpAxis | None = None, floor_z: float | None = None
+) -> Iterator[MapFrame]:
+    """:func:`ensure_map_frame` for the block's work; if the block fails, the frame file is
+    put back as it was (or removed, if this call made it).
+
+    A frame asked for anew is a change to the store, and a command that fails must leave
+    the store as it found it: a frame that made the build fail (a floor far from the depth)
+    would otherwise stay and fail every later command. A kill between the two leaves the
+    new frame with the old maps, which record the frame they were built in
+    (:func:`store_stamp`) and so are rebuilt rather than read in the wrong frame.
+    """
+    path = Path(store_path) / MAP_FRAME_FILE
+    before = path.read_text() if path.is_file() else None
+    try:
+        yield ensure_map_frame(store_path, up_axis, floor_z)
+    except BaseException:
+        now = path.read_text() if path.is_file() else None
+        if now != before:
+            if before is None:
+                path.unlink(missing_ok=True)
+            else:
+                atomic_write_text(path, before)
+        raise
 
 
 MIN_BAND_SHARE = 0.3

@@ -19,6 +19,7 @@ unfinished one is never used.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -81,11 +82,21 @@ class SidecarWriter:
         self.tmp.mkdir(parents=True)
         self.n, self.dim, self.num_top, self.num_classes = num_candidates, dim, num_top, num_classes
         self.fingerprint = fingerprint(metadata)
-        self._feature = _npy(self.tmp / "feature.npy", "<f2", (num_candidates, dim))
-        self._top = _npy(self.tmp / "top_classes.npy", "<i2", (num_candidates, num_top))
-        self._logp = _npy(self.tmp / "log_confidence.npy", "<f4", (num_classes, num_candidates))
+        self._files: list[BinaryIO] = []
+        try:
+            self._feature = self._open("feature.npy", "<f2", (num_candidates, dim))
+            self._top = self._open("top_classes.npy", "<i2", (num_candidates, num_top))
+            self._logp = self._open("log_confidence.npy", "<f4", (num_classes, num_candidates))
+        except BaseException:  # a full disk at the first header: nothing left behind
+            self.abort()
+            raise
         self._logp_start = self._logp.tell()
         self._rows = 0
+
+    def _open(self, name: str, dtype: str, shape: tuple[int, ...]) -> BinaryIO:
+        out = _npy(self.tmp / name, dtype, shape)
+        self._files.append(out)
+        return out
 
     def write(self, chunk: pa.Table) -> None:
         """Take ``feature``, ``top_classes`` and ``log_confidence`` from the next chunk of
@@ -108,8 +119,16 @@ class SidecarWriter:
         self._rows += n
 
     def _close(self) -> None:
-        for f in (self._feature, self._top, self._logp):
-            f.close()
+        """Close every file; the first error (a full disk flushing a buffer) is raised once
+        all are closed."""
+        first: OSError | None = None
+        for f in self._files:
+            try:
+                f.close()
+            except OSError as err:
+                first = first or err
+        if first is not None:
+            raise first
 
     def commit(self) -> None:
         """Finish the files and rename the folder into place (replacing an older one)."""
@@ -123,8 +142,11 @@ class SidecarWriter:
         self.tmp.replace(self.path)
 
     def abort(self) -> None:
-        """Drop an unfinished sidecar (a no-op after :meth:`commit`)."""
-        self._close()
+        """Drop an unfinished sidecar (a no-op after :meth:`commit`). Never raises: it runs
+        while another error (a full disk) leaves, and closing a file whose buffer cannot be
+        flushed fails again; the folder goes all the same."""
+        with contextlib.suppress(OSError):
+            self._close()
         shutil.rmtree(self.tmp, ignore_errors=True)
 
 

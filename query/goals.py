@@ -22,7 +22,6 @@ nothing above ``obstacle_height`` is free, an ``obstacle`` cell is not, an unsee
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from functools import cached_property
@@ -32,8 +31,7 @@ import numpy as np
 import pyarrow.parquet as pq
 
 from care.errors import QueryError
-from care.mapframe import MapFrame
-from care.store import MAP_FRAME_FILE, META_FILE, StoreMeta, read_table
+from care.store import META_FILE, StoreMeta, read_map_frame, read_table
 from fuse.layout import CELLS_TABLE, GridLayout
 from query.map import CandidateMap
 
@@ -46,10 +44,7 @@ MAP_FRAME_ID = "care_map"
 
 def _map_frame(store: Path) -> np.ndarray | None:
     """The store's ``map_from_world``, None when the map frame is the world frame."""
-    path = store / MAP_FRAME_FILE
-    if not path.is_file():
-        return None
-    frame = MapFrame.from_json(json.loads(path.read_text())["frame"])
+    frame = read_map_frame(store)
     return None if frame.is_identity else frame.map_from_world
 
 

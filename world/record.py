@@ -21,7 +21,14 @@ from tqdm import tqdm
 
 from care.errors import WorldError
 from care.frames import Frame
-from care.outputs import atomic_write_text, check_output, is_ours, write_marker
+from care.outputs import (
+    atomic_write_text,
+    check_file_output,
+    check_output,
+    is_ours,
+    write_marker,
+)
+from care.parallel import ignore_interrupt, stop_pool
 from world.dataset_index import INDEX_NAME
 from world.groundtruth import GroundTruth, gt_paths
 from world.presets import PRESETS, WorldPreset, WorldSettings
@@ -291,6 +298,8 @@ def make_dataset(config: DatasetConfig) -> Path:
     ).read_bytes()
     if not legacy:  # never fill a directory of the user's (a dataset of ours may be completed)
         check_output(out, kind="dataset")
+    if config.rrd is not None:  # before rendering: a file that is not ours is never replaced
+        check_file_output(config.rrd)
     out.mkdir(parents=True, exist_ok=True)
     if not is_ours(out, "dataset"):
         write_marker(out, "dataset")
@@ -303,13 +312,18 @@ def make_dataset(config: DatasetConfig) -> Path:
                 summaries[i] = _make_one(config, i, config.progress)
                 bar.update(1)
         else:
-            with ProcessPoolExecutor(max_workers=workers) as pool:
+            pool = ProcessPoolExecutor(max_workers=workers, initializer=ignore_interrupt)
+            try:
                 futures = {
                     pool.submit(_make_one, config, i, False): i for i in range(config.scenes)
                 }
                 for fut in as_completed(futures):
                     summaries[futures[fut]] = fut.result()
                     bar.update(1)
+            except BaseException:  # an error or Ctrl-C: end the workers, do not wait
+                stop_pool(pool)
+                raise
+            pool.shutdown()
     finally:
         bar.close()
     config_doc = {
