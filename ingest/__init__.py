@@ -3,6 +3,7 @@
 - :mod:`ingest.write`: write frames as a recording (the sample world uses it),
 - :mod:`ingest.readers`: one reader interface over the container formats,
 - :mod:`ingest.decode`: ROS messages to numpy arrays,
+- :mod:`ingest.undistort`: lens distortion removed from the images (OpenCV),
 - :mod:`ingest.topics`: which topics hold what (auto-detection, overrides),
 - :mod:`ingest.tf`: the TF buffer (chains, interpolation),
 - :mod:`ingest.sync`: stamp matching of depth and labels to colour,

@@ -9,6 +9,7 @@ float in metres). ``compressedDepth`` is image_transport's format: a 12-byte hea
 from __future__ import annotations
 
 import io
+import re
 import struct
 from typing import Any, NamedTuple
 
@@ -16,6 +17,7 @@ import numpy as np
 from PIL import Image, UnidentifiedImageError
 
 from care.errors import IngestError
+from ingest.undistort import Distortion, parse_distortion
 
 __all__ = [
     "COLOUR_ENCODINGS",
@@ -26,6 +28,7 @@ __all__ = [
     "decode_colour",
     "decode_depth",
     "decode_label",
+    "distortion",
     "image_size",
     "pose_sample",
     "stamp_ns",
@@ -100,14 +103,37 @@ def _open_compressed(data: bytes, topic: str, fmt: str) -> Image.Image:
     try:
         img = Image.open(io.BytesIO(data))
         img.load()
-    except (UnidentifiedImageError, OSError) as err:
-        msg = f"topic {topic}: cannot decode compressed image of format {fmt!r} ({err}); the message is corrupt or in an unsupported codec."
+    except UnidentifiedImageError as err:  # its text names the in-memory file's address
+        head = data[:4].hex(" ") or "empty"
+        msg = f"topic {topic}: cannot decode compressed image of format {fmt!r} ({len(data)} bytes starting {head}: not an image PIL can identify); the message is corrupt or in an unsupported codec."
+        raise IngestError(msg) from err
+    except (OSError, SyntaxError, ValueError) as err:
+        msg = f"topic {topic}: cannot decode compressed image of format {fmt!r} ({_stable(err)}); the message is corrupt or in an unsupported codec."
         raise IngestError(msg) from err
     return img
 
 
+def _stable(err: BaseException) -> str:
+    """An error's text without the memory addresses some carry (``<... at 0x7f...>``), so
+    the same input gives the same line on every run."""
+    return re.sub(r" at 0x[0-9a-f]+", "", str(err)) or type(err).__name__
+
+
+def _not_empty(image: np.ndarray, topic: str, what: str) -> np.ndarray:
+    """``image``, or one line if it has no pixel (a 0x0 message): said as such, not as a
+    size that differs from the other stream's."""
+    if image.shape[0] == 0 or image.shape[1] == 0:
+        msg = f"topic {topic}: a {what} image is {image.shape[1]}x{image.shape[0]}, empty; the message is corrupt (remove it from the recording or pick another topic)."
+        raise IngestError(msg)
+    return image
+
+
 def decode_colour(msg: Any, topic: str) -> np.ndarray:
     """(H, W, 3) uint8 RGB from an Image (rgb8, bgr8, rgba8, bgra8, mono8) or a JPEG/PNG."""
+    return _not_empty(_decode_colour(msg, topic), topic, "colour")
+
+
+def _decode_colour(msg: Any, topic: str) -> np.ndarray:
     if _is_compressed(msg):
         fmt = str(msg.format)
         img = _open_compressed(bytes(np.asarray(msg.data, np.uint8)), topic, fmt)
@@ -154,7 +180,7 @@ def decode_depth(msg: Any, topic: str) -> np.ndarray:
         arr = arr[..., 0]
         depth = arr.astype(np.float32) if enc == "32FC1" else arr.astype(np.float32) * 0.001
     depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0)
-    return depth.astype(np.float32)
+    return _not_empty(depth.astype(np.float32), topic, "depth")
 
 
 def decode_label(msg: Any, topic: str) -> np.ndarray:
@@ -176,6 +202,15 @@ def camera_info(msg: Any, topic: str) -> tuple[np.ndarray, int, int]:
         msg_ = f"topic {topic}: camera_info field K/k = {K.ravel().tolist()} is not a valid pinhole matrix (fx, fy > 0, K[2,2] = 1); calibrate the camera or pass --camera-info."
         raise IngestError(msg_)
     return K, int(msg.width), int(msg.height)
+
+
+def distortion(msg: Any, topic: str) -> Distortion:
+    """``distortion_model`` and D of a CameraInfo (ROS 1 ``D``, ROS 2 ``d``); one line when a
+    non-zero D cannot be applied (:func:`ingest.undistort.parse_distortion`)."""
+    d = getattr(msg, "d", None)
+    if d is None:
+        d = getattr(msg, "D", None)
+    return parse_distortion(str(getattr(msg, "distortion_model", "") or ""), d, topic)
 
 
 class StampedTransform(NamedTuple):

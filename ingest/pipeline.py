@@ -29,7 +29,7 @@ from care.outputs import check_file_output, check_output, damaged, output_lock
 from care.store import META_FILE, SCHEMA_VERSION, StoreMeta, StoreWriter
 from care.threads import Work, threads_for
 from ingest.select import FrameSelection, FrameSelector
-from ingest.source import ReadOptions, RecordingFrames
+from ingest.source import ReadOptions, RecordingFrames, first_distortion
 
 __all__ = ["INGEST_VERSION", "IngestConfig", "fingerprint", "request_fingerprint", "run_ingest"]
 
@@ -96,7 +96,7 @@ def _digest(config: IngestConfig, source: dict[str, Any], encoder_key: dict[str,
             "ingest_version": INGEST_VERSION,
             "schema_version": SCHEMA_VERSION,
             "source": source,
-            "read": config.read,
+            "read": config_fields(config.read, ReadOptions.HOW),
             "select": config.select,
             "encoder_options": options if encoder_key["encoder"] is not None else None,
             "vocabulary": config.vocabulary,
@@ -156,7 +156,18 @@ def _up_to_date(config: IngestConfig, fp: str, key: str = "fingerprint") -> bool
         return False
     # same inputs, and every table as it was committed (size and checksum): a damaged
     # store is rebuilt, not trusted
-    return getattr(meta, key) == fp and bool(meta.tables) and not damaged(config.out)
+    current = getattr(meta, key) == fp and bool(meta.tables) and not damaged(config.out)
+    return current and not _distortion_kept(config, meta)
+
+
+def _distortion_kept(config: IngestConfig, meta: StoreMeta) -> bool:
+    """True for a store made before ingest removed lens distortion from a recording whose
+    camera info has non-zero D: its fingerprint matches (D is in the recording's checksum,
+    the code is what changed) but its images are still distorted. Zero-D recordings keep
+    their stores and fingerprints; a store that records its distortion needs no look."""
+    if meta.distortion is not None:
+        return False
+    return not first_distortion(Path(config.recording), config.read).is_zero
 
 
 def _vocabulary(config: IngestConfig, label_names: tuple[str, ...]) -> list[str]:
@@ -316,6 +327,9 @@ def _meta(
     encoder: Encoder | None,
 ) -> dict[str, Any]:
     described = frames.describe()
+    recorded = config_fields(config, _WHERE_AND_HOW)
+    for name in ReadOptions.HOW:  # limits that only refuse: not what the store is
+        recorded["read"].pop(name, None)
     record = (
         None if encoder is None else EncoderRecord.of(encoder, config.encoder_options).as_json()
     )
@@ -331,8 +345,9 @@ def _meta(
         "topics": described["topics"],
         "world_frame": described["world_frame"],
         "camera_frame": described["camera_frame"],
+        "distortion": [lens.as_json() for lens in frames.distortions],
         "label_names": described["label_names"],
         "vocabulary": vocab,
         "counts": frames.stats.as_dict(),
-        "config": config_fields(config, _WHERE_AND_HOW),
+        "config": recorded,
     }

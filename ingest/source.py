@@ -11,17 +11,26 @@ Frame conventions: the camera frame (``--camera-frame``, default the camera info
 image's ``header.frame_id``) must be an *optical* frame, x right, y down, z forward, as
 REP 103 prescribes for image frames (``*_optical_frame``); the pose is
 ``world_from_camera`` at the colour image's header stamp.
+
+A view is one image and one pose, so whatever makes either ambiguous or impossible is one
+error naming where, never a silent pick: two different transforms for one frame and stamp
+(:class:`ingest.tf.TFBuffer`), two different colour images at one stamp (the same image
+again is dropped and counted as ``duplicate_stamp``), a camera farther than
+``--max-translation`` from the world origin or faster than ``--max-speed`` between
+consecutive frames.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
+import math
 from collections import Counter
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -33,10 +42,20 @@ from ingest.readers import RecordingReader, TopicInfo, open_reader
 from ingest.sync import Match, StampSync
 from ingest.tf import TFBuffer, check_transform
 from ingest.topics import TopicSelection, select_topics
+from ingest.undistort import NO_DISTORTION, Distortion, undistort
 
-__all__ = ["ReadOptions", "ReadStats", "RecordingFrames"]
+__all__ = ["ReadOptions", "ReadStats", "RecordingFrames", "first_distortion"]
 
 _WORLD_FRAME_NAMES = ("map", "world", "odom")
+
+
+def _image_digest(msg: Any) -> bytes:
+    """What tells two colour messages apart: their format and pixel bytes (not the header)."""
+    h = hashlib.sha1(usedforsecurity=False)
+    for name in ("format", "encoding", "width", "height", "step"):
+        h.update(f"{name}={getattr(msg, name, None)};".encode())
+    h.update(memoryview(np.ascontiguousarray(np.asarray(msg.data, np.uint8))))
+    return h.digest()
 
 
 @dataclass(frozen=True)
@@ -61,9 +80,33 @@ class ReadOptions:
     extrapolation allowed at the ends of a transform's samples)."""
     static_pose: bool = False
     """Identity pose for every frame, for recordings without any pose source."""
+    max_translation: float = 10_000.0
+    """Metres: a camera pose farther than this from the world frame's origin is refused as
+    corrupt; raise it for world frames far from the views (UTM, ECEF).
+
+    A single wild transform (1e9 m) would otherwise pass ingest and make the maps' extent,
+    and so their memory, absurd, with no word of which view did it."""
+    max_speed: float = 50.0
+    """Metres per second: a camera that moves faster than this between consecutive frames
+    is refused as a pose jump; raise it for faster platforms.
+
+    The default (180 km/h) is above what handheld cameras, ground robots, cars in town and
+    camera drones reach; a localisation glitch that moves the camera tens of metres between
+    frames a tenth of a second apart is far above it. Compared between consecutive
+    synchronised, posed frames, before any --start/--every/--min-motion selection."""
+
+    HOW: ClassVar[tuple[str, ...]] = ("max_translation", "max_speed")
+    """Fields that only refuse a recording: a store they let through is the same whatever
+    their values, so they are left out of its fingerprint and recorded config (stores built
+    before they existed stay current)."""
 
     def __post_init__(self) -> None:
-        check_numbers(IngestError, "read options", non_negative={"max_dt": self.max_dt})
+        check_numbers(
+            IngestError,
+            "read options",
+            non_negative={"max_dt": self.max_dt},
+            positive={"max_translation": self.max_translation, "max_speed": self.max_speed},
+        )
 
 
 @dataclass
@@ -96,8 +139,10 @@ class RecordingFrames:
         self.camera_frame: str | None = None
         self._reader: RecordingReader | None = None
         self._tf = TFBuffer()
-        self._infos: list[tuple[int, np.ndarray, int, int]] = []
+        self._infos: list[tuple[int, np.ndarray, int, int, Distortion]] = []
         self._nearest_miss_ns: int | None = None
+        self._last_pose: tuple[int, np.ndarray] | None = None
+        """Stamp and camera position of the last frame yielded (for the speed bound)."""
 
     # -- pass 1 ---------------------------------------------------------------------------
     def __enter__(self) -> RecordingFrames:
@@ -159,7 +204,7 @@ class RecordingFrames:
             elif not o.static_pose:
                 static = topic.rstrip("/").endswith("tf_static")
                 for tf in decode.transforms(msg, t):
-                    self._tf.add(tf, static=static)
+                    self._tf.add(tf, static=static, topic=topic)
         if not self._infos:
             msg = f"{self.path}: camera info topic {sel.camera_info} has no messages; record camera_info or pass --camera-info TOPIC."
             raise IngestError(msg)
@@ -176,16 +221,29 @@ class RecordingFrames:
             msg = f"{self.path}: pose source {self.options.pose_source} is a PoseStamped and the camera frame is unknown; pass --camera-frame."
             raise IngestError(msg)
         self._tf.drop(child)
+        topic = self.selection.pose_source if self.selection else None
         for sample in samples:
-            self._tf.add(sample._replace(child=child), static=False)
+            self._tf.add(sample._replace(child=child), static=False, topic=topic)
 
     def _add_info(self, msg: Any, t: int) -> None:
-        K, w, h = decode.camera_info(msg, self.selection.camera_info if self.selection else "")
+        topic = self.selection.camera_info if self.selection else ""
+        K, w, h = decode.camera_info(msg, topic)
+        lens = decode.distortion(msg, topic)
         if not self.camera_frame:
             self.camera_frame = str(msg.header.frame_id).lstrip("/") or None
         last = self._infos[-1] if self._infos else None
-        if last is None or not (np.array_equal(last[1], K) and last[2:] == (w, h)):
-            self._infos.append((decode.stamp_ns(msg, t), K, w, h))
+        if last is None or not (np.array_equal(last[1], K) and last[2:] == (w, h, lens)):
+            self._infos.append((decode.stamp_ns(msg, t), K, w, h, lens))
+
+    @property
+    def distortions(self) -> list[Distortion]:
+        """The non-zero lens distortions of the camera infos, in order of first appearance:
+        what is removed from the images (none: the images are stored as recorded)."""
+        seen: list[Distortion] = []
+        for *_, lens in self._infos:
+            if not lens.is_zero and lens not in seen:
+                seen.append(lens)
+        return seen
 
     def _parse_names(self, text: str, topic: str) -> tuple[str, ...]:
         try:
@@ -246,30 +304,73 @@ class RecordingFrames:
             {"depth": True, **dict.fromkeys(sel.extras, False)},
             max_dt_ns=round(self.options.max_dt * 1e9),
         )
-        seen: set[int] = set()  # colour stamps: a repeated one would be a duplicate view
+        seen: dict[int, bytes] = {}  # colour stamp -> digest of its image
         for topic, t, msg in self._reader.messages([sel.rgb, *streams]):
             stamp = decode.stamp_ns(msg, t)
             if topic == sel.rgb:
                 self.stats.rgb_messages += 1
                 self._learn_camera_frame(msg)
+                digest = _image_digest(msg)
                 if stamp in seen:
+                    self._check_repeat(stamp, seen[stamp], digest)
                     self.stats.dropped["duplicate_stamp"] += 1
                     continue
-                seen.add(stamp)
+                seen[stamp] = digest
             for match in sync.push(None if topic == sel.rgb else streams[topic], stamp, msg):
                 frame = self._assemble(match)
                 if frame is not None:
+                    self._check_pose(frame)
                     self.stats.frames += 1
                     yield frame
         for match in sync.finish():
             frame = self._assemble(match)
             if frame is not None:
+                self._check_pose(frame)
                 self.stats.frames += 1
                 yield frame
         self.stats.dropped.update(sync.dropped)
         self._nearest_miss_ns = sync.nearest_miss.get("depth")
         if self.stats.frames == 0:
             raise IngestError(self._why_empty())
+
+    def _check_repeat(self, stamp: int, first: bytes, digest: bytes) -> None:
+        """A second colour image at a stamp: the same image again is dropped and counted
+        (a message recorded twice); a different one is refused, since which image is the view
+        there is undecidable and the pose at that stamp belongs to one of them at most."""
+        if digest == first:
+            return
+        assert self.selection is not None
+        msg = f"{self.path}: colour topic {self.selection.rgb} has different images at one stamp, {stamp} ns; the view there is ambiguous (the camera's header stamps are not unique: re-stamp the images in the recording, or pass --rgb TOPIC)."
+        raise IngestError(msg)
+
+    def _check_pose(self, frame: Frame) -> None:
+        """Refuse a pose no camera can have: farther than ``max_translation`` from the world
+        origin, or reached faster than ``max_speed`` from the previous frame's pose. Both
+        come from corrupt transforms (a glitch, a unit error), and a view placed there would
+        stretch every map built from the store."""
+        if self.options.static_pose:
+            return
+        o = self.options
+        position = np.asarray(frame.cam_to_world[:3, 3], np.float64)
+        view = (
+            f"{self.path}: view {self.stats.frames} at stamp {frame.stamp_ns} ns: camera frame "
+            f"{self.camera_frame!r} in world frame {self.world_frame!r}"
+        )
+        distance = float(np.linalg.norm(position))
+        if distance > o.max_translation:
+            msg = f"{view} lies {distance:.4g} m from the origin (translation {position.tolist()}), beyond --max-translation {o.max_translation:g} m; the recording's transforms are corrupt there (fix them or pass --pose-source TOPIC), or, if the world is that large, raise --max-translation."
+            raise IngestError(msg)
+        if self._last_pose is not None:
+            last_stamp, last_position = self._last_pose
+            step = float(np.linalg.norm(position - last_position))
+            dt = abs(frame.stamp_ns - last_stamp) / 1e9
+            # equal stamps never reach here (a repeated colour stamp is dropped or refused);
+            # were they to, any step would be an infinite speed
+            speed = step / dt if dt > 0 else (math.inf if step > 0 else 0.0)
+            if speed > o.max_speed:
+                msg = f"{view} moved {step:.4g} m in {dt * 1e3:.4g} ms since the previous view (stamp {last_stamp} ns): {speed:.4g} m/s, faster than --max-speed {o.max_speed:g} m/s; the recording's transforms jump there (fix them or pass --pose-source TOPIC), or, if the camera moves that fast, raise --max-speed."
+                raise IngestError(msg)
+        self._last_pose = (frame.stamp_ns, position)
 
     def _learn_camera_frame(self, msg: Any) -> None:
         if self.camera_frame is None:
@@ -323,7 +424,9 @@ class RecordingFrames:
         if depth.shape != (h, w):
             msg = f"{self.path}: colour images on {sel.rgb} are {w}x{h} but depth images on {sel.depth} are {depth.shape[1]}x{depth.shape[0]}; record depth registered to colour (e.g. aligned_depth_to_color) or pass --depth TOPIC."
             raise IngestError(msg)
-        K = self._intrinsics(match.stamp_ns, w, h)
+        K, lens = self._intrinsics(match.stamp_ns, w, h)
+        rgb = undistort(rgb, K, lens, blend=True)
+        depth = undistort(depth, K, lens, blend=False)
         if not depth.any():
             self.stats.dropped["no_valid_depth"] += 1
             return None
@@ -339,18 +442,19 @@ class RecordingFrames:
             if label.shape != (h, w):
                 msg_ = f"{self.path}: label images on {sel.extras[key]} are {label.shape[1]}x{label.shape[0]}, colour images {w}x{h}; they must match."
                 raise IngestError(msg_)
-            extras[key] = label
+            extras[key] = undistort(label, K, lens, blend=False)
         return Frame(match.stamp_ns, rgb, depth, K, pose, extras)
 
-    def _intrinsics(self, t: int, w: int, h: int) -> np.ndarray:
+    def _intrinsics(self, t: int, w: int, h: int) -> tuple[np.ndarray, Distortion]:
+        """K and lens distortion of the camera info nearest in time to ``t``."""
         stamps = np.array([i[0] for i in self._infos])
-        _, K, iw, ih = self._infos[int(np.argmin(np.abs(stamps - t)))]
+        _, K, iw, ih, lens = self._infos[int(np.argmin(np.abs(stamps - t)))]
         if (iw, ih) != (0, 0) and (iw, ih) != (w, h):
             sel = self.selection
             assert sel is not None
             msg = f"{self.path}: camera info {sel.camera_info} is for {iw}x{ih} images but {sel.rgb} has {w}x{h}; pass the colour camera's --camera-info."
             raise IngestError(msg)
-        return K
+        return K, lens
 
     def _pose(self, t: int) -> np.ndarray | None:
         if self.options.static_pose:
@@ -361,3 +465,29 @@ class RecordingFrames:
             self.world_frame, self.camera_frame, np.array([t]), round(self.options.max_dt * 1e9)
         )
         return T[0] if valid[0] else None
+
+
+def first_distortion(path: Path, options: ReadOptions | None = None) -> Distortion:
+    """The lens distortion of the recording's first camera info (zero when it has none).
+
+    Reads the topic list and one message: cheap enough for an up-to-date check, which uses
+    it to tell whether a store made before distortion was removed at ingest is stale."""
+    o = options or ReadOptions()
+    with open_reader(Path(path)) as reader:
+        sel = select_topics(
+            reader.topics(),
+            path=str(path),
+            rgb=o.rgb,
+            depth=o.depth,
+            camera_info=o.camera_info,
+            pose_source=o.pose_source,
+        )
+        try:
+            for _, _, msg in reader.messages([sel.camera_info]):
+                return decode.distortion(msg, sel.camera_info)
+        except IngestError as err:
+            if str(err).startswith(str(path)):
+                raise
+            msg_ = f"{path}: {err}"
+            raise IngestError(msg_) from err
+    return NO_DISTORTION

@@ -5,11 +5,17 @@ first pass and resolves camera poses in the second. Like tf2: every frame has on
 ``/tf_static`` transforms hold at all times, dynamic ones are interpolated between their
 stamps (linear translation, ``scipy.spatial.transform.Slerp`` rotation) and not extrapolated
 beyond ``tolerance_ns`` past the first or last stamp.
+
+One transform per frame and stamp: the same transform repeated (``/tf_static`` republished,
+a message recorded twice) adds nothing, but two different transforms for one (parent,
+child, stamp) are refused, naming the topic and the stamp. Which of them holds would decide
+the pose of every view near that stamp, and no rule can tell the right one.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NoReturn
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
@@ -42,12 +48,15 @@ class _Edge:
     stamps: list[int] = field(default_factory=list)
     translations: list[np.ndarray] = field(default_factory=list)
     rotations: list[np.ndarray] = field(default_factory=list)
+    by_stamp: dict[int, tuple[int, str | None]] = field(default_factory=dict)
+    """Stamp -> (index of its sample, the topic it came on), to find a second sample."""
     _arrays: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
     _slerp: Slerp | None = None
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Stamps, translations and rotations sorted by stamp (cached); of samples with the
-        same stamp the last one received holds."""
+        """Stamps, translations and rotations sorted by stamp (cached); a stamp has one
+        sample (:meth:`TFBuffer.add` keeps one of equal ones and refuses different ones), and
+        should two remain the last one received holds."""
         if self._arrays is None:
             stamps = np.asarray(self.stamps, np.int64)
             order = np.argsort(stamps, kind="stable")
@@ -89,6 +98,40 @@ class _Edge:
         return _matrices(translation, self.rotations_at(t)), valid
 
 
+_SAME = 1e-9
+"""Metres (translation) and quaternion units: closer transforms count as the same one (a
+republisher that recomputes a transform may differ in the last bits)."""
+
+
+def _same_transform(edge: _Edge, index: int, tf: StampedTransform) -> bool:
+    """Whether ``tf`` is the edge's sample ``index`` again (q and -q are one rotation)."""
+    t0, q0 = edge.translations[index], edge.rotations[index]
+    q0 = q0 / np.linalg.norm(q0)
+    q1 = np.asarray(tf.rotation, np.float64) / np.linalg.norm(tf.rotation)
+    rotation_gap = min(np.abs(q1 - q0).max(), np.abs(q1 + q0).max())
+    return bool(np.abs(tf.translation - t0).max() <= _SAME and rotation_gap <= _SAME)
+
+
+def _refuse_conflict(
+    edge: _Edge, index: int, first_topic: str | None, tf: StampedTransform, topic: str | None
+) -> NoReturn:
+    """Raise the one line naming both transforms at one stamp and where they came from."""
+
+    def text(translation: np.ndarray, rotation: np.ndarray, where: str | None) -> str:
+        on = f" on {where}" if where else ""
+        return f"translation {np.asarray(translation).tolist()} rotation {np.asarray(rotation).tolist()}{on}"
+
+    on = f" on {topic}" if topic else ""
+    msg = (
+        f"TF transform {tf.parent!r} -> {tf.child!r} at stamp {tf.stamp_ns} ns{on}: two "
+        f"different transforms at one stamp ({text(edge.translations[index], edge.rotations[index], first_topic)}, "
+        f"then {text(tf.translation, tf.rotation, topic)}); TF gives one transform per frame "
+        "and stamp, so the poses there are ambiguous (fix the recording's transforms, or pass "
+        "--pose-source TOPIC)"
+    )
+    raise IngestError(msg)
+
+
 def _matrices(translation: np.ndarray, rotation: Rotation) -> np.ndarray:
     T = np.zeros((len(translation), 4, 4))
     T[:, :3, :3] = rotation.as_matrix()
@@ -103,8 +146,10 @@ class TFBuffer:
     def __init__(self) -> None:
         self._edges: dict[str, _Edge] = {}
 
-    def add(self, tf: StampedTransform, *, static: bool) -> None:
-        """Add one sample; a frame that changes parent is an error (TF is a tree)."""
+    def add(self, tf: StampedTransform, *, static: bool, topic: str | None = None) -> None:
+        """Add one sample (from ``topic``, for messages); a frame that changes parent is an
+        error (TF is a tree), and so is a second, different transform at a stamp the edge
+        already has (the same transform again is kept once)."""
         if tf.child is None or tf.child == tf.parent:
             return
         check_transform(tf)
@@ -115,7 +160,14 @@ class TFBuffer:
             msg = f"TF frame {tf.child!r} has two parents, {edge.parent!r} and {tf.parent!r}; TF must be a tree (pick the pose source with --pose-source)."
             raise IngestError(msg)
         edge.static = edge.static and static
-        edge.stamps.append(int(tf.stamp_ns))
+        stamp = int(tf.stamp_ns)
+        if stamp in edge.by_stamp:
+            index, first_topic = edge.by_stamp[stamp]
+            if _same_transform(edge, index, tf):
+                return
+            _refuse_conflict(edge, index, first_topic, tf, topic)
+        edge.by_stamp[stamp] = (len(edge.stamps), topic)
+        edge.stamps.append(stamp)
         edge.translations.append(tf.translation)
         edge.rotations.append(tf.rotation)
         edge._arrays = edge._slerp = None

@@ -29,7 +29,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-PROGRESS = re.compile(r"\d+%\|.*\| *[\d?]+/[\d?]+ \[")
+PROGRESS = re.compile(r"\d+%\|.*\| *[\d?]+/[\d?]+ \[|^[\w ]+: \d+it \[\d\d:\d\d, ")
+"""A tqdm bar's frame: with a total (``40%|####  | 2/5 [``), or without (``scenes: 0it [00:00, ``)."""
 TMP_NAME = re.compile(r"^\..+\.(tmp|old|building)-\d+")
 
 
@@ -238,10 +239,14 @@ def write_bag(
     tf_edges: tuple[tuple[str, str], ...] = (("map", "camera_optical_frame"),),
     rgb_bytes_delta: int = 0,
     stamps: list[int] | None = None,
+    shades: list[int] | None = None,
+    dynamic: tuple[tuple[int, str, str, tuple[float, ...], tuple[float, ...]], ...] = (),
 ) -> Path:
     """A small RGB-D rosbag2 (mcap storage): ``tf_edges`` on /tf_static (the last one gets
     ``quat``/``xyz``), rgb8 colour with ``rgb_bytes_delta`` bytes more (or fewer) than
-    w x h x 3, 16UC1 depth, camera info; colour stamps ``stamps`` (default 100 ms apart)."""
+    w x h x 3, 16UC1 depth, camera info; colour stamps ``stamps`` (default 100 ms apart),
+    image i all grey level ``shades[i]`` (default 40 i); ``dynamic`` transforms
+    ``(stamp, parent, child, xyz, quat)`` on /tf, one message each, logged at their stamp."""
     import numpy as np
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
@@ -288,9 +293,11 @@ def write_bag(
             ("/tf_static", 10**9, tf(10**9, parent, child, quat if last else (0, 0, 0, 1),
                                      xyz if last else (0, 0, 0)))
         )  # fmt: skip
+    for t, parent, child, p, q in dynamic:
+        messages.append(("/tf", t, tf(t, parent, child, q, p)))
     stamps = stamps or [10**9 + i * 100_000_000 for i in range(n)]
     for i, t in enumerate(stamps):
-        rgb = np.full((h, w, 3), 40 * i % 256, np.uint8)
+        rgb = np.full((h, w, 3), (shades[i] if shades else 40 * i) % 256, np.uint8)
         depth = np.full((h, w), 1500, np.uint16)
         messages.append(("/camera/color/camera_info", t, info))
         messages.append(

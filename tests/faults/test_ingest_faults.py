@@ -218,8 +218,14 @@ def test_image_payload_of_wrong_length(care, fx, tmp_path: Path, delta: int) -> 
 
 
 def test_duplicate_stamps_dropped_and_counted(care, fx, tmp_path: Path) -> None:
+    """The same image again at a stamp (a message recorded twice); a different one is
+    refused (tests/faults/test_pose_faults.py)."""
     t0 = 10**9
-    bag = fx.write_bag(tmp_path / "bag", stamps=[t0, t0 + 10**8, t0 + 10**8, t0 + 2 * 10**8])
+    bag = fx.write_bag(
+        tmp_path / "bag",
+        stamps=[t0, t0 + 10**8, t0 + 10**8, t0 + 2 * 10**8],
+        shades=[0, 40, 40, 80],
+    )
     code, out, err = care("ingest", bag, "--out", tmp_path / "store")
     assert code == 0, err
     assert "3 views from 4 colour images" in out
@@ -235,7 +241,7 @@ def test_duplicate_stamps_dropped_and_counted(care, fx, tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("flags", "pattern", "exit_code"),
     [
-        (("--max-dt", "nan"), r"max_dt=nan", 1),
+        (("--max-dt", "nan"), r"'--max-dt'.*nan is not a finite number", 2),
         (("--max-dt", "-1"), r"max_dt=-1", 1),
         (("--encoder", "bogus"), r"'--encoder'.*'bogus' is not one of", 2),
         (("--batch-size", "0"), r"'--batch-size'", 2),
