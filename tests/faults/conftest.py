@@ -241,12 +241,15 @@ def write_bag(
     stamps: list[int] | None = None,
     shades: list[int] | None = None,
     dynamic: tuple[tuple[int, str, str, tuple[float, ...], tuple[float, ...]], ...] = (),
+    colour: Callable | None = None,
 ) -> Path:
     """A small RGB-D rosbag2 (mcap storage): ``tf_edges`` on /tf_static (the last one gets
     ``quat``/``xyz``), rgb8 colour with ``rgb_bytes_delta`` bytes more (or fewer) than
     w x h x 3, 16UC1 depth, camera info; colour stamps ``stamps`` (default 100 ms apart),
     image i all grey level ``shades[i]`` (default 40 i); ``dynamic`` transforms
-    ``(stamp, parent, child, xyz, quat)`` on /tf, one message each, logged at their stamp."""
+    ``(stamp, parent, child, xyz, quat)`` on /tf, one message each, logged at their stamp;
+    ``colour(types, stamp, header)``, if given, makes each colour message instead (a
+    CompressedImage, an empty Image, ...)."""
     import numpy as np
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
@@ -300,11 +303,12 @@ def write_bag(
         rgb = np.full((h, w, 3), (shades[i] if shades else 40 * i) % 256, np.uint8)
         depth = np.full((h, w), 1500, np.uint16)
         messages.append(("/camera/color/camera_info", t, info))
+        made = colour(T, t, header(t)) if colour else None
         messages.append(
             (
                 "/camera/color/image_raw",
                 t,
-                image(t, rgb, "rgb8", w * 3, h * w * 3 + rgb_bytes_delta),
+                made or image(t, rgb, "rgb8", w * 3, h * w * 3 + rgb_bytes_delta),
             )
         )
         messages.append(("/camera/depth/image_raw", t, image(t, depth, "16UC1", w * 2, h * w * 2)))

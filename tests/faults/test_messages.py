@@ -12,61 +12,6 @@ import numpy as np
 import pytest
 
 
-def _bag(path: Path, colour: object, n: int = 3, w: int = 32, h: int = 24) -> Path:
-    """A rosbag2 (mcap storage, rosbags' own writer) whose colour messages are ``colour(T, t,
-    header)``: a raw or compressed image the test chooses; 16UC1 depth, camera info and a
-    static pose as a camera driver writes them."""
-    from rosbags.rosbag2 import StoragePlugin, Writer
-    from rosbags.typesys import Stores, get_typestore
-
-    ts = get_typestore(Stores.ROS2_HUMBLE)
-    T = ts.types
-
-    def header(t: int, frame: str = "camera_optical_frame"):
-        stamp = T["builtin_interfaces/msg/Time"](sec=t // 10**9, nanosec=t % 10**9)
-        return T["std_msgs/msg/Header"](stamp=stamp, frame_id=frame)
-
-    K = np.array([40.0, 0, w / 2, 0, 40.0, h / 2, 0, 0, 1])
-    roi = T["sensor_msgs/msg/RegionOfInterest"](
-        x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
-    )
-    info = T["sensor_msgs/msg/CameraInfo"](
-        header=header(10**9), height=h, width=w, distortion_model="plumb_bob", d=np.zeros(5),
-        k=K, r=np.eye(3).ravel(), p=np.c_[K.reshape(3, 3), np.zeros(3)].ravel(),
-        binning_x=0, binning_y=0, roi=roi,
-    )  # fmt: skip
-    transform = T["geometry_msgs/msg/Transform"](
-        translation=T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=1.0),
-        rotation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
-    )
-    static = T["tf2_msgs/msg/TFMessage"](
-        transforms=[
-            T["geometry_msgs/msg/TransformStamped"](
-                header=header(10**9, "map"), child_frame_id="camera_optical_frame",
-                transform=transform,
-            )
-        ]
-    )  # fmt: skip
-    messages: list[tuple[str, int, object]] = [("/tf_static", 10**9, static)]
-    for i in range(n):
-        t = 10**9 + i * 100_000_000
-        depth = np.full((h, w), 1500, np.uint16).view(np.uint8).reshape(-1)
-        messages += [
-            ("/camera/color/camera_info", t, info),
-            ("/camera/color/image", t, colour(T, t, header(t))),
-            ("/camera/depth/image_raw", t, T["sensor_msgs/msg/Image"](
-                header=header(t), height=h, width=w, encoding="16UC1", is_bigendian=0,
-                step=w * 2, data=depth)),
-        ]  # fmt: skip
-    conns: dict[str, object] = {}
-    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
-        for topic, t, msg in messages:
-            if topic not in conns:
-                conns[topic] = writer.add_connection(topic, msg.__msgtype__, typestore=ts)
-            writer.write(conns[topic], t, bytes(ts.serialize_cdr(msg, msg.__msgtype__)))
-    return path
-
-
 def _empty_raw(T, t, header):
     return T["sensor_msgs/msg/Image"](
         header=header, height=0, width=0, encoding="rgb8", is_bigendian=0, step=0,
@@ -92,9 +37,9 @@ def _good_jpeg() -> bytes:
 
 
 def test_empty_colour_frame_is_said_to_be_empty(care, fx, tmp_path: Path) -> None:
-    bag = _bag(tmp_path / "bag", _empty_raw)
+    bag = fx.write_bag(tmp_path / "bag", colour=_empty_raw)
     code, _, err = care("ingest", bag, "--out", tmp_path / "store")
-    line = fx.assert_fault(code, err, r"/camera/color/image: a colour image is 0x0, empty")
+    line = fx.assert_fault(code, err, r"/camera/color/image_raw: a colour image is 0x0, empty")
     assert "depth images" not in line  # not a size mismatch with the depth stream
     assert not (tmp_path / "store").exists()
 
@@ -107,16 +52,16 @@ def test_empty_colour_frame_is_said_to_be_empty(care, fx, tmp_path: Path) -> Non
 def test_undecodable_jpeg_gives_the_same_line_every_run(
     care, fx, tmp_path: Path, data: bytes
 ) -> None:
-    bag = _bag(tmp_path / "bag", _jpeg(data))
+    bag = fx.write_bag(tmp_path / "bag", colour=_jpeg(data))
     lines = []
     for run in range(2):
         code, _, err = care("ingest", bag, "--out", tmp_path / f"store{run}")
         lines.append(
-            fx.assert_fault(code, err, r"/camera/color/image: cannot decode", clean=(tmp_path,))
+            fx.assert_fault(code, err, r"/camera/color/image_raw: cannot decode", clean=(tmp_path,))
         )
     assert " at 0x" not in lines[0]
     assert lines[0].replace("store0", "") == lines[1].replace("store1", "")
-    good = _bag(tmp_path / "good", _jpeg(_good_jpeg()))
+    good = fx.write_bag(tmp_path / "good", colour=_jpeg(_good_jpeg()))
     assert care("ingest", good, "--out", tmp_path / "store")[0] == 0
 
 
