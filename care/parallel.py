@@ -111,10 +111,11 @@ def open_runner(runner: Runner) -> Iterator[Runner]:
     pool = _pool(runner.workers)
     try:
         yield replace(runner, executor=pool)
-    except BaseException:  # an error or Ctrl-C: stop the workers, do not wait for their tasks
+    except KeyboardInterrupt:  # Ctrl-C: stop the workers, do not wait for their tasks
         stop_pool(pool)
         raise
-    pool.shutdown()
+    finally:  # an error: the workers finish what they hold, as the pool's own exit does
+        pool.shutdown()
 
 
 def stop_pool(pool: ProcessPoolExecutor) -> None:

@@ -165,7 +165,9 @@ def main() -> None:
     if threading.current_thread() is not threading.main_thread():
         _main()
         return
+    global _watchdog
     _SAID.clear()
+    _watchdog = None  # no Ctrl-C yet in this run
     previous = signal.getsignal(signal.SIGINT)
     if previous in (_stop_now, stop_while_loading):
         previous = signal.default_int_handler
@@ -184,6 +186,17 @@ def main() -> None:
             signal.signal(signal.SIGINT, previous)
         if _watchdog is not None:
             _watchdog.cancel()
+
+
+def _exit_interrupted() -> None:
+    """Exit code 130 once the outputs are unwound."""
+    if _PROGRAM:  # the outputs are unwound; an interpreter whose KeyboardInterrupt went
+        # through an exec() of text (numpy's and scipy's imports do) would end by the
+        # signal instead of exit code 130 (CPython's unhandled-interrupt flag)
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(_INTERRUPTED)
+    sys.exit(_INTERRUPTED)
 
 
 def _leave(code: object) -> None:
@@ -227,14 +240,15 @@ def _main() -> None:
         if not _SAID.is_set():
             _SAID.set()
             typer.echo(_INTERRUPTED_LINE.decode().rstrip(), err=True)
-        if _PROGRAM:  # the outputs are unwound; an interpreter whose KeyboardInterrupt went
-            # through an exec() of text (numpy's and scipy's imports do) would end by the
-            # signal instead of exit code 130 (CPython's unhandled-interrupt flag)
-            sys.stdout.flush()
-            sys.stderr.flush()
-            os._exit(_INTERRUPTED)
-        sys.exit(_INTERRUPTED)
+        _exit_interrupted()
     except Exception as err:
+        if _watchdog is not None and os.getpid() == _PID:
+            # after a Ctrl-C, whatever failed next failed because of it (an import cut
+            # half-way fails again when retried): it is the interruption that is reported
+            if not _SAID.is_set():
+                _SAID.set()
+                typer.echo(_INTERRUPTED_LINE.decode().rstrip(), err=True)
+            _exit_interrupted()
         if debug:
             raise
         line = one_line(err)

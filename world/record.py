@@ -320,10 +320,11 @@ def make_dataset(config: DatasetConfig) -> Path:
                 for fut in as_completed(futures):
                     summaries[futures[fut]] = fut.result()
                     bar.update(1)
-            except BaseException:  # an error or Ctrl-C: end the workers, do not wait
+            except KeyboardInterrupt:  # Ctrl-C: end the workers, do not wait
                 stop_pool(pool)
                 raise
-            pool.shutdown()
+            finally:
+                pool.shutdown()
     finally:
         bar.close()
     config_doc = {
