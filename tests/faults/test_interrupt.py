@@ -39,11 +39,13 @@ def _interrupt(fx, args: tuple[object, ...], after: float) -> tuple[int | None, 
     return proc.returncode, err, time.monotonic() - sent
 
 
-def _check(fx, code: int | None, err: str, took: float, clean: Path) -> None:
+def _check(fx, code: int | None, err: str, took: float) -> None:
     if code == 0:  # finished before the signal came
         assert took == 0.0
         return
-    fx.assert_fault(code, err, r"^error: interrupted", exit_code=130, clean=(clean,))
+    # on a loaded machine the unwinding may outlast the grace: what it left is a temporary
+    # of a dead process, which the re-run each test makes must sweep (checked there)
+    fx.assert_fault(code, err, r"^error: interrupted", exit_code=130)
     assert took < WITHIN, took
 
 
@@ -52,17 +54,21 @@ def test_ctrl_c_during_fuse_grid_overwrite(fx, copy_good, after: float) -> None:
     store = copy_good("store")
     before = fx.snapshot(store)
     code, err, took = _interrupt(fx, ("fuse", "grid", store, "--overwrite"), after)
-    _check(fx, code, err, took, store.parent)
+    _check(fx, code, err, took)
     assert fx.snapshot(store) == before  # the old map, or the same map built again
+    assert fx.care_process("fuse", "grid", store).returncode == 0
+    assert not fx.leftovers(store.parent)
 
 
 @pytest.mark.parametrize("after", MOMENTS)
 def test_ctrl_c_during_ingest(fx, recording: Path, tmp_path: Path, after: float) -> None:
     out = tmp_path / "store"
     code, err, took = _interrupt(fx, ("ingest", recording, "--out", out), after)
-    _check(fx, code, err, took, tmp_path)
-    assert code == 0 or not out.exists()  # a store is committed whole, or not at all
+    _check(fx, code, err, took)
+    if out.exists():  # committed whole before the signal came, or not at all
+        assert fx.care_process("check", out).returncode == 0
     assert fx.care_process("ingest", recording, "--out", out).returncode == 0
+    assert not fx.leftovers(tmp_path)
 
 
 @pytest.mark.parametrize("after", MOMENTS[1::2])
@@ -70,8 +76,11 @@ def test_ctrl_c_during_eval_over_earlier_results(fx, good: Path, copy_good, afte
     ev = copy_good("eval")
     before = fx.snapshot(ev)
     code, err, took = _interrupt(fx, ("eval", good / "store", "--out", ev, *fx.EVAL_FLAGS), after)
-    _check(fx, code, err, took, ev.parent)
+    _check(fx, code, err, took)
     assert fx.snapshot(ev) == before  # the same inputs: the old results or identical new ones
+    assert fx.care_process("eval", good / "store", "--out", ev, *fx.EVAL_FLAGS).returncode == 0
+    assert not fx.leftovers(ev.parent)
+    assert fx.snapshot(ev) == before
 
 
 def test_a_job_started_to_ignore_ctrl_c_keeps_ignoring_it(fx, copy_good) -> None:
