@@ -1,0 +1,128 @@
+"""Every output of ``care run`` stays what it was: a digest of each file, against the digests
+recorded in ``tests/data/outputs.json``.
+
+Two runs: the bundled sample (ground truth, both maps, the whole evaluation) and a user's own
+recording (third-party living-room frames written as MCAP, a real CLIP checkpoint, no ground
+truth). A file's digest is the SHA-256 of its bytes, except where the bytes carry what is not
+output: a Parquet file is digested by its schema (with the metadata we write) and its values,
+not the writer's version string; a PNG by its pixels, not the plotting library's name; a
+Rerun file by its rows (entity, time and components), not its row ids, log times or start
+time. A change that moves any value fails here; a deliberate one updates the JSON with
+``CARE_UPDATE_DIGESTS=1``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+DIGESTS = Path(__file__).parents[1] / "data" / "outputs.json"
+OFFLINE = {**os.environ, "HF_HUB_OFFLINE": "1", "TRANSFORMERS_OFFLINE": "1"}
+RRD_SKIP = ("RowId", "log_time", "log_tick", "RecordingInfo:start_time")
+
+
+def _parquet(path: Path) -> str:
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(path).combine_chunks()
+    meta = table.schema.metadata or {}
+    digest = hashlib.sha256(repr(sorted(meta.items())).encode())
+    for field, column in zip(table.schema, table.columns, strict=True):
+        digest.update(repr((field.name, str(field.type))).encode())
+        digest.update(repr(column.to_pylist()).encode())
+    return digest.hexdigest()
+
+
+def _png(path: Path) -> str:
+    import numpy as np
+    from PIL import Image
+
+    with Image.open(path) as image:
+        pixels = np.asarray(image)
+    return hashlib.sha256(repr((pixels.shape, str(pixels.dtype))).encode() + pixels.tobytes()).hexdigest()
+
+
+def _rrd(path: Path) -> str:
+    from rerun.chunk import RrdReader
+
+    rows = []
+    for chunk in RrdReader(path).stream():
+        batch = chunk.to_record_batch()
+        columns = [
+            (name, column.to_pylist())
+            for name, column in zip(batch.schema.names, batch.columns, strict=True)
+            if not any(skip in name for skip in RRD_SKIP)
+        ]
+        for i in range(batch.num_rows):
+            row = (chunk.entity_path, [(n, v[i]) for n, v in columns if v[i] is not None])
+            rows.append(hashlib.sha256(repr(row).encode()).hexdigest())
+    return hashlib.sha256("".join(sorted(rows)).encode()).hexdigest()
+
+
+def _digest(path: Path) -> str:
+    reader = {".parquet": _parquet, ".png": _png, ".rrd": _rrd}.get(path.suffix)
+    if reader is not None:
+        return reader(path)
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def digests(folder: Path) -> dict[str, str]:
+    """Relative path -> digest of every file under ``folder``."""
+    return {
+        str(p.relative_to(folder)): _digest(p) for p in sorted(folder.rglob("*")) if p.is_file()
+    }
+
+
+def _care(*args: object) -> None:
+    cmd = [sys.executable, "-m", "care_cli.main", *map(str, args)]
+    done = subprocess.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=900)
+    assert done.returncode == 0, done.stderr[-2000:]
+
+
+def _check(name: str, folder: Path) -> None:
+    found = digests(folder)
+    recorded = json.loads(DIGESTS.read_text()) if DIGESTS.is_file() else {}
+    if os.environ.get("CARE_UPDATE_DIGESTS") == "1":
+        recorded[name] = found
+        DIGESTS.parent.mkdir(exist_ok=True)
+        DIGESTS.write_text(json.dumps(recorded, indent=1, sort_keys=True) + "\n")
+        return
+    expected = recorded[name]
+    changed = sorted(k for k in expected.keys() | found.keys() if expected.get(k) != found.get(k))
+    assert not changed, f"{name}: outputs changed: {changed}"
+
+
+@pytest.mark.slow
+def test_sample_run_outputs_unchanged(tmp_path: Path) -> None:
+    _care("run", "--out", tmp_path / "run")
+    _check("sample", tmp_path / "run")
+
+
+@pytest.mark.slow
+def test_own_recording_outputs_unchanged(
+    tmp_path: Path, livingroom_root: Path, h, save_tiny_clip
+) -> None:
+    from care.frames import Frame
+    from ingest.write import write_recording
+
+    frames = []
+    for f in h.load_livingroom(livingroom_root, 40)[::5]:
+        K = f.K.copy()
+        K[:2] /= 4
+        K[:2, 2] = (f.K[:2, 2] - 1.5) / 4
+        rgb, depth = f.rgb[::4, ::4].copy(), f.depth_m[::4, ::4].copy()
+        frames.append(Frame(f.stamp_ns, rgb, depth, K, f.cam_to_world))
+    write_recording(tmp_path / "kitchen.mcap", frames, fmt="mcap")
+    weights = save_tiny_clip(tmp_path / "weights", layers=2)
+    _care(
+        "run", tmp_path / "kitchen.mcap", "--out", tmp_path / "out", "--encoder", "clip",
+        "--weights", weights, "--vocabulary", "chair,sofa,table",
+    )  # fmt: skip
+    _check("own", tmp_path / "out")
