@@ -1,7 +1,7 @@
 """Fusion benchmarks: grid throughput vs a per-pixel loop, linear vs pairwise pwKL, memory.
 
 Run ``python bench/fuse.py`` (``--quick`` for a smaller run). Every figure runs on one
-thread for torch and BLAS alike (:mod:`care.threads`). Prints four tables:
+thread for torch and BLAS alike (:mod:`runtime.threads`). Prints four tables:
 
 0. ``care fuse grid`` end to end (:func:`fuse.grid.build_grid` on a store written with the
    project's store writer: read, fuse, write cell_views and cells): views/s at 640x480,
@@ -38,10 +38,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.rss import peak_rss_mb
 from care.frames import Frame
-from care.malloc import keep_freed_memory
 from fuse.accumulate import CandidateSums
 from fuse.cells import CellIndex, view_samples
 from fuse.measures import pwkl_linear, pwkl_pairwise, pwkl_terms
+from runtime.malloc import keep_freed_memory
 
 H, W = 480, 640
 FH, FW = 24, 32
@@ -185,7 +185,7 @@ def _fuse_naive(frames, feats, text, stride: int) -> dict:
 
 def _fused_pixels(frame: Frame, stride: int) -> int:
     """Valid depth pixels inside the height band: the pixels both methods actually fuse."""
-    from care.geometry import backproject, transform_points
+    from geometry.transforms import backproject, transform_points
 
     points, _ = backproject(frame.depth_m, frame.K, stride)
     z = transform_points(frame.cam_to_world, points)[:, 2]
@@ -323,7 +323,7 @@ def bench_pwkl(n_cand: int, n: int, sizes: tuple[int, ...]) -> None:
 
 
 def _peak_child(num_frames: int, d: int, stride: int, queue) -> None:
-    from care.threads import Work, use_threads
+    from runtime.threads import Work, use_threads
 
     use_threads(Work.FUSE)
     keep_freed_memory()
@@ -379,8 +379,8 @@ def _write_store(path: Path, num_frames: int, room: float, d: int, seed: int) ->
 
 def _build_child(store: str, read_ahead: int, queue) -> None:
     from bench.rss import current_rss_mb
-    from care.threads import Work, use_threads
     from fuse.grid import GridConfig, build_grid
+    from runtime.threads import Work, use_threads
 
     use_threads(Work.FUSE)
     keep_freed_memory()
@@ -474,7 +474,7 @@ def main() -> None:
         "--only", choices=("end-to-end", "throughput", "pwkl", "memory"), help="one table"
     )
     args = parser.parse_args()
-    from care.threads import Work, use_threads
+    from runtime.threads import Work, use_threads
 
     # like the naive loop: one core, torch and BLAS alike (and fair on a shared machine)
     use_threads(Work.FUSE)

@@ -26,7 +26,7 @@ import json, sys, time
 from pathlib import Path
 from bench.rss import current_rss_mb, peak_rss_mb
 case = json.loads(sys.argv[1])
-from care.malloc import keep_freed_memory
+from runtime.malloc import keep_freed_memory
 keep_freed_memory()  # as the care program does
 import numpy as np
 from ingest.pipeline import IngestConfig, run_ingest

@@ -143,7 +143,7 @@ def _legacy_goal(cmap, y: int, visited: list[int]) -> int:
 
 def _run_size(folder: str, n_cells: int, legacy: bool, queue) -> None:
     from bench.rss import current_rss_mb
-    from care.threads import Work, use_threads
+    from runtime.threads import Work, use_threads
 
     use_threads(Work.QUERY)
     import pyarrow.dataset  # noqa: F401  (pq.read_table imports it at first use: 0.5 s)

@@ -80,10 +80,10 @@ def _fuse_child(store: str, budget: int | None, cells_per_pass: int | None, queu
     import pyarrow.parquet as pq
 
     from bench.rss import peak_rss_mb
-    from care.malloc import keep_freed_memory
-    from care.threads import Work, use_threads
     from fuse.grid import GridConfig, build_grid
     from fuse.grid import cells_per_pass as capacity_of
+    from runtime.malloc import keep_freed_memory
+    from runtime.threads import Work, use_threads
 
     use_threads(Work.FUSE)
     keep_freed_memory()

@@ -240,7 +240,7 @@ def _proposal_quality(store: Path) -> None:
     (sample-world recordings): the figure to check before trusting any retrieval result."""
     from care.store import Store, source_recording
     from fuse.evaluate_proposals import instance_map_iou
-    from world.groundtruth import gt_paths
+    from truth.formats.native import gt_paths
 
     source = source_recording(store, Store(store).meta)
     if source is None or not gt_paths(source)[1].is_file():

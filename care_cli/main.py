@@ -25,12 +25,12 @@ from typing import Any
 import typer
 
 from care.errors import CareError
-from care.malloc import keep_freed_memory
-from care.threads import Work, use_threads
 from care_cli import INTERRUPTED as _INTERRUPTED
 from care_cli import INTERRUPTED_LINE as _INTERRUPTED_LINE
 from care_cli import stop_while_loading
 from care_cli.options import finite_numbers
+from runtime.malloc import keep_freed_memory
+from runtime.threads import Work, use_threads
 
 _GRACE_S = 0.8
 """How long a Ctrl-C may take to unwind (staged outputs removed on the way) before the
@@ -220,8 +220,8 @@ def _main() -> None:
         from click import exceptions as click_errors
 
     try:
-        keep_freed_memory()  # per-frame stages reuse resident pages (see care.malloc)
-        use_threads(Work.DEFAULT)  # thread pools sized by kind of work (see care.threads)
+        keep_freed_memory()  # per-frame stages reuse resident pages (see runtime.malloc)
+        use_threads(Work.DEFAULT)  # thread pools sized by kind of work (see runtime.threads)
         _register()
         command = typer.main.get_command(app)
         finite_numbers(command)  # NaN and infinities are usage errors, for every option

@@ -116,9 +116,9 @@ def make(
         )
     )
     if set(formats) - {"native"}:
+        from truth.dataset_index import read_index
         from truth.load import export_ground_truth
-        from world.dataset_index import read_index
-        from world.groundtruth import GroundTruth
+        from truth.model import GroundTruth
 
         for entry in read_index(index.parent):
             chosen = EXPORT_FORMATS if "all" in formats else formats

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from care.lazy import lazy_exports
+from runtime.lazy import lazy_exports
 
 __all__ = ["evaluate"]
 

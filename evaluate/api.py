@@ -5,10 +5,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
-from care.parallel import Runner
 from care.store import Store
 from evaluate.job import EvalConfig, Scene, run_eval
 from evaluate.report import Report
+from runtime.parallel import Runner
 
 __all__ = ["evaluate"]
 

@@ -24,7 +24,7 @@ from fuse.grid import GridConfig, build_grid
 from fuse.instances import InstanceConfig, build_instances
 from ingest.pipeline import IngestConfig, run_ingest
 from replan.strategies import StrategyName
-from world.dataset_index import INDEX_NAME, read_index
+from truth.dataset_index import INDEX_NAME, read_index
 
 __all__ = ["MeasureConfig", "first_attempt_rates", "map_dataset", "measure_first_attempts"]
 

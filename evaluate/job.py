@@ -26,7 +26,6 @@ from tqdm import tqdm
 from care.errors import CareError, EvalError
 from care.fingerprint import content_digest, fingerprint
 from care.outputs import damaged, evaluation_output, read_marker
-from care.parallel import Runner, open_runner, run_tasks
 from care.store import META_FILE, read_table, source_recording, write_table_atomic
 from evaluate.config import NO_CRITERION, EvalConfig
 from evaluate.groundtruth import GtSource, check_ground_truth, gt_files
@@ -37,7 +36,8 @@ from query.map import MAP_TABLES, REPLAN_COLUMNS, load_map
 from replan.attempts import Attempts, run_attempts
 from replan.expected import expected_random_success
 from replan.strategies import STRATEGIES
-from world.dataset_index import INDEX_NAME, read_index
+from runtime.parallel import Runner, open_runner, run_tasks
+from truth.dataset_index import INDEX_NAME, read_index
 
 __all__ = [
     "ATTEMPT_SCHEMA",
@@ -281,12 +281,12 @@ def _attempt_rows(
 def evaluate_scene(scene: Scene, config: EvalConfig) -> pa.Table:
     """All attempt rows of one scene (every map kind and protocol of ``config``).
 
-    BLAS and torch run on :data:`care.threads.THREADS` [EVAL] (one) thread here: a float32 matrix product sums in an order that depends on
+    BLAS and torch run on :data:`runtime.threads.THREADS` [EVAL] (one) thread here: a float32 matrix product sums in an order that depends on
     the thread count, and its last bits decide near-ties between candidates, so a Ray
     worker (one thread) and a pool process (all cores) would otherwise choose differently.
     Scenes run in parallel anyway.
     """
-    from care.threads import Work, threads_for
+    from runtime.threads import Work, threads_for
 
     with threads_for(Work.EVAL):
         return _evaluate_scene(scene, config)
@@ -360,7 +360,7 @@ def _cached(out: Path, scene: Scene, config: EvalConfig) -> bool:
 
 @dataclass(frozen=True)
 class _SceneTask:
-    """One scene's evaluation as a task of :func:`care.parallel.run_tasks` (picklable)."""
+    """One scene's evaluation as a task of :func:`runtime.parallel.run_tasks` (picklable)."""
 
     config: EvalConfig
 

@@ -2,7 +2,7 @@
 
 Chains the stage functions: :func:`ingest.ingest`, :func:`fuse.fuse_grid` and
 :func:`fuse.fuse_instances` for each recording (one task a recording, run serially, in a
-local process pool or on Ray: :mod:`care.parallel`), then :func:`evaluate.evaluate`. Every
+local process pool or on Ray: :mod:`runtime.parallel`), then :func:`evaluate.evaluate`. Every
 stage skips work that is already done, so re-running is cheap and an interrupted run
 resumes. With no recording it runs on the bundled sample (``data/sample``).
 
@@ -26,14 +26,14 @@ from tqdm import tqdm
 
 from care.errors import CareError, EvalError
 from care.outputs import owned_output
-from care.parallel import Runner, open_runner, run_tasks
 from evaluate.api import evaluate
 from evaluate.config import RunConfig
 from evaluate.groundtruth import GtSource
 from evaluate.job import Scene, with_ground_truth
 from evaluate.report import Report
 from ingest.readers import is_recording, recordings_in
-from world.dataset_index import INDEX_NAME, read_index
+from runtime.parallel import Runner, open_runner, run_tasks
+from truth.dataset_index import INDEX_NAME, read_index
 
 __all__ = [
     "SAMPLE",
@@ -133,7 +133,7 @@ def _scenes_with_gt(
 
 @dataclass(frozen=True)
 class RecordingTask:
-    """One recording's ingest and both maps: a task of :func:`care.parallel.run_tasks`,
+    """One recording's ingest and both maps: a task of :func:`runtime.parallel.run_tasks`,
     with everything it needs in its fields (no global state), so it runs the same in this
     process, a pool worker or a Ray worker on another node."""
 
@@ -193,7 +193,7 @@ class RecordingOutcome:
 @dataclass(frozen=True)
 class SceneLogTask:
     """One recording's Rerun files after the evaluation: its grid map (when new) and its
-    evaluation. A task of :func:`care.parallel.run_tasks` like the recording's maps, so the
+    evaluation. A task of :func:`runtime.parallel.run_tasks` like the recording's maps, so the
     scenes are logged in parallel too (done one after another in the driver, the logging
     was the serial tail that kept a pool of two near x1.1)."""
 

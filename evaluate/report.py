@@ -17,11 +17,11 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from care.outputs import atomic_write_text, write_atomic
-from care.parallel import Runner, start_task
 from care.store import write_table_atomic
 from evaluate.config import NO_CRITERION
 from evaluate.paired_report import outcomes, paired_markdown, paired_table
 from replan.strategies import CRITERIA, STRATEGIES, StrategyName
+from runtime.parallel import Runner, start_task
 
 __all__ = [
     "AUROC_MEASURES",

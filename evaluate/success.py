@@ -2,7 +2,7 @@
 
 - Instances: point IoU between the retrieved mask and a ground-truth mask, both over the map's
   scene points (ground-truth labels of scene points come from
-  :meth:`world.groundtruth.GroundTruth.label_points`), success when IoU > 0.25.
+  :meth:`truth.model.GroundTruth.label_points`), success when IoU > 0.25.
 - Box-only ground truth (annotation files): the GT mask of an instance is the scene points
   inside its box (:meth:`truth.model.GroundTruth.label_points`), so the same point IoU applies.
 - Grid: floor-plane distance from the chosen cell centre to the nearest ground-truth surface
@@ -25,7 +25,7 @@ from care.errors import EvalError
 from care.store import read_table
 from evaluate.config import QueryProtocol
 from query.map import CandidateMap
-from world.groundtruth import GroundTruth
+from truth.model import GroundTruth
 
 __all__ = [
     "PROTOCOLS",

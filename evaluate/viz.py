@@ -453,7 +453,7 @@ def log_evaluation(
 ) -> int:
     """Log every query of ``scene`` and the success-vs-k charts; returns the queries logged.
 
-    ``gt`` (a :class:`world.groundtruth.GroundTruth`) adds the room outline, the target
+    ``gt`` (a :class:`truth.model.GroundTruth`) adds the room outline, the target
     instances and limits the ranked candidates to the query's room.
     """
     if scene_points is not None:

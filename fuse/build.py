@@ -37,11 +37,11 @@ from care.errors import FuseError
 from care.fingerprint import canonical_json, config_json, fingerprint
 from care.outputs import damaged, record_table
 from care.store import Store, read_schema
-from care.threads import Work, threads_for
 from fuse.frame import ensure_map_frame, store_stamp
 from fuse.measures import candidate_metadata
 from fuse.schemas import MAP_SCHEMAS, VIEW_TABLE_SCHEMAS, schema_problems, view_table_problems
 from fuse.vocabulary import vocabulary_text
+from runtime.threads import Work, threads_for
 
 __all__ = [
     "MapBuild",
@@ -224,7 +224,7 @@ def build_map(
 
     ``write`` stages every table of the map (:meth:`StagedMap.path`); the skeleton commits
     them. ``after`` runs once the tables are in place (images derived from them). Runs on
-    the thread pools of :attr:`care.threads.Work.FUSE` whoever calls it: the per-view class
+    the thread pools of :attr:`runtime.threads.Work.FUSE` whoever calls it: the per-view class
     products round their last bits by BLAS's thread count, and a caller's pools (a notebook
     at every core) would otherwise change the map's bytes.
     """

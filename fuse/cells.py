@@ -23,10 +23,10 @@ from scipy import sparse
 
 from care.errors import FuseError
 from care.frames import Frame
-from care.threads import sync_torch
 from fuse.pixels import cell_tops, pixel_runs, run_sums
+from runtime.threads import sync_torch
 
-sync_torch()  # the process's thread count, now that torch is here (care.threads)
+sync_torch()  # the process's thread count, now that torch is here (runtime.threads)
 
 __all__ = ["CellIndex", "ViewSamples", "pack_cells", "unpack_cells", "view_samples"]
 

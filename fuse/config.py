@@ -18,7 +18,7 @@ from care.checks import check_numbers
 from care.config import member
 from care.errors import FuseError
 from care.fingerprint import config_json, fingerprint
-from care.readahead import READ_AHEAD
+from runtime.readahead import READ_AHEAD
 
 __all__ = [
     "DEFAULT_LOGIT_SCALE",

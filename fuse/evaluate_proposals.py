@@ -15,7 +15,7 @@ __all__ = ["PointLabeller", "best_iou", "instance_map_iou", "proposal_iou"]
 
 
 class PointLabeller(Protocol):
-    """Anything that labels points with ground-truth instance ids (``world.groundtruth.GroundTruth``)."""
+    """Anything that labels points with ground-truth instance ids (``truth.model.GroundTruth``)."""
 
     def label_points(self, points: np.ndarray, max_dist: float = 0.05) -> np.ndarray: ...
 
@@ -76,11 +76,11 @@ def instance_map_iou(
 
     ``recording`` defaults to the source path ingest recorded in the store's meta; its
     ground truth (``<stem>.gt.parquet``/``.json``, sample-world recordings only) is loaded
-    with :meth:`world.groundtruth.GroundTruth.load`.
+    with :meth:`truth.model.GroundTruth.load`.
     """
     from fuse.instances import INSTANCES_TABLE, SCENE_POINTS_TABLE
     from fuse.pointcloud import read_scene_points
-    from world.groundtruth import GroundTruth
+    from truth.model import GroundTruth
 
     store = Store(store_path)
     if recording is None:

@@ -1,7 +1,7 @@
 """The store's map frame, found once and shared by both maps (``map_frame.json``).
 
 The first fusion of a store finds the gravity-aligned map frame from a bounded sample of the
-views' depth points (:func:`care.mapframe.estimate_map_frame`) and writes it beside the
+views' depth points (:func:`geometry.mapframe.estimate_map_frame`) and writes it beside the
 tables, with the options it was found with; every later step reads the same frame
 (:attr:`care.store.Store.map_frame`), so the grid, the instances and every position in the
 outputs agree. ``care fuse ... --up-axis/--floor-z`` replaces it (and so rebuilds the maps).
@@ -19,10 +19,11 @@ import numpy as np
 import pyarrow.parquet as pq
 
 from care.fingerprint import fingerprint
-from care.geometry import backproject, transform_points
-from care.mapframe import MapFrame, UpAxis, estimate_map_frame
+from care.mapframe import MapFrame, UpAxis
 from care.outputs import atomic_write_text
 from care.store import MAP_FRAME_FILE, Store, decode_png
+from geometry.mapframe import estimate_map_frame
+from geometry.transforms import backproject, transform_points
 
 __all__ = [
     "DECODERS",

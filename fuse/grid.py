@@ -49,12 +49,9 @@ from PIL import Image
 from tqdm import tqdm
 
 from care.errors import FuseError
-from care.malloc import resident_bytes
 from care.outputs import write_atomic
-from care.readahead import read_ahead
 from care.store import SCHEMA_VERSION, Store, append_rows, open_writer, read_table
 from fuse.accumulate import CandidateSums
-from fuse.budget import check_raster
 from fuse.build import MapBuild, MapSpec, build_map
 from fuse.cells import CellIndex, ViewSamples, pack_cells, unpack_cells, view_samples
 from fuse.config import GridConfig
@@ -65,6 +62,9 @@ from fuse.pixels import warm_up
 from fuse.rosmap import occupancy_image, write_ros_map
 from fuse.schemas import CELL_VIEWS_FIELDS
 from fuse.sidecar import SidecarWriter, sidecar_path
+from runtime.budget import check_raster
+from runtime.malloc import resident_bytes
+from runtime.readahead import read_ahead
 
 __all__ = [
     "CELLS_TABLE",
@@ -230,7 +230,7 @@ def _view_samples(
     A view's samples depend on that view alone, so they are made ahead of the merge, which
     must take views in order: with ``config.read_ahead`` > 0 one background thread decodes
     the store and another computes each view's samples, each up to ``read_ahead`` views
-    ahead (:mod:`care.readahead`), while the caller merges. The three overlap on a
+    ahead (:mod:`runtime.readahead`), while the caller merges. The three overlap on a
     machine's cores (the per-view work releases the GIL in its array code); the views, and
     so the map, are the same bytes either way.
     """

@@ -12,7 +12,7 @@ and runs are the same bits, and so is the map. The weight's ``exp`` stays in Num
 float32 ``exp`` is not libm's, so its bits would differ), as does the rest of the sample
 arithmetic, which works on runs, several times fewer than pixels.
 
-The kernels are built by :func:`care.jit.kernel`: ``nogil`` (the grid's pipeline computes
+The kernels are built by :func:`runtime.jit.kernel`: ``nogil`` (the grid's pipeline computes
 a view's samples on a background thread while the main thread merges the previous view,
 :func:`fuse.grid._view_samples`) and cached on disk, compiled once per machine.
 """
@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from care.jit import kernel
+from runtime.jit import kernel
 
 __all__ = ["PixelRuns", "cell_tops", "pixel_runs", "run_sums"]
 

@@ -24,10 +24,10 @@ import pyarrow as pa
 from tqdm import tqdm
 
 from care.errors import FuseError, StoreError
-from care.geometry import backproject, transform_points
-from care.readahead import READ_AHEAD
-from care.readahead import read_ahead as ahead
 from care.store import Store, read_table, write_table_atomic
+from geometry.transforms import backproject, transform_points
+from runtime.readahead import READ_AHEAD
+from runtime.readahead import read_ahead as ahead
 
 __all__ = [
     "SCENE_POINTS_SCHEMA",
@@ -168,7 +168,7 @@ def fuse_scene_points(
         stride: use every ``stride``-th pixel in both directions.
         max_depth: ignore depth beyond this (metres); far depth is noisy on real sensors.
         flush_points: pending points merged into the voxel sums at a time (memory bound).
-        read_ahead: views decoded ahead on a background thread (:mod:`care.readahead`).
+        read_ahead: views decoded ahead on a background thread (:mod:`runtime.readahead`).
         progress: show a tqdm bar over views.
     """
     if stride < 1:

@@ -3,7 +3,7 @@
 ``PROPOSERS`` maps a method name to a function ``(cloud, store, settings) -> Proposals``:
 
 - ``geometric``: no labels needed. The dominant planes are found one after the other with RANSAC
-  (:func:`care.planes.fit_plane`, seeded: the same planes in every process); a plane counts
+  (:func:`geometry.planes.fit_plane`, seeded: the same planes in every process); a plane counts
   as *structure* when it is horizontal at floor or ceiling height, or vertical and at least
   ``wall_min_height`` tall (a wall; a tall flat front such as a wardrobe's can go with it, a
   known weakness). Only the inliers whose own normal agrees with the plane's are removed, so
@@ -25,11 +25,11 @@ import numpy as np
 from tqdm import tqdm
 
 from care.errors import FuseError
-from care.planes import along, fit_plane
 from care.store import Store
 from fuse.config import InstanceConfig, ProposalMethod
 from fuse.pointcloud import SceneCloud
 from fuse.views import iter_view_batches, visible_hits
+from geometry.planes import along, fit_plane
 
 __all__ = [
     "PROPOSERS",

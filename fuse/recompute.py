@@ -31,7 +31,6 @@ import pyarrow as pa
 from care.config import recorded_fields
 from care.errors import FuseError
 from care.store import Store, iter_batches, read_table, write_table_atomic
-from care.threads import Work, threads_for
 from fuse.accumulate import COLUMN_CHUNK, CandidateSums
 from fuse.build import STORE_KEY, config_json_key, update_config
 from fuse.config import GridConfig
@@ -39,6 +38,7 @@ from fuse.frame import store_stamp
 from fuse.measures import MAX_TOP_CLASSES, candidate_metadata
 from fuse.sidecar import SidecarWriter, sidecar_path
 from fuse.vocabulary import vocabulary_text
+from runtime.threads import Work, threads_for
 
 __all__ = ["grid_config_of", "recompute_candidates", "recompute_grid", "sums_from_views"]
 
@@ -108,7 +108,7 @@ def recompute_grid(
     per-view cell features come from the store's views again (see the module docstring),
     fused under ``memory_budget`` as a build would be (default: half the machine;
     ``cells_per_pass`` overrides it, as in :class:`fuse.config.GridConfig`), on the thread
-    pools of :attr:`care.threads.Work.FUSE` like :func:`fuse.fuse_grid`.
+    pools of :attr:`runtime.threads.Work.FUSE` like :func:`fuse.fuse_grid`.
     """
     from fuse.grid import CELLS_TABLE, cell_keys, fused_columns
 

@@ -26,9 +26,9 @@ from tqdm import tqdm
 from care.encoders.base import Encoder, l2_normalise
 from care.errors import FuseError
 from care.frames import Frame
-from care.readahead import READ_AHEAD
-from care.readahead import read_ahead as ahead
 from care.store import Store
+from runtime.readahead import READ_AHEAD
+from runtime.readahead import read_ahead as ahead
 
 __all__ = [
     "ViewBatch",
@@ -114,7 +114,7 @@ def iter_view_batches(
     read_ahead: int = READ_AHEAD,
 ) -> Iterator[ViewBatch]:
     """Stream the store's views as :class:`ViewBatch` es (a new batch at a size change),
-    decoded up to ``read_ahead`` views ahead on background threads (:mod:`care.readahead`)."""
+    decoded up to ``read_ahead`` views ahead on background threads (:mod:`runtime.readahead`)."""
     with ExitStack() as stack:  # the reading threads end with this generator
         frames = stack.enter_context(
             closing(
@@ -207,7 +207,7 @@ def visible_hits(
         depth_tolerance: largest |point depth - measured depth| (metres) still visible.
 
     A point lands on the pixel nearest its projection (pixel centres at integer
-    coordinates, as in :func:`care.geometry.backproject`).
+    coordinates, as in :func:`geometry.transforms.backproject`).
     """
     B, H, W = depth.shape
     world_to_cam = np.linalg.inv(cam_to_world).astype(np.float32)

@@ -18,7 +18,7 @@ import numpy as np
 from numba import types
 from numba.core.extending import intrinsic
 
-from care.jit import kernel
+from runtime.jit import kernel
 
 __all__ = ["merge_moments"]
 

@@ -27,9 +27,9 @@ from care.fingerprint import fingerprint as content_fingerprint
 from care.frames import Frame
 from care.outputs import check_file_output, check_output, damaged, output_lock
 from care.store import META_FILE, SCHEMA_VERSION, StoreMeta, StoreWriter
-from care.threads import Work, threads_for
 from ingest.select import FrameSelection, FrameSelector
 from ingest.source import ReadOptions, RecordingFrames, first_distortion
+from runtime.threads import Work, threads_for
 
 __all__ = ["INGEST_VERSION", "IngestConfig", "fingerprint", "request_fingerprint", "run_ingest"]
 
@@ -198,8 +198,8 @@ def run_ingest(config: IngestConfig, encoder: Encoder | None = None) -> Path:
 
     ``encoder`` overrides ``config.encoder`` with an instance (e.g. one built in a test or
     shared across many recordings). Returns at once if the store is up to date. Runs on the
-    thread pools of :attr:`care.threads.Work.DEFAULT` whoever calls it (the encoder's
-    forward pass on :attr:`~care.threads.Work.ENCODE`'s).
+    thread pools of :attr:`runtime.threads.Work.DEFAULT` whoever calls it (the encoder's
+    forward pass on :attr:`~runtime.threads.Work.ENCODE`'s).
     """
     with threads_for(Work.DEFAULT):
         return _run_ingest(config, encoder)

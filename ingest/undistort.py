@@ -22,7 +22,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from care.errors import IngestError
-from care.threads import Work, thread_count
+from runtime.threads import Work, thread_count
 
 __all__ = [
     "FISHEYE_MODELS",
@@ -97,7 +97,7 @@ def _opencv_coefficients(lens: Distortion) -> np.ndarray:
 @lru_cache(maxsize=1)
 def _opencv() -> Any:
     """``cv2``, imported on first use (recordings without distortion never pay for it) with
-    its pool at the process's thread count, as :mod:`care.threads` sizes the others (a remap
+    its pool at the process's thread count, as :mod:`runtime.threads` sizes the others (a remap
     gains nothing from a second thread on a busy machine; its result is the same)."""
     import cv2
 

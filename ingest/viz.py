@@ -23,8 +23,8 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from care.frames import Frame
-from care.geometry import backproject, transform_points
 from care.viz import depth_png, jpeg, open_scene_recording, panels, set_stamp
+from geometry.transforms import backproject, transform_points
 
 __all__ = [
     "CAMERA_ENTITY",

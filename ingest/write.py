@@ -365,7 +365,7 @@ class _Messages:
         )
 
     def tf(self, t_ns: int, parent: str, child: str, T: np.ndarray) -> object:
-        from care.geometry import matrix_to_quaternion
+        from geometry.transforms import matrix_to_quaternion
 
         q = matrix_to_quaternion(np.asarray(T)[:3, :3])
         x, y, z = (float(v) for v in np.asarray(T)[:3, 3])

@@ -34,7 +34,7 @@ from fuse.instances import InstanceConfig, build_instances
 from ingest.pipeline import IngestConfig, run_ingest
 from ingest.source import RecordingFrames
 from query import confidence, load_map
-from world.groundtruth import GroundTruth
+from truth.model import GroundTruth
 
 
 def main() -> None:

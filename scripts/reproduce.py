@@ -31,7 +31,7 @@ from evaluate.dataset_stats import MEASURE_DIR
 from evaluate.job import EvalConfig, Scene, run_eval
 from evaluate.preregistered import preregistered_markdown
 from evaluate.sweep import SweepConfig, run_sweep
-from world.dataset_index import read_index
+from truth.dataset_index import read_index
 
 SIZE = ["--width", "320", "--height", "240", "--jpeg"]
 

@@ -1,36 +1,90 @@
-"""The import layering of DEVELOPERS.md, checked on the source: the core imports no stage, and
-no stage imports one downstream of it."""
+"""The import layering of the architecture (README, docs/architecture.md), checked on the
+source: a package imports only itself and packages above it, no stage imports the sample
+world, and no file imports back into a file that imports it (no import cycle, counting the
+imports inside functions too)."""
 
 from __future__ import annotations
 
 import ast
 from pathlib import Path
 
+import networkx as nx
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-ORDER = ["care", "ingest", "truth", "world", "fuse", "query", "replan", "evaluate", "care_cli"]
+ORDER = [
+    "care", "runtime", "geometry", "ingest", "truth", "world", "fuse", "query", "replan",
+    "evaluate", "research", "care_cli",
+]  # fmt: skip
 """Upstream first: a package may import only itself and packages before it."""
+STAGES = ("ingest", "truth", "fuse", "query", "replan", "evaluate")
+"""The product's stages: none imports ``world`` (the sample world), which only the CLI's
+``care sample`` and the research code use."""
 
 
-def _imports(path: Path) -> set[str]:
-    tree = ast.parse(path.read_text())
-    found: set[str] = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
-            found.update(alias.name.split(".")[0] for alias in node.names)
-        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-            found.add(node.module.split(".")[0])
+def _modules() -> dict[str, Path]:
+    found = {}
+    for package in ORDER:
+        for path in (ROOT / package).rglob("*.py"):
+            parts = list(path.relative_to(ROOT).with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            found[".".join(parts)] = path
     return found
+
+
+def _imported(path: Path, module: str) -> set[str]:
+    """Every module name ``path`` imports, anywhere in it (absolute, relative made absolute;
+    ``from a import b`` counts both ``a`` and ``a.b``)."""
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    names: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parent = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+                base = ".".join([*parent, *([node.module] if node.module else [])])
+            names.add(base)
+            names.update(f"{base}.{alias.name}" for alias in node.names)
+    return names
+
+
+def _graph() -> nx.DiGraph:
+    modules = _modules()
+    graph = nx.DiGraph()
+    for module, path in modules.items():
+        graph.add_node(module)
+        for name in _imported(path, module):
+            while name and name not in modules:
+                name = name.rpartition(".")[0]
+            if name and name != module:
+                graph.add_edge(module, name)
+    return graph
 
 
 @pytest.mark.parametrize("package", ORDER)
 def test_package_imports_only_upstream(package: str) -> None:
     allowed = set(ORDER[: ORDER.index(package) + 1])
-    forbidden = set(ORDER) - allowed
-    bad = {
-        str(path.relative_to(ROOT)): sorted(_imports(path) & forbidden)
-        for path in (ROOT / package).rglob("*.py")
-        if _imports(path) & forbidden
-    }
+    bad = sorted(
+        (a, b)
+        for a, b in _graph().edges
+        if a.split(".")[0] == package and b.split(".")[0] not in allowed
+    )
     assert not bad, f"imports against the layering: {bad}"
+
+
+def test_no_stage_imports_the_sample_world() -> None:
+    bad = sorted(
+        (a, b) for a, b in _graph().edges if a.split(".")[0] in STAGES and b.startswith("world")
+    )
+    assert not bad, f"stages importing the sample world: {bad}"
+
+
+def test_no_import_cycle_between_files() -> None:
+    graph = _graph()
+    # a package's __init__ re-exporting its modules is not a cycle of responsibilities
+    graph.remove_edges_from([(a, b) for a, b in graph.edges if b == a.rpartition(".")[0]])
+    cycles = [sorted(c) for c in nx.strongly_connected_components(graph) if len(c) > 1]
+    assert not cycles, f"import cycles: {cycles}"

@@ -28,9 +28,10 @@ from care.outputs import (
     is_ours,
     write_marker,
 )
-from care.parallel import ignore_interrupt, stop_pool
-from world.dataset_index import INDEX_NAME
-from world.groundtruth import GroundTruth, gt_paths
+from runtime.parallel import ignore_interrupt, stop_pool
+from truth.dataset_index import INDEX_NAME
+from truth.formats.native import gt_paths
+from truth.model import GroundTruth
 from world.presets import PRESETS, WorldPreset, WorldSettings
 from world.render import RenderConfig, Renderer
 from world.scene import Scene, SceneConfig, generate_scene

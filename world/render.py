@@ -1,7 +1,7 @@
 """Ray-cast RGB-D and label images of a scene with open3d's ``RaycastingScene``.
 
 One ray per pixel through the pixel's integer coordinates (the convention of
-:func:`care.geometry.backproject`), with a camera-frame direction whose z is 1, so the hit
+:func:`geometry.transforms.backproject`), with a camera-frame direction whose z is 1, so the hit
 distance *is* the depth. The triangle hit gives the instance and class ids; its normal
 gives Lambertian shading (a light from above plus a head light), and a value noise fixed to
 world positions gives each surface a texture that stays put as the camera moves.

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from truth.model import GroundTruth, Room, instances_table
 from world.catalogue import (
     CATALOGUE,
     CLASS_NAMES,
@@ -29,7 +30,6 @@ from world.catalogue import (
     RoomType,
     build_instance,
 )
-from world.groundtruth import GroundTruth, Room, instances_table
 from world.meshes import Mesh, Part, merge_meshes, rotate_part, sample_surface
 
 __all__ = [

@@ -233,7 +233,7 @@ def test_on_the_bundled_sample_ideal_is_perfect_and_default_errs_both_ways() -> 
     ``default`` some instances are wrong after fusing all their views, some through the
     persistent bias and some (unbiased) through view-dependent noise."""
     from ingest.source import RecordingFrames
-    from world.groundtruth import GroundTruth
+    from truth.model import GroundTruth
 
     truth = GroundTruth.load(SAMPLE).instance_class_names()
     with RecordingFrames(SAMPLE) as rec:

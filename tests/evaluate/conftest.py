@@ -17,7 +17,7 @@ import pytest
 
 from care.store import TEXT_SCHEMA, write_table_atomic
 from fuse.measures import candidate_columns, candidate_metadata
-from world.groundtruth import GroundTruth, Room, instances_table
+from truth.model import GroundTruth, Room, instances_table
 
 VOCAB = ["chair", "table", "sofa", "lamp", "bed"]
 OBJECTS = [  # (class, room, centre xy)

@@ -17,7 +17,7 @@ import pytest
 from evaluate.groundtruth import GtSource
 from evaluate.job import EvalConfig, Scene, run_eval, scenes_of
 from truth.load import EXPORT_FORMATS, export_ground_truth, find_beside
-from world.groundtruth import GroundTruth
+from truth.model import GroundTruth
 
 CONFIG = EvalConfig(seeds=2, bootstrap=50, k_instances=(2, 4), k_grid=(4, 8))
 ROOMLESS = ("scannet", "replica")

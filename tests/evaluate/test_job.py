@@ -18,7 +18,7 @@ from care.store import read_table, write_table_atomic
 from evaluate.job import EvalConfig, evaluate_scene, run_eval, run_scenes, scenes_of
 from evaluate.report import auroc, per_query
 from query import load_map
-from world.groundtruth import GroundTruth
+from truth.model import GroundTruth
 
 SMALL = EvalConfig(seeds=3, bootstrap=200, k_instances=(1, 2, 4), k_grid=(4, 16))
 

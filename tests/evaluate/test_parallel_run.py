@@ -191,9 +191,9 @@ def test_failing_recording_is_one_line_and_the_others_complete(
 
 
 def test_workers_start_with_the_process_settings(ray_session: object) -> None:
-    """Pool and Ray workers run :func:`care.parallel.setup_worker` (its last step hides the
+    """Pool and Ray workers run :func:`runtime.parallel.setup_worker` (its last step hides the
     workers' own progress bars), the driver does not."""
-    from care.parallel import Runner, openmp_threads, run_tasks
+    from runtime.parallel import Runner, openmp_threads, run_tasks
 
     for runner in (Runner(workers=2), Runner(ray_address=True)):
         got = dict(run_tasks(os.getenv, ["TQDM_DISABLE", "OMP_NUM_THREADS"], runner))
@@ -207,13 +207,13 @@ def test_workers_start_with_the_process_settings(ray_session: object) -> None:
 def test_a_started_task_runs_on_the_runner_and_keeps_its_one_line_error(
     ray_session: object,
 ) -> None:
-    """:func:`care.parallel.start_task` (the report draws its plots so): on an open pool or
+    """:func:`runtime.parallel.start_task` (the report draws its plots so): on an open pool or
     on Ray the task runs in a worker while the caller goes on; without either, here. A
-    project error comes out of ``result()``, and out of :func:`~care.parallel.run_tasks`, as
+    project error comes out of ``result()``, and out of :func:`~runtime.parallel.run_tasks`, as
     itself, not wrapped by the pool or Ray."""
     from care.errors import StoreError
-    from care.parallel import Runner, open_runner, run_tasks, start_task
     from care.store import Store
+    from runtime.parallel import Runner, open_runner, run_tasks, start_task
 
     for runner in (Runner(workers=1), Runner(workers=2), Runner(ray_address=True)):
         with open_runner(runner) as live:
@@ -250,9 +250,9 @@ def test_a_failing_report_leaves_no_plot_to_land_after_its_error(
     import pyarrow.parquet as pq
 
     import evaluate.preregistered
-    from care.parallel import Runner, open_runner
     from evaluate.report import write_report
     from query.map import MAP_TABLES
+    from runtime.parallel import Runner, open_runner
 
     def broken(*args: object, **kwargs: object) -> None:
         raise RuntimeError("a table failed")

@@ -15,7 +15,7 @@ from evaluate.job import EvalConfig, Scene, run_eval
 from evaluate.pipeline import SAMPLE, RunConfig, run_all
 from evaluate.report import per_query
 from truth.load import export_ground_truth
-from world.groundtruth import GroundTruth
+from truth.model import GroundTruth
 
 POINT_FORMATS = {"labels.ply": True, "scannet": False, "matterport": True, "replica": False}
 """Exported name -> whether the format keeps rooms (else compared without rooms)."""

@@ -8,7 +8,7 @@ import numpy as np
 
 from evaluate.success import grid_queries, grid_success, instance_iou, instance_queries
 from query import load_map
-from world.groundtruth import GroundTruth
+from truth.model import GroundTruth
 
 
 def test_instance_iou_matches_set_arithmetic(dataset) -> None:

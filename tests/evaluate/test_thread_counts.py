@@ -9,9 +9,9 @@ import pyarrow.parquet as pq
 import pytest
 
 from care.encoders import EncoderOptions
-from care.threads import ENV_VAR, Work, use_threads
 from evaluate.dataset_stats import MeasureConfig, map_dataset
 from evaluate.job import EvalConfig, run_eval
+from runtime.threads import ENV_VAR, Work, use_threads
 from world.presets import PRESETS, WorldPreset
 from world.record import DatasetConfig, make_dataset
 

@@ -572,7 +572,7 @@ def test_sample_world_recording(tmp_path: Path) -> None:
     from care.encoders import EncoderOptions, make_encoder
     from care.store import Store
     from ingest.pipeline import IngestConfig, run_ingest
-    from world.groundtruth import GroundTruth
+    from truth.model import GroundTruth
     from world.record import make_recording
     from world.render import RenderConfig
     from world.scene import SceneConfig

@@ -20,7 +20,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from care.encoders import Encoder, l2_normalise
 from care.frames import Frame
-from care.geometry import quaternion_to_matrix
+from geometry.transforms import quaternion_to_matrix
 
 TS = get_typestore(Stores.ROS2_HUMBLE)
 T = TS.types

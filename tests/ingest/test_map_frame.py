@@ -18,11 +18,12 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from care.frames import Frame
-from care.mapframe import FloorNotFoundError, MapFrame, UpAxis, estimate_map_frame
+from care.mapframe import MapFrame, UpAxis
 from care.store import Store, read_table
 from fuse.frame import ensure_map_frame, sample_points
 from fuse.grid import GridConfig, build_grid
 from fuse.instances import InstanceConfig, build_instances
+from geometry.mapframe import FloorNotFoundError, estimate_map_frame
 from ingest.pipeline import IngestConfig, run_ingest
 from ingest.write import write_recording
 

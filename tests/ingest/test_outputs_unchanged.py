@@ -14,7 +14,6 @@ time. A change that moves any value fails here; a deliberate one updates the JSO
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import os
 import subprocess

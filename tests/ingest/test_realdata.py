@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from care.geometry import backproject, transform_points
 from care.store import Store
+from geometry.transforms import backproject, transform_points
 from ingest.pipeline import IngestConfig, run_ingest
 from ingest.write import write_recording
 

@@ -9,7 +9,7 @@ from typer.testing import CliRunner
 
 from care.viz import rrd_entity_counts
 from care_cli.main import _register, app
-from world.groundtruth import GroundTruth
+from truth.model import GroundTruth
 
 
 def _make(out: Path, *extra: str):

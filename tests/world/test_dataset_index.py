@@ -9,7 +9,7 @@ import pytest
 
 from care.errors import WorldError
 from evaluate.pipeline import recordings_of
-from world.dataset_index import IndexEntry, read_index
+from truth.dataset_index import IndexEntry, read_index
 
 
 def test_every_listed_recording_counts_skipped_or_not(tmp_path: Path) -> None:

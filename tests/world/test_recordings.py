@@ -10,9 +10,9 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from care.geometry import backproject, transform_points
+from geometry.transforms import backproject, transform_points
 from ingest.source import RecordingFrames
-from world.groundtruth import GroundTruth
+from truth.model import GroundTruth
 from world.scene import NAV_CELL
 from world.trajectory import plan_trajectory
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from world.groundtruth import GroundTruth
+from truth.model import GroundTruth
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLE = ROOT / "data" / "sample" / "scene_000.mcap"
@@ -56,7 +56,7 @@ def test_rerun_reads_the_sample_mcap() -> None:
 
 
 def test_sample_ingests_and_lands_on_ground_truth() -> None:
-    from care.geometry import backproject, transform_points
+    from geometry.transforms import backproject, transform_points
     from ingest.source import RecordingFrames
 
     gt = GroundTruth.load(SAMPLE)

@@ -24,11 +24,11 @@ sized with the others, so "one thread" holds for reading the store too.
 
 Threads of our own are stages, not pools: the grid's fusion decodes the store and makes
 each view's samples on two background threads ahead of its merge
-(``GridConfig.read_ahead``, :mod:`care.readahead`); before it, the compiled kernels load on
+(``GridConfig.read_ahead``, :mod:`runtime.readahead`); before it, the compiled kernels load on
 one thread while two decode the depth sample of the height-band check
 (``fuse.frame.DECODERS``). Each stage's array work runs on the one-thread pools above, so
 its results do not depend on the stages' overlap; ``--read-ahead 0`` runs it all in the
-caller's thread. The compiled kernels (:mod:`care.jit`) are single-threaded loops.
+caller's thread. The compiled kernels (:mod:`runtime.jit`) are single-threaded loops.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""care.threads sets torch's, BLAS's and Arrow's pools in a fresh worker process, as every
+"""runtime.threads sets torch's, BLAS's and Arrow's pools in a fresh worker process, as every
 entry point does."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import multiprocessing as mp
 import pytest
 
 from care.errors import CareError
-from care.threads import PINNED, THREADS, Work, thread_count
+from runtime.threads import PINNED, THREADS, Work, thread_count
 
 
 def _pools_in_worker(kind: str, queue) -> None:  # runs in a spawned process
@@ -17,7 +17,7 @@ def _pools_in_worker(kind: str, queue) -> None:  # runs in a spawned process
     import torch
     from threadpoolctl import threadpool_info
 
-    from care.threads import Work, threads_for, use_threads
+    from runtime.threads import Work, threads_for, use_threads
 
     np.ones((64, 64)) @ np.ones((64, 64))  # BLAS loaded and used before
     set_to = use_threads(Work(kind))

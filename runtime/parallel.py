@@ -4,7 +4,7 @@ The dataset pipeline (one task a recording: ingest and both maps) and the evalua
 task a scene) hand their tasks to :func:`run_tasks` and get the results back as they
 finish, whichever :class:`Runner` was chosen. Every worker process starts with the same
 process settings as the ``care`` program (:func:`setup_worker`: the allocator of
-:mod:`care.malloc`, the thread pools of :mod:`care.threads`): as the process pool's
+:mod:`runtime.malloc`, the thread pools of :mod:`runtime.threads`): as the process pool's
 initializer, and as Ray's ``worker_process_setup_hook``. The tasks are pure functions of
 their arguments, so the outputs are the same, bit for bit, whichever runner ran them.
 """
@@ -38,7 +38,7 @@ __all__ = [
 T = TypeVar("T")
 R = TypeVar("R")
 
-RAY_HOOK = "care.parallel.setup_worker"
+RAY_HOOK = "runtime.parallel.setup_worker"
 """Ray's ``worker_process_setup_hook``, by module path (imported in every worker)."""
 
 _ROOT = Path(__file__).resolve().parents[1]
@@ -54,11 +54,11 @@ def ignore_interrupt() -> None:
 
 
 def setup_worker() -> None:
-    """The process settings of every worker: freed memory kept mapped (:mod:`care.malloc`)
-    and the thread pools of :attr:`care.threads.Work.DEFAULT` (:mod:`care.threads`); no
+    """The process settings of every worker: freed memory kept mapped (:mod:`runtime.malloc`)
+    and the thread pools of :attr:`runtime.threads.Work.DEFAULT` (:mod:`runtime.threads`); no
     progress bars of their own."""
-    from care.malloc import keep_freed_memory
-    from care.threads import Work, use_threads
+    from runtime.malloc import keep_freed_memory
+    from runtime.threads import Work, use_threads
 
     keep_freed_memory()
     use_threads(Work.DEFAULT)
@@ -135,14 +135,14 @@ def _pool(workers: int) -> ProcessPoolExecutor:
 
 
 def openmp_threads() -> str:
-    """The OpenMP thread count of a worker: its :attr:`care.threads.Work.DEFAULT` count.
+    """The OpenMP thread count of a worker: its :attr:`runtime.threads.Work.DEFAULT` count.
 
     open3d (normals, DBSCAN) runs on an OpenMP pool that threadpoolctl cannot reach; left at
     one thread per core, two workers on two cores would run four threads. Its results do not
-    depend on the pool's size (the planes are fitted by :mod:`care.planes`, seeded, not by
+    depend on the pool's size (the planes are fitted by :mod:`geometry.planes`, seeded, not by
     open3d's threaded RANSAC), so the count is a matter of speed only.
     """
-    from care.threads import Work, thread_count
+    from runtime.threads import Work, thread_count
 
     return str(thread_count(Work.DEFAULT))
 

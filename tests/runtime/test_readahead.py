@@ -7,7 +7,7 @@ import time
 
 import pytest
 
-from care.readahead import read_ahead
+from runtime.readahead import read_ahead
 
 
 def _threads() -> set[str]:

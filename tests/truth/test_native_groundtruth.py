@@ -9,7 +9,8 @@ import pytest
 from matplotlib.path import Path as MplPath
 
 from care.errors import WorldError
-from world.groundtruth import GroundTruth, Room, gt_paths, instances_table
+from truth.formats.native import gt_paths
+from truth.model import GroundTruth, Room, instances_table
 
 
 def _gt() -> GroundTruth:
