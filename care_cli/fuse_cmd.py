@@ -223,12 +223,12 @@ def instances(
     with _writing(store, rrd), _map_frame(store, up_axis, floor_z):
         if recompute:
             path = recompute_instances(store, *_recompute_args(settings, config))
-            if rrd is not None:
-                from fuse.viz_instances import log_instances
-
-                log_instances(store, rrd)
         else:
-            path = build_instances(store, config, rrd=rrd)
+            path = build_instances(store, config)
+        if rrd is not None:
+            from fuse.viz_instances import log_instances
+
+            log_instances(store, rrd)
     _summary(path)
     _proposal_quality(store)
     if rrd is not None:

@@ -159,6 +159,7 @@ class RecordingTask:
 
     def _run(self) -> RecordingOutcome:
         from fuse.api import fuse_grid, fuse_instances
+        from fuse.viz_instances import log_instances
         from ingest.api import ingest
         from ingest.pipeline import IngestConfig
 
@@ -176,7 +177,9 @@ class RecordingTask:
         grid_fresh = not (store.path / "cells.parquet").is_file() or not grid_rrd.is_file()
         fuse_grid(store, config.grid)
         fresh = not (store.path / "instances.parquet").is_file() or not inst_rrd.is_file()
-        fuse_instances(store, config.instances, rrd=inst_rrd if fresh else None)
+        fuse_instances(store, config.instances)
+        if fresh:
+            log_instances(store.path, inst_rrd)
         return RecordingOutcome(name, grid_due=grid_fresh)
 
 

@@ -15,17 +15,17 @@ def _path(store: Store | Path) -> Path:
     return store.path if isinstance(store, Store) else Path(store)
 
 
-def fuse_grid(store: Store | Path, config: GridConfig, *, rrd: Path | None = None) -> Path:
+def fuse_grid(store: Store | Path, config: GridConfig) -> Path:
     """Fuse the store's views into its grid map (``cells.parquet``); returns that path.
 
     A grid built from the same store content with the same config is kept as it is.
     """
-    return build_grid(_path(store), config, rrd)
+    return build_grid(_path(store), config)
 
 
-def fuse_instances(store: Store | Path, config: InstanceConfig, *, rrd: Path | None = None) -> Path:
+def fuse_instances(store: Store | Path, config: InstanceConfig) -> Path:
     """Build the store's instance map (``instances.parquet``); returns that path.
 
     A map built from the same store content with the same config is kept as it is.
     """
-    return build_instances(_path(store), config, rrd)
+    return build_instances(_path(store), config)

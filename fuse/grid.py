@@ -504,7 +504,7 @@ GRID_MAP = MapSpec("grid", (CELL_VIEWS_TABLE, CELLS_TABLE), how=GridConfig.HOW)
 """The grid's tables (the per-view samples first: a current ``cells.parquet`` implies them)."""
 
 
-def build_grid(store_path: Path, config: GridConfig | None = None, rrd: Path | None = None) -> Path:
+def build_grid(store_path: Path, config: GridConfig | None = None) -> Path:
     """Fuse the store's views into ``cells.parquet`` (and siblings); returns its path.
 
     Memory follows ``config.memory_budget``, not the floor area: the streaming pass keeps
@@ -513,11 +513,10 @@ def build_grid(store_path: Path, config: GridConfig | None = None, rrd: Path | N
     pass over just those views. Every cell gets the same samples in the same view order
     either way, so the map is the same whatever the budget (``tests/fuse/test_grid.py``).
     The up-to-date check and the staged commit are the skeleton's (:mod:`fuse.build`).
-
-    ``rrd``: also log the grid layers to this Rerun file (:mod:`fuse.viz_grid`).
+    Logging the map to Rerun is the caller's (:func:`fuse.viz_grid.log_grid`).
     """
     config = config or GridConfig()
-    path = build_map(
+    return build_map(
         store_path,
         GRID_MAP,
         config,
@@ -527,11 +526,6 @@ def build_grid(store_path: Path, config: GridConfig | None = None, rrd: Path | N
             read_table(store.table_path(CELLS_TABLE), ["ix", "iy", "r", "g", "b", "obstacle"]),
         ),
     )
-    if rrd is not None:
-        from fuse.viz_grid import log_grid
-
-        log_grid(Path(store_path), rrd)
-    return path
 
 
 def _fuse_grid(build: MapBuild, config: GridConfig) -> None:

@@ -178,7 +178,6 @@ them belong together, committed in this order."""
 def build_instances(
     store_path: Path,
     config: InstanceConfig | None = None,
-    rrd: Path | None = None,
     *,
     encoder: Encoder | None = None,
 ) -> Path:
@@ -187,20 +186,15 @@ def build_instances(
     Args:
         store_path: the feature store directory.
         config: the build settings (default :class:`InstanceConfig`).
-        rrd: also log the map to this Rerun file (:mod:`fuse.viz_instances`).
         encoder: the encoder for ``features="crops"``; default: the store's own model,
             rebuilt from its record (:func:`care.encoders.record.encoder_for_store`).
 
     Returns the path of ``instances.parquet``. The up-to-date check and the staged commit
-    are the skeleton's (:mod:`fuse.build`).
+    are the skeleton's (:mod:`fuse.build`). Logging the map to Rerun is the caller's
+    (:func:`fuse.viz_instances.log_instances`).
     """
     config = config or InstanceConfig()
-    out = build_map(store_path, INSTANCE_MAP, config, lambda build: _build(build, config, encoder))
-    if rrd is not None:
-        from fuse.viz_instances import log_instances
-
-        log_instances(Path(store_path), rrd)
-    return out
+    return build_map(store_path, INSTANCE_MAP, config, lambda build: _build(build, config, encoder))
 
 
 def _build(build: MapBuild, config: InstanceConfig, encoder: Encoder | None) -> None:

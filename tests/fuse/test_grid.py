@@ -492,7 +492,8 @@ def test_rerun_layers_and_blueprint(tmp_path: Path) -> None:
 
     store = _store(tmp_path / "s")
     rrd = tmp_path / "grid.rrd"
-    cells = read_table(build_grid(store, GridConfig(cell_size=0.1), rrd=rrd))
+    cells = read_table(build_grid(store, GridConfig(cell_size=0.1)))
+    log_grid(store, rrd)
     target = default_class(cells)
     assert target in NAMES
     counts = rrd_entity_counts(rrd)

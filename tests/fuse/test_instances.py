@@ -224,9 +224,12 @@ def test_labels_without_instance_images_is_one_clear_error(tmp_path: Path) -> No
 
 
 def test_build_instances_labels(room: Path, tmp_path: Path) -> None:
+    from fuse.viz_instances import log_instances
+
     config = InstanceConfig(**{**CONFIG.__dict__, "proposals": "labels"})
     rrd = tmp_path / "inst.rrd"
-    path = build_instances(room, config, rrd=rrd)
+    path = build_instances(room, config)
+    log_instances(room, rrd)
     table = read_table(path)
     md = table.schema.metadata
     assert json.loads(md[b"care.vocabulary"]) == CLASSES
