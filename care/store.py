@@ -345,8 +345,8 @@ META_FILE = "meta.json"
 store."""
 
 META_VERSION = 2
-"""Layout of ``meta.json``: 2 = source by content and relative path, no creation time
-(version 1 stores are read as they are)."""
+"""Layout of ``meta.json`` (the source by content and relative path); a store of another
+layout is refused, to be ingested again."""
 
 
 @dataclass(frozen=True)
@@ -425,6 +425,12 @@ class StoreMeta:
                 f"program reads {SCHEMA_VERSION}; re-run `care ingest`."
             )
             raise StoreError(msg)
+        if data.get("meta_version") != META_VERSION:
+            msg = (
+                f"{where.parent}: store metadata layout {data.get('meta_version')}, this "
+                f"program reads {META_VERSION}; re-run `care ingest`."
+            )
+            raise StoreError(msg)
         try:
             enc = data.get("encoder")
             source = data.get("source")
@@ -441,7 +447,7 @@ class StoreMeta:
                 counts=data.get("counts") or {},
                 config=data.get("config") or {},
                 tables=data.get("tables") or {},
-                meta_version=int(data.get("meta_version", 1)),
+                meta_version=META_VERSION,
             )  # fmt: skip
             return cls(**values)
         except (KeyError, TypeError, ValueError) as err:

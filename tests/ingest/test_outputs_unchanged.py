@@ -7,7 +7,7 @@ truth). A file's digest is the SHA-256 of its bytes, except where the bytes carr
 output: a Parquet file is digested by its schema (with the metadata we write) and its values,
 not the writer's version string; a PNG by its pixels, not the plotting library's name; a
 Rerun file by its rows (entity, time and components), not its row ids, log times or start
-time. A change that moves any value fails here; a deliberate one updates the JSON with
+time; a JSON file by its values with each recorded path cut to its file name. A change that moves any value fails here; a deliberate one updates the JSON with
 ``CARE_UPDATE_DIGESTS=1``.
 """
 
@@ -24,6 +24,7 @@ import pytest
 
 DIGESTS = Path(__file__).parents[1] / "data" / "outputs.json"
 OFFLINE = {**os.environ, "HF_HUB_OFFLINE": "1", "TRANSFORMERS_OFFLINE": "1"}
+PATH_KEYS = frozenset({"path", "source", "weights", "precomputed", "text_file"})
 RRD_SKIP = ("RowId", "log_time", "log_tick", "RecordingInfo:start_time")
 
 
@@ -65,8 +66,26 @@ def _rrd(path: Path) -> str:
     return hashlib.sha256("".join(sorted(rows)).encode()).hexdigest()
 
 
+def _where(value: object) -> object:
+    """A JSON value with each path we record replaced by its file name: where the test's
+    temporary folder lies is not output."""
+    if isinstance(value, dict):
+        return {
+            k: Path(v).name if k in PATH_KEYS and isinstance(v, str) else _where(v)
+            for k, v in value.items()
+        }
+    if isinstance(value, list):
+        return [_where(v) for v in value]
+    return value
+
+
+def _json(path: Path) -> str:
+    value = _where(json.loads(path.read_text()))
+    return hashlib.sha256(json.dumps(value, sort_keys=True).encode()).hexdigest()
+
+
 def _digest(path: Path) -> str:
-    reader = {".parquet": _parquet, ".png": _png, ".rrd": _rrd}.get(path.suffix)
+    reader = {".parquet": _parquet, ".png": _png, ".rrd": _rrd, ".json": _json}.get(path.suffix)
     if reader is not None:
         return reader(path)
     return hashlib.sha256(path.read_bytes()).hexdigest()
