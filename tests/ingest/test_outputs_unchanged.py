@@ -46,7 +46,9 @@ def _png(path: Path) -> str:
 
     with Image.open(path) as image:
         pixels = np.asarray(image)
-    return hashlib.sha256(repr((pixels.shape, str(pixels.dtype))).encode() + pixels.tobytes()).hexdigest()
+    return hashlib.sha256(
+        repr((pixels.shape, str(pixels.dtype))).encode() + pixels.tobytes()
+    ).hexdigest()
 
 
 def _rrd(path: Path) -> str:
@@ -144,3 +146,22 @@ def test_own_recording_outputs_unchanged(
         "--weights", weights, "--vocabulary", "chair,sofa,table",
     )  # fmt: skip
     _check("own", tmp_path / "out")
+
+
+@pytest.mark.slow
+def test_bench_store_outputs_unchanged(tmp_path: Path) -> None:
+    """The benchmark's synthetic store (written through the store writer, as `bench/fuse.py`
+    writes it) and its grid, fused with reading ahead and in one thread."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "bench_fuse", DIGESTS.parents[2] / "bench" / "fuse.py"
+    )
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    one, serial = tmp_path / "bench" / "one", tmp_path / "bench" / "serial"
+    for store in (one, serial):
+        bench._write_store(store, num_frames=6, room=4.0, d=64, seed=2)
+    _care("fuse", "grid", one)
+    _care("fuse", "grid", serial, "--read-ahead", 0)
+    _check("bench", tmp_path / "bench")
