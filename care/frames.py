@@ -13,7 +13,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Frame"]
+__all__ = ["DEFAULT_WORLD_FRAME", "Frame"]
+
+DEFAULT_WORLD_FRAME = "map"
+"""The world frame of a recording whose transforms name none (REP 105's fixed frame)."""
 
 
 @dataclass(frozen=True, eq=False)

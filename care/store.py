@@ -35,6 +35,13 @@ from PIL import Image
 
 from care.errors import StoreError
 from care.frames import Frame
+from care.keys import (
+    ENCODER_DIM_KEY,
+    ENCODER_NAME_KEY,
+    ENCODER_VERSION_KEY,
+    SCHEMA_VERSION_KEY,
+    VOCABULARY_KEY,
+)
 from care.mapframe import MapFrame
 from care.outputs import (
     damaged,
@@ -50,6 +57,7 @@ from care.outputs import (
 )
 
 __all__ = [
+    "BATCH_SIZE",
     "EXTRA_IMAGES",
     "FEATURES_SCHEMA",
     "MAP_FRAME_FILE",
@@ -86,8 +94,6 @@ DEPTH_SCALE = 0.001
 EXTRA_IMAGES = ("instance", "class")
 """Per-pixel label images a recording may carry (sample-world recordings do)."""
 
-_VERSION_KEY = b"care.schema_version"
-
 VIEWS_SCHEMA = pa.schema(
     [
         pa.field("view_id", pa.int32(), nullable=False),
@@ -101,7 +107,7 @@ VIEWS_SCHEMA = pa.schema(
         pa.field("depth_png", pa.binary(), nullable=False),
         *(pa.field(f"{name}_png", pa.binary(), nullable=True) for name in EXTRA_IMAGES),
     ],
-    metadata={_VERSION_KEY: str(SCHEMA_VERSION).encode()},
+    metadata={SCHEMA_VERSION_KEY: str(SCHEMA_VERSION).encode()},
 )
 
 FEATURES_SCHEMA = pa.schema(
@@ -111,7 +117,7 @@ FEATURES_SCHEMA = pa.schema(
         pa.field("fw", pa.int16(), nullable=False),
         pa.field("feature", pa.list_(pa.float16()), nullable=False),
     ],
-    metadata={_VERSION_KEY: str(SCHEMA_VERSION).encode()},
+    metadata={SCHEMA_VERSION_KEY: str(SCHEMA_VERSION).encode()},
 )
 """``feature`` is the (fh, fw, d) map flattened row-major; pixel (u, v) of a W x H image
 falls in feature cell (v * fh // H, u * fw // W)."""
@@ -121,7 +127,7 @@ TEXT_SCHEMA = pa.schema(
         pa.field("name", pa.string(), nullable=False),
         pa.field("embedding", pa.list_(pa.float32()), nullable=False),
     ],
-    metadata={_VERSION_KEY: str(SCHEMA_VERSION).encode()},
+    metadata={SCHEMA_VERSION_KEY: str(SCHEMA_VERSION).encode()},
 )
 
 
@@ -136,20 +142,20 @@ class EncoderInfo:
 
     def metadata(self) -> dict[bytes, bytes]:
         return {
-            _VERSION_KEY: str(SCHEMA_VERSION).encode(),
-            b"care.encoder.name": self.name.encode(),
-            b"care.encoder.version": self.version.encode(),
-            b"care.encoder.dim": str(self.dim).encode(),
-            b"care.vocabulary": json.dumps(list(self.vocabulary)).encode(),
+            SCHEMA_VERSION_KEY: str(SCHEMA_VERSION).encode(),
+            ENCODER_NAME_KEY: self.name.encode(),
+            ENCODER_VERSION_KEY: self.version.encode(),
+            ENCODER_DIM_KEY: str(self.dim).encode(),
+            VOCABULARY_KEY: json.dumps(list(self.vocabulary)).encode(),
         }
 
     @classmethod
     def from_metadata(cls, md: dict[bytes, bytes]) -> EncoderInfo:
         return cls(
-            name=md[b"care.encoder.name"].decode(),
-            version=md[b"care.encoder.version"].decode(),
-            dim=int(md[b"care.encoder.dim"]),
-            vocabulary=tuple(json.loads(md.get(b"care.vocabulary", b"[]"))),
+            name=md[ENCODER_NAME_KEY].decode(),
+            version=md[ENCODER_VERSION_KEY].decode(),
+            dim=int(md[ENCODER_DIM_KEY]),
+            vocabulary=tuple(json.loads(md.get(VOCABULARY_KEY, b"[]"))),
         )
 
 
@@ -204,7 +210,7 @@ def reading(path: Path) -> Iterator[None]:
 
 
 def _check_version(schema: pa.Schema, path: Path) -> None:
-    found = (schema.metadata or {}).get(_VERSION_KEY)
+    found = (schema.metadata or {}).get(SCHEMA_VERSION_KEY)
     if found is None or int(found) != SCHEMA_VERSION:
         msg = (
             f"{path}: schema version {found.decode() if found else 'missing'}, this program "
@@ -272,7 +278,7 @@ def write_table_atomic(
     """
     md = dict(table.schema.metadata or {})
     md.update(metadata or {})
-    md[_VERSION_KEY] = str(SCHEMA_VERSION).encode()
+    md[SCHEMA_VERSION_KEY] = str(SCHEMA_VERSION).encode()
     table = table.replace_schema_metadata(md)
     path = Path(path)
     with staged(path) as tmp:
@@ -309,8 +315,8 @@ def read_table(path: Path, columns: Sequence[str] | None = None) -> pa.Table:
     """Read a Parquet table of this project, refusing missing files and other schema versions.
 
     ``columns=None`` reads every column; ``[]`` none (the rows' count and the schema's
-    metadata only: a grid's layout without decoding its million features, which ``[]``
-    read as "all" did on every goal query until the sixth session).
+    metadata only: a grid's layout without decoding its million features, which a goal
+    query needs on every call).
     """
     path = _readable(path)
     with reading(path), pq.ParquetFile(path) as table:
@@ -343,6 +349,9 @@ bounds the memory (128 MiB of float16) and keeps the list column's int32 offsets
 META_FILE = "meta.json"
 """The store's metadata (:class:`StoreMeta`), written last: its presence marks a complete
 store."""
+
+BATCH_SIZE = 8
+"""Views handled at once where a stage batches them (read, projected, cropped, encoded)."""
 
 META_VERSION = 2
 """Layout of ``meta.json`` (the source by content and relative path); a store of another
@@ -730,7 +739,7 @@ class Store:
     def iter_frames(
         self,
         *,
-        batch_size: int = 8,
+        batch_size: int = BATCH_SIZE,
         extras: bool = True,
         view_ids: set[int] | None = None,
         in_map: bool = True,
@@ -777,7 +786,7 @@ class Store:
             return EncoderInfo.from_metadata(pq.read_schema(path).metadata or {})
 
     def iter_features(
-        self, *, batch_size: int = 8, view_ids: set[int] | None = None
+        self, *, batch_size: int = BATCH_SIZE, view_ids: set[int] | None = None
     ) -> Iterator[tuple[int, np.ndarray]]:
         """``(view_id, feature map (fh, fw, d) float16)`` pairs, streamed (only those of
         ``view_ids`` when given)."""

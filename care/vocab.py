@@ -38,6 +38,7 @@ from care.errors import EncoderError
 
 __all__ = [
     "BUNDLED_DIR",
+    "STRUCTURE_NAMES",
     "TAXONOMY_FORMATS",
     "bundled_vocabularies",
     "load_vocabulary",
@@ -55,6 +56,12 @@ TAXONOMY_FORMATS: dict[tuple[str, ...], tuple[str, str]] = {
     ("id", "raw_category", "category"): ("ScanNet v2 combined labels", "raw_category"),
 }
 """Leading header columns -> (format name, default column)."""
+
+
+STRUCTURE_NAMES = frozenset({"void", "unlabeled", "wall", "floor", "ceiling"})
+"""Lower-case names of a room's shell and of no label: not objects, so a simulated
+perception never biases towards nor confuses with them, and a map's view names its
+dominant object class without them."""
 
 
 def bundled_vocabularies() -> list[str]:

@@ -2,8 +2,11 @@
 refuses anything else before a command runs (one source: the enum the registry is keyed by).
 
 The enums live in light modules (configs, registries) so every ``care`` call can import
-them; the encoders' and perception presets' registries are dicts whose names become enums
-here.
+them; the encoders' registry (installed entry points, read without importing any encoder)
+becomes an enum here. The perception presets are the sample world's
+(:class:`world.perception.model.PerceptionPreset`, a module that loads no encoder):
+``EncoderOptions.perception`` stays a plain string that the ``labels`` encoder validates,
+so no stage needs the sample world, and the CLI, downstream of every package, lists them.
 """
 
 from __future__ import annotations
@@ -11,11 +14,12 @@ from __future__ import annotations
 from enum import Enum, StrEnum
 
 from care.encoders import ENCODERS
+from care.maps import MapKind
 from evaluate.config import QueryProtocol
 from evaluate.groundtruth import UnknownClasses
 from fuse.config import InstanceFeatures, ProposalMethod
-from query.map import MapKind
 from replan.strategies import Criterion, StrategyName
+from world.perception.model import PerceptionPreset
 
 __all__ = [
     "Criterion",
@@ -33,9 +37,8 @@ __all__ = [
 Strategy = StrategyName
 """The CLI's name of :class:`replan.strategies.StrategyName`."""
 
-PERCEPTION_PRESETS = ("default", "ideal")
-"""Names of ``care.encoders.labels.PERCEPTION_PRESETS`` (that module imports torch; the
-fault suite checks the two agree)."""
+Perception = PerceptionPreset
+"""The CLI's name of :class:`world.perception.model.PerceptionPreset` (``--perception``)."""
 
 
 def registry_enum(name: str, keys: object) -> type[Enum]:
@@ -44,4 +47,3 @@ def registry_enum(name: str, keys: object) -> type[Enum]:
 
 
 EncoderName = registry_enum("EncoderName", ENCODERS)
-Perception = registry_enum("Perception", PERCEPTION_PRESETS)

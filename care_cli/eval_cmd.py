@@ -3,8 +3,9 @@ a dataset, and the main job that chains every stage.
 
 The options are generated from the configs (:mod:`care_cli.options`):
 :class:`replan.batch.BatchConfig`, :class:`query.goals.GoalConfig`,
-:class:`evaluate.config.EvalConfig` and :class:`evaluate.config.RunConfig`, one default
-and one help text each. Stage modules are imported inside the commands so ``care --help``
+:class:`evaluate.config.EvalConfig` and :class:`evaluate.config.RunConfig` (what is made),
+and :class:`runtime.execution.Execution` (how it runs: workers, Ray), one default and one
+help text each. Stage modules are imported inside the commands so ``care --help``
 stays fast.
 """
 
@@ -24,6 +25,7 @@ from evaluate.config import EvalConfig, RunConfig
 from query.goals import GoalConfig
 from replan.attempts import ReplanConfig
 from replan.batch import BatchConfig
+from runtime.execution import Backend, Execution
 from truth.load import GtFormat
 
 __all__ = ["register"]
@@ -39,13 +41,10 @@ RayOpt = Annotated[
         "evaluation; care eval: the scenes), on a local Ray unless --ray-address.",
     ),
 ]
-RayAddressOpt = Annotated[
-    str | None,
-    typer.Option(help="Address of a running Ray cluster, e.g. ray://head:10001 (implies --ray)."),
-]
+_RAY_ADDRESS = {"help": "Address of a running Ray cluster, e.g. ray://head:10001 (implies --ray)."}
 
 GT_FORMATS_HELP = (
-    "Ground truth formats (see the README): native (<rec>.gt.json + .gt.parquet), annotations "
+    "Ground truth formats (see docs/evaluation.md): native (<rec>.gt.json + .gt.parquet), annotations "
     "(JSON/YAML/CSV boxes: class, cx, cy, cz, sx, sy, sz[, yaw][, room]), ply (labelled PLY: "
     "vertex instance + label, <name>.classes.json beside), scannet (<scene>_vh_clean_2.ply, "
     ".aggregation.json, _vh_clean_2.0.010000.segs.json), matterport (house folder: "
@@ -89,9 +88,15 @@ def _gt_defaults(fmt: str | None, transform: str | None, class_map: str | None):
     return GtSource.of(None, fmt, transform, class_map)
 
 
-def _ray_target(ray: bool, address: str | None) -> str | bool | None:
-    """What ``run_eval`` takes: a cluster address, True for a local Ray, None for no Ray."""
-    return address or (True if ray else None)
+def _execution(options: Options[Execution], ray: bool) -> Execution:
+    """How the command runs: on Ray with ``--ray`` or ``--ray-address`` (a cluster at that
+    address, else a local Ray), otherwise in local processes (``--workers 0``: one per CPU)."""
+    values = options.values
+    ray = ray or bool(values["ray_address"])
+    return options.config(
+        backend=Backend.RAY if ray else Backend.PROCESSES,
+        **({"workers": None} if values["workers"] == 0 else {}),
+    )
 
 
 WeightsOpt = Annotated[
@@ -311,6 +316,13 @@ def _fail(message: str) -> NoReturn:
 _GT_UNKNOWN = {"unknown_classes": "gt_unknown_classes"}
 
 
+@config_options(
+    "run",
+    Execution,
+    only=("workers", "ray_address"),
+    extra={"workers": {"min": 0, "help": "Local processes (0: one per CPU)."},
+           "ray_address": _RAY_ADDRESS},
+)  # fmt: skip
 @config_options("settings", EvalConfig, names=_GT_UNKNOWN)
 def eval_(
     dataset: Annotated[
@@ -324,9 +336,8 @@ def eval_(
         Path, typer.Option(help="Output directory (results.md, Parquet, plots).")
     ] = Path("out/eval"),
     settings: Options[EvalConfig] = None,  # type: ignore[assignment]
-    workers: Annotated[int, typer.Option(help="Local processes (0: one per CPU).", min=0)] = 0,
+    run: Options[Execution] = None,  # type: ignore[assignment]
     ray: RayOpt = False,
-    ray_address: RayAddressOpt = None,
     gt: GtOpt = None,
     gt_format: GtFormatOpt = None,
     gt_transform: GtTransformOpt = None,
@@ -336,12 +347,12 @@ def eval_(
     and the paired comparisons.
 
     Ground truth formats: native, annotations (JSON/YAML/CSV boxes), ply (labelled PLY),
-    scannet, matterport, replica; see --gt and the README."""
+    scannet, matterport, replica; see --gt and docs/evaluation.md."""
     from evaluate.job import run_eval
 
     config = settings.config()
     report = run_eval(
-        dataset, config, out, workers=workers or None, ray_address=_ray_target(ray, ray_address),
+        dataset, config, out, run=_execution(run, ray),
         gt=tuple(gt or ()), gt_defaults=_gt_defaults(gt_format, gt_transform, gt_class_map),
     )  # fmt: skip
     typer.echo(report.markdown)
@@ -366,9 +377,10 @@ _RUN = {
 
 @config_options("evaluation", EvalConfig, only=("attempts", "seeds", "unknown_classes"),
                 names=_GT_UNKNOWN)  # fmt: skip
-@config_options("settings", RunConfig, only=("encoder", "vocabulary", "workers", "rrd_ingest",
-                                              "rrd_class"),
-                extra={**_RUN, "encoder": {"type": EncoderName}, "workers": {"min": 1},
+@config_options("run_options", Execution, only=("workers", "ray_address"),
+                extra={"workers": {"min": 1}, "ray_address": _RAY_ADDRESS})  # fmt: skip
+@config_options("settings", RunConfig, only=("encoder", "vocabulary", "rrd_ingest", "rrd_class"),
+                extra={**_RUN, "encoder": {"type": EncoderName},
                        "rrd_class": {"flags": ("--rrd-class",)}})  # fmt: skip
 @config_options("encoding", EncoderOptions, only=("weights", "precomputed"))
 def run(
@@ -384,9 +396,9 @@ def run(
         "out"
     ),
     settings: Options[RunConfig] = None,  # type: ignore[assignment]
+    run_options: Options[Execution] = None,  # type: ignore[assignment]
     evaluation: Options[EvalConfig] = None,  # type: ignore[assignment]
     ray: RayOpt = False,
-    ray_address: RayAddressOpt = None,
     gt: GtOpt = None,
     gt_format: GtFormatOpt = None,
     gt_transform: GtTransformOpt = None,
@@ -402,15 +414,14 @@ def run(
     config = settings.config(
         encoder_options=encoding.config(),
         evaluation=evaluation.config(),
-        ray_address=_ray_target(ray, ray_address),
         gt=tuple(gt or ()),
         gt_defaults=_gt_defaults(gt_format, gt_transform, gt_class_map),
     )
-    result = run_all(recording, out, config)
+    result = run_all(recording, out, config, run=_execution(run_options, ray))
     if result.unevaluated:
         typer.echo(
             f"no ground truth for {', '.join(result.unevaluated)}: maps and Rerun files made, "
-            "not evaluated (README: Evaluate on your own data)"
+            "not evaluated (docs/evaluation.md: Your own annotations)"
         )
     if result.report is not None:
         typer.echo(result.report.tables.rstrip())

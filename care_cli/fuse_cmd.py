@@ -1,10 +1,12 @@
 """``care fuse grid`` and ``care fuse instances``: maps from a feature store.
 
 The map options are generated from :class:`fuse.config.GridConfig` and
-:class:`fuse.config.InstanceConfig` (:mod:`care_cli.options`): one default and one help
-text each. An option not given takes the value the store's map was built with (recorded in
-its table's metadata), so re-running a command does not rebuild a map another command
-made. The stage modules are imported inside the commands so ``care --help`` stays fast.
+:class:`fuse.config.InstanceConfig` (what shapes the map), the others from
+:class:`runtime.execution.Execution` (how the build runs) (:mod:`care_cli.options`): one
+default and one help text each. A map option not given takes the value the store's map was
+built with (recorded in its table's metadata), so re-running a command does not rebuild a
+map another command made. The stage modules are imported inside the commands so
+``care --help`` stays fast.
 """
 
 from __future__ import annotations
@@ -20,6 +22,8 @@ import typer
 from care.mapframe import UpAxis
 from care_cli.options import Options, config_options, with_choices
 from fuse.config import GridConfig, InstanceConfig
+from fuse.keys import recorded_settings
+from runtime.execution import Execution
 
 __all__ = ["register"]
 
@@ -97,7 +101,7 @@ def _vocabulary(value: str) -> tuple[str, ...]:
     return vocabulary_option(value)
 
 
-_MAP_EXTRA = {"overwrite": {"help": "Rebuild even if an up-to-date map exists."}}
+_REBUILD = {"overwrite": {"help": "Rebuild even if an up-to-date map exists."}}
 
 
 def _recompute_args(settings: Options, config: Any) -> tuple[Any, float | None]:
@@ -111,28 +115,29 @@ def _recompute_args(settings: Options, config: Any) -> tuple[Any, float | None]:
 
 def _recorded(store: Path, table: str, kind: str) -> bytes | None:
     """The settings the store's ``kind`` map was built with (None: no such map, or none
-    recorded). Maps made before ``care.<kind>.config_json`` existed have the same JSON as
-    their key, ``care.<kind>.config``."""
+    recorded: :func:`fuse.keys.recorded_settings`)."""
     import pyarrow.parquet as pq
 
     try:
         md = pq.read_schema(store / f"{table}.parquet").metadata or {}
     except (OSError, ValueError):  # no map yet, or a damaged one that the build replaces
         return None
-    return md.get(f"care.{kind}.config_json".encode()) or md.get(f"care.{kind}.config".encode())
+    return recorded_settings(md, kind)
 
 
 @fuse_app.command("grid")
 @config_options(
-    "settings",
-    GridConfig,
-    skip=("cells_per_pass",),
-    parse={"vocabulary": _vocabulary, "memory_budget": _bytes},
-    extra=_MAP_EXTRA,
+    "run",
+    Execution,
+    only=("overwrite", "memory_budget", "read_ahead"),
+    parse={"memory_budget": _bytes},
+    extra=_REBUILD,
 )
+@config_options("settings", GridConfig, parse={"vocabulary": _vocabulary})
 def grid(
     store: StoreArg,
     settings: Options[GridConfig],
+    run: Options[Execution],
     recompute: _recompute_opt(
         "the store's views (the grid's settings as built; the same columns as a rebuild)"
     ) = False,
@@ -156,15 +161,14 @@ def grid(
     from fuse.recompute import recompute_grid
     from fuse.viz_grid import log_grid
 
-    # options checked (GridConfig.__post_init__) before any work
+    # options checked (GridConfig.__post_init__, Execution.__post_init__) before any work
     config = settings.config(_recorded(store, "cells", "grid"))
+    how = run.config()
     with _writing(store, rrd), _map_frame(store, up_axis, floor_z):
         if recompute:
-            path = recompute_grid(
-                store, *_recompute_args(settings, config), memory_budget=config.memory_budget
-            )
+            path = recompute_grid(store, *_recompute_args(settings, config), run=how)
         else:
-            path = build_grid(store, config)
+            path = build_grid(store, config, run=how)
         if rrd is not None:
             log_grid(store, rrd, target=rrd_class)
     _summary(path)
@@ -192,10 +196,12 @@ def _summary(path: Path) -> None:
 
 
 @fuse_app.command("instances")
-@config_options("settings", InstanceConfig, parse={"vocabulary": _vocabulary}, extra=_MAP_EXTRA)
+@config_options("run", Execution, only=("batch_size", "read_ahead", "overwrite"), extra=_REBUILD)
+@config_options("settings", InstanceConfig, parse={"vocabulary": _vocabulary})
 def instances(
     store: StoreArg,
     settings: Options[InstanceConfig],
+    run: Options[Execution],
     recompute: _recompute_opt("instance_views.parquet") = False,
     set_: Annotated[
         list[str] | None,
@@ -220,11 +226,12 @@ def instances(
         _recorded(store, "instances", "instances"),
         **_field_values(InstanceConfig, set_ or []),
     )
+    how = run.config()
     with _writing(store, rrd), _map_frame(store, up_axis, floor_z):
         if recompute:
             path = recompute_instances(store, *_recompute_args(settings, config))
         else:
-            path = build_instances(store, config)
+            path = build_instances(store, config, run=how)
         if rrd is not None:
             from fuse.viz_instances import log_instances
 

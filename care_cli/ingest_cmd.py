@@ -1,8 +1,9 @@
 """``care ingest`` (a recording into a feature store) and ``care topics`` (what is in it).
 
 Their options are generated from :class:`ingest.pipeline.IngestConfig`,
-:class:`care.encoders.EncoderOptions`, :class:`ingest.source.ReadOptions` and
-:class:`ingest.select.FrameSelection` (:mod:`care_cli.options`).
+:class:`care.encoders.EncoderOptions`, :class:`ingest.source.ReadOptions`,
+:class:`ingest.select.FrameSelection` and, for how the job runs,
+:class:`runtime.execution.Execution` (:mod:`care_cli.options`).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from care_cli.options import Options, config_options
 from ingest.pipeline import IngestConfig
 from ingest.select import FrameSelection
 from ingest.source import ReadOptions
+from runtime.execution import Execution
 
 __all__ = ["register"]
 
@@ -32,11 +34,17 @@ read_options = config_options(
 
 
 @config_options(
+    "run",
+    Execution,
+    only=("overwrite",),
+    names={"overwrite": "force"},
+    extra={"overwrite": {"help": "Rebuild even if the store is up to date."}},
+)
+@config_options(
     "job",
     IngestConfig,
-    only=("out", "encoder", "vocabulary", "rrd", "rrd_every", "force"),
+    only=("encoder", "vocabulary", "rrd", "rrd_every"),
     extra={
-        "out": {"flags": ("--out", "-o")},
         "encoder": {"type": EncoderName},
         "rrd_every": {"min": 1},
         "vocabulary": {"help": "Class names whose text embeddings to cache: a bundled "
@@ -52,22 +60,30 @@ read_options = config_options(
 @config_options("selection", FrameSelection)
 def ingest(
     recording: Annotated[Path, typer.Argument(help="MCAP file, rosbag2 directory or ROS 1 .bag.")],
+    out: Annotated[
+        Path,
+        typer.Option(
+            "--out",
+            "-o",
+            help="Store directory to create (replaced atomically if it exists and is stale).",
+        ),
+    ],
     job: Options[IngestConfig] = None,  # type: ignore[assignment]
     encoding: Options[EncoderOptions] = None,  # type: ignore[assignment]
     read: Options[ReadOptions] = None,  # type: ignore[assignment]
     selection: Options[FrameSelection] = None,  # type: ignore[assignment]
+    run: Options[Execution] = None,  # type: ignore[assignment]
 ) -> None:
     """Read a robot recording into a feature store (views, poses, features)."""
     from care.store import Store
     from ingest.pipeline import run_ingest
 
     config = job.config(
-        recording=recording,
         read=read.config(),
         encoder_options=encoding.config(),
         select=selection.config(),
     )
-    path = run_ingest(config)
+    path = run_ingest(recording, out, config, run=run.config())
     store = Store(path)
     counts = store.meta.counts
     dropped = counts.get("dropped") or {}

@@ -72,13 +72,11 @@ class Options(typing.Generic[C]):
 
     def config(self, recorded: bytes | str | Mapping[str, Any] | None = None, **fixed: Any) -> C:
         """The config: ``fixed`` values, then the options given, then ``recorded`` values (a
-        map's settings JSON, where they are not ``cls.HOW``), then the config's defaults."""
+        map's settings JSON), then the config's defaults."""
         if isinstance(recorded, Mapping):
             kept = dict(recorded)
         else:
             kept = recorded_fields(self.cls, recorded)
-        for how in getattr(self.cls, "HOW", ()):
-            kept.pop(how, None)
         given = {k: v for k, v in self.values.items() if k in self.given}
         return self.cls(**{**kept, **given, **fixed})
 
@@ -144,7 +142,7 @@ def _option(
     enum_type = item if _is_enum(item) else inner if _is_enum(inner) else None
     choices = tuple(str(m.value) for m in enum_type) if enum_type else ()
     if choices:  # in the help text too: a narrow terminal cuts the metavar, not the help
-        help_ = with_choices(help_, enum_type, many=parse is not None or item is not None)
+        help_ = with_choices(help_, enum_type, many=item is not None)
     if parse is not None:  # read as text, converted by the parser, None: not given
         shown = "none" if f.default is None else _text(f.default)
         kwargs = {"help": help_, "callback": _callback(parse), "show_default": shown, **extra}

@@ -1,4 +1,8 @@
-"""``care sample make``: procedural sample-world recordings with ground truth."""
+"""``care sample make``: procedural sample-world recordings with ground truth.
+
+Its dataset options are generated from :class:`world.record.DatasetConfig`
+(:mod:`care_cli.options`): each default and help text exists once, in the dataclass.
+"""
 
 from __future__ import annotations
 
@@ -8,7 +12,10 @@ from typing import Annotated
 
 import typer
 
-from world.presets import WorldPreset
+from care.errors import WorldError
+from care_cli.options import Options, config_options
+from ingest.formats import RecordingFormat
+from world.record import DatasetConfig
 
 __all__ = ["register"]
 
@@ -19,30 +26,32 @@ sample_app = typer.Typer(
 )
 
 
+def _format(value: str) -> RecordingFormat:
+    """``--format``'s value; anything else is refused in one line that lists the formats."""
+    try:
+        return RecordingFormat(value)
+    except ValueError as err:
+        msg = f"--format {value!r}: choose {RecordingFormat.choices()}"
+        raise WorldError(msg) from err
+
+
 @sample_app.command("make")
+@config_options(
+    "dataset",
+    DatasetConfig,
+    skip=("world", "progress"),
+    names={"fmt": "format", "num_rooms": "rooms"},
+    parse={"fmt": _format},
+    extra={
+        "out": {"flags": ("--out",)},
+        "compressed_rgb": {"flags": ("--jpeg/--raw",)},
+        "preset": {"help": "World and perception preset: default (the sample world), "
+                   "matterport-like (229 classes, ~25 instances per room, first attempts near "
+                   "the paper's), ideal."},
+    },
+)  # fmt: skip
 def make(
-    out: Annotated[Path, typer.Option("--out", help="Dataset directory to create or complete.")],
-    scenes: Annotated[int, typer.Option("--scenes", help="Number of scenes.")] = 1,
-    seed: Annotated[int, typer.Option("--seed", help="Dataset seed.")] = 0,
-    fmt: Annotated[
-        str, typer.Option("--format", help="Recording format: mcap, ros2 (rosbag2 dir) or ros1.")
-    ] = "mcap",
-    width: Annotated[int, typer.Option("--width", help="Image width in pixels.")] = 640,
-    height: Annotated[int, typer.Option("--height", help="Image height in pixels.")] = 480,
-    frames: Annotated[
-        int | None, typer.Option("--frames", help="Frames per recording (default 25 per room).")
-    ] = None,
-    rooms: Annotated[
-        int | None, typer.Option("--rooms", help="Rooms per scene, 1-6 (default 2-5, drawn).")
-    ] = None,
-    jpeg: Annotated[
-        bool, typer.Option("--jpeg/--raw", help="JPEG CompressedImage colour, or raw rgb8.")
-    ] = False,
-    workers: Annotated[int, typer.Option("--workers", help="Parallel processes.")] = 2,
-    rrd: Annotated[
-        Path | None,
-        typer.Option("--rrd", help="Also write a Rerun recording of the scenes (meshes, boxes)."),
-    ] = None,
+    dataset: Options[DatasetConfig],
     gt_formats: Annotated[
         str,
         typer.Option(
@@ -51,21 +60,13 @@ def make(
             "json, yaml, csv, ply, scannet, matterport, replica, or all.",
         ),
     ] = "native",
-    preset: Annotated[
-        WorldPreset,
-        typer.Option(
-            "--preset",
-            help="World and perception preset: default (the sample world), matterport-like "
-            "(229 classes, ~25 instances per room, first attempts near the paper's), ideal.",
-        ),
-    ] = WorldPreset.DEFAULT,
     sets: Annotated[
         list[str] | None,
         typer.Option(
             "--set",
             help="Change one knob of the preset: KEY=VALUE (repeatable). Keys: scene knobs "
             "(catalogue, clutter, instances_per_room, ...) and perception knobs "
-            "(class_bias_rate, bias_noise_scale, view_bias_rate, ...; see README).",
+            "(class_bias_rate, bias_noise_scale, view_bias_rate, ...; see docs/sample-world.md).",
         ),
     ] = None,
     measure: Annotated[
@@ -78,19 +79,16 @@ def make(
     ] = False,
 ) -> None:
     """Generate scenes, render an exploration of each, write recordings + ground truth + index.json."""
-    from care.errors import WorldError
     from world.presets import PRESETS, with_sets
-    from world.record import DatasetConfig, make_dataset
+    from world.record import make_dataset
 
+    preset = dataset.values["preset"]
     try:
         world = with_sets(PRESETS[preset], sets or ())
     except WorldError as err:
         typer.echo(f"error: {err}", err=True)
         raise typer.Exit(2) from err
 
-    if fmt not in ("mcap", "ros2", "ros1"):
-        msg = f"--format {fmt!r}: choose mcap, ros2 or ros1"
-        raise WorldError(msg)
     from truth.load import EXPORT_FORMATS
 
     formats = tuple(f.strip() for f in gt_formats.split(",") if f.strip())
@@ -98,36 +96,21 @@ def make(
     if unknown:
         msg = f"--gt-formats {','.join(unknown)}: choose from {', '.join(EXPORT_FORMATS)} or all"
         raise WorldError(msg)
-    index = make_dataset(
-        DatasetConfig(
-            out=out,
-            scenes=scenes,
-            seed=seed,
-            fmt=fmt,  # type: ignore[arg-type]
-            width=width,
-            height=height,
-            frames=frames,
-            num_rooms=rooms,
-            compressed_rgb=jpeg,
-            workers=workers,
-            rrd=rrd,
-            preset=preset,
-            world=world,
-        )
-    )
+    config = dataset.config(world=world)
+    index = make_dataset(config)
     if set(formats) - {"native"}:
         from truth.dataset_index import read_index
+        from truth.formats.native import read_native
         from truth.load import export_ground_truth
-        from truth.model import GroundTruth
 
         for entry in read_index(index.parent):
             chosen = EXPORT_FORMATS if "all" in formats else formats
             others = [f for f in chosen if f != "native"]  # make_dataset wrote the native files
-            export_ground_truth(GroundTruth.load(entry.recording), entry.recording, others)
+            export_ground_truth(read_native(entry.recording), entry.recording, others)
     if measure:
-        from evaluate.dataset_stats import measure_first_attempts
+        from research.dataset_stats import measure_first_attempts
 
-        measure_first_attempts(index.parent, workers=workers)
+        measure_first_attempts(index.parent, workers=config.workers)
     typer.echo(_statistics_line(index))
     typer.echo(f"wrote {index}")
 

@@ -8,7 +8,7 @@ from pathlib import Path
 from care.store import Store
 from evaluate.job import EvalConfig, Scene, run_eval
 from evaluate.report import Report
-from runtime.parallel import Runner
+from runtime.execution import DEFAULT_EXECUTION, Execution
 
 __all__ = ["evaluate"]
 
@@ -18,24 +18,20 @@ def evaluate(
     config: EvalConfig,
     out: Path,
     *,
-    workers: int | None = None,
-    ray_address: str | bool | None = None,
-    progress: bool = True,
-    runner: Runner | None = None,
+    run: Execution = DEFAULT_EXECUTION,
 ) -> Report:
     """Evaluate every scene (a dataset directory, stores, or :class:`Scene` s with their
     ground truth) with ``config`` into ``out``; returns the report.
 
-    Scenes run in this process (``workers=1``), a local process pool of ``workers``, or on
-    Ray (``ray_address``: True for a local Ray, or a cluster's address); the outputs are
-    the same, bit for bit, either way (``runner``, when given, says where instead). Scenes already evaluated with the same config and
-    the same map and ground-truth content are read from ``out/scenes``.
+    Scenes run where ``run`` says (:meth:`runtime.parallel.Runner.of`): in this process
+    (``workers=1``), a local process pool of ``run.workers``, or on Ray (a cluster at
+    ``run.ray_address``, else a local one); the outputs are the same, bit for bit, either
+    way. Inside an open pool of the same settings (:func:`runtime.parallel.open_runner`)
+    the scenes run on it. Scenes already evaluated with the same config and the same map
+    and ground-truth content are read from ``out/scenes``.
     """
     if isinstance(stores, Path | str):
         dataset: Path | list[Path | Scene] = Path(stores)
     else:
         dataset = [s.path if isinstance(s, Store) else s for s in stores]
-    return run_eval(
-        dataset, config, out, workers=workers, ray_address=ray_address, progress=progress,
-        runner=runner,
-    )  # fmt: skip
+    return run_eval(dataset, config, out, run=run)

@@ -4,7 +4,7 @@ They live apart from the job (:mod:`evaluate.job`, :mod:`evaluate.pipeline`, whi
 the whole pipeline) so the CLI can generate ``care eval``'s and ``care run``'s options from
 them on every call. Each field's default and docstring are the one source of the option's
 default and help; the registries' names are enums (:class:`QueryProtocol` here,
-:class:`query.map.MapKind`, :class:`replan.strategies.StrategyName`,
+:class:`care.maps.MapKind`, :class:`replan.strategies.StrategyName`,
 :class:`replan.strategies.Criterion`).
 """
 
@@ -19,17 +19,23 @@ from care.config import member
 from care.encoders import EncoderOptions
 from care.errors import EvalError
 from care.fingerprint import config_fields, fingerprint
+from care.maps import MapKind
 from evaluate.groundtruth import GtSource, UnknownClasses
 from fuse.config import GridConfig, InstanceConfig
-from query.map import MapKind
-from replan.attempts import DEFAULT_EXCLUDE_RADIUS
+from replan.attempts import DEFAULT_ATTEMPTS, DEFAULT_EXCLUDE_RADIUS
 from replan.strategies import Criterion, StrategyName
+from truth.model import LABEL_DISTANCE
 
 __all__ = ["EvalConfig", "QueryProtocol", "RunConfig"]
 
 NO_CRITERION = "-"
 """The criterion column of the strategies that use no candidate set (their k is 0): a
 report's rule key, never parsed out of a display string."""
+
+IOU_THRESHOLD = 0.25
+"""An instance attempt succeeds when its mask's point IoU with the ground truth exceeds this."""
+DEFAULT_BOOTSTRAP = 1000
+"""Resamples of a report's 95% bootstrap intervals when none is given."""
 
 
 class QueryProtocol(StrEnum):
@@ -59,11 +65,11 @@ class EvalConfig:
     """k of the candidate sets on the instance map (the paper's Table 1)."""
     k_grid: tuple[int, ...] = (4, 8, 16, 40, 100)
     """k of the candidate sets on the grid map (the paper's Table 2)."""
-    attempts: int = 2
+    attempts: int = DEFAULT_ATTEMPTS
     """Attempts per query: the first by max confidence, then the strategy after each failure."""
     protocols: tuple[QueryProtocol, ...] = tuple(QueryProtocol)
     """Instance-map query protocols: ``instance`` (the paper's) and/or ``class``."""
-    iou_threshold: float = 0.25
+    iou_threshold: float = IOU_THRESHOLD
     """An instance attempt succeeds when its mask's point IoU with the GT mask exceeds this."""
     success_radius: float = 1.0
     """A grid attempt succeeds within this floor-plane distance (m) of an object of the class."""
@@ -75,9 +81,9 @@ class EvalConfig:
     """Seeds the random strategies are averaged over."""
     seed: int = 0
     """Base seed of every random draw."""
-    label_distance: float = 0.05
+    label_distance: float = LABEL_DISTANCE
     """Scene points farther than this (m) from every GT point get no GT label."""
-    bootstrap: int = 1000
+    bootstrap: int = DEFAULT_BOOTSTRAP
     """Bootstrap resamples of the queries for the 95% confidence intervals."""
     unknown_classes: UnknownClasses = UnknownClasses.REFUSE
     """Ground-truth classes the map's vocabulary lacks: refuse the scene, or ignore them."""
@@ -114,7 +120,7 @@ class EvalConfig:
             raise EvalError(msg)
 
     def ks(self, kind: MapKind | str) -> tuple[int, ...]:
-        return self.k_grid if kind == "grid" else self.k_instances
+        return self.k_grid if kind == MapKind.GRID else self.k_instances
 
     def fingerprint(self) -> str:
         """Hash of everything that shapes a scene's attempts (not ``bootstrap``)."""
@@ -123,7 +129,8 @@ class EvalConfig:
 
 @dataclass(frozen=True)
 class RunConfig:
-    """The main job's settings (the CLI's ``care run`` options)."""
+    """What the main job makes (the CLI's ``care run`` options); how it runs (workers, Ray,
+    progress) is the run's :class:`runtime.execution.Execution`."""
 
     encoder: str = "labels"
     """Encoder of ``care ingest`` (``labels``: the sample world's perception model)."""
@@ -137,14 +144,6 @@ class RunConfig:
     """Instance map settings."""
     evaluation: EvalConfig = field(default_factory=EvalConfig)
     """What the evaluation runs."""
-    workers: int | None = None
-    """Local processes of the recordings' tasks and the evaluation (default: one per CPU;
-    1: one after another in this process)."""
-    ray_address: str | bool | None = None
-    """Run the recordings' tasks and the evaluation on Ray: True for a local Ray, an
-    address for a cluster."""
-    progress: bool = True
-    """Show progress bars."""
     gt: tuple[Path, ...] = ()
     """Ground truth of each recording, in order (default: its index entry's, or beside it)."""
     gt_defaults: GtSource = field(default_factory=GtSource)
@@ -154,7 +153,3 @@ class RunConfig:
     rrd_class: str | None = None
     """Class of the grid recording's confidence layer (default: one layer per query class of
     the scene's evaluation)."""
-    task_cpus: float = 1.0
-    """CPUs each recording's Ray task declares."""
-    task_memory: int | None = 2 << 30
-    """Bytes of memory each recording's Ray task declares (None: none)."""

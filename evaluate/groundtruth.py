@@ -22,6 +22,7 @@ import numpy as np
 import pyarrow.parquet as pq
 
 from care.errors import CareError, EvalError, GroundTruthError
+from care.keys import VOCABULARY_KEY
 from care.store import read_table
 from query.map import MAP_TABLES
 from truth.formats.native import gt_paths
@@ -35,7 +36,7 @@ from truth.load import (
 )
 from truth.model import GroundTruth
 
-__all__ = ["GtSource", "UnknownClasses", "check_ground_truth", "gt_files"]
+__all__ = ["GtSource", "UnknownClasses", "check_ground_truth", "gt_files", "scene_points"]
 
 
 class UnknownClasses(enum.StrEnum):
@@ -134,10 +135,16 @@ def gt_files(source: GtSource, recording: Path) -> list[Path]:
     return sorted(p for p in path.parent.iterdir() if p.is_file() and p.name.startswith(scene))
 
 
+def scene_points(store: Path) -> np.ndarray:
+    """(P, 3) float array of the store's ``scene_points.parquet``, the map's point cloud."""
+    table = read_table(Path(store) / "scene_points.parquet", list("xyz"))
+    return np.stack([table.column(c).to_numpy() for c in "xyz"], axis=1)
+
+
 def _vocabulary(store: Path, kind: str) -> tuple[str, ...]:
     path = store / f"{MAP_TABLES[kind]}.parquet"
     md = pq.read_schema(path).metadata or {}
-    raw = md.get(b"care.vocabulary")
+    raw = md.get(VOCABULARY_KEY)
     return tuple(json.loads(raw)) if raw else ()
 
 
@@ -181,10 +188,8 @@ def check_ground_truth(
             )
             raise EvalError(msg)
         left_out |= set(missing)
-    points_path = store / "scene_points.parquet"
-    if points_path.is_file():
-        table = read_table(points_path, ["x", "y", "z"])
-        xyz = np.stack([table.column(c).to_numpy() for c in "xyz"], axis=1)
+    if (store / "scene_points.parquet").is_file():
+        xyz = scene_points(store)
         if len(xyz) and not (gt.label_points(xyz, max_dist=label_distance) > 0).any():
             lo, hi = gt.bounds()
             msg = (

@@ -11,7 +11,6 @@ criterion, k, seed index) alone, so results are bit-identical whichever way they
 from __future__ import annotations
 
 import dataclasses
-import os
 import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -25,6 +24,7 @@ from tqdm import tqdm
 
 from care.errors import CareError, EvalError
 from care.fingerprint import content_digest, fingerprint
+from care.maps import MapKind
 from care.outputs import damaged, evaluation_output, read_marker
 from care.store import META_FILE, read_table, source_recording, write_table_atomic
 from evaluate.config import NO_CRITERION, EvalConfig
@@ -36,6 +36,7 @@ from query.map import MAP_TABLES, REPLAN_COLUMNS, load_map
 from replan.attempts import Attempts, run_attempts
 from replan.expected import expected_random_success
 from replan.strategies import STRATEGIES
+from runtime.execution import DEFAULT_EXECUTION, Execution
 from runtime.parallel import Runner, open_runner, run_tasks
 from truth.dataset_index import INDEX_NAME, read_index
 
@@ -185,7 +186,7 @@ def evaluate_queries(
     """Every episode of one query set, as attempt rows (:data:`ATTEMPT_SCHEMA`)."""
     cmap = qs.cmap
     n_q = len(qs.queries)
-    grid = kind == "grid"
+    grid = kind == MapKind.GRID
     if cmap.num_candidates:
         conf = confidence(cmap, qs.class_ids)
         rank = (
@@ -300,7 +301,7 @@ def _evaluate_scene(scene: Scene, config: EvalConfig) -> pa.Table:
             msg = f"{scene.store}: no {MAP_TABLES[kind]}.parquet; run `care fuse` (or drop --maps {kind})"
             raise EvalError(msg)
         cmap = load_map(scene.store, kind)  # type: ignore[arg-type]
-        if kind == "instances":
+        if kind == MapKind.INSTANCES:
             labels = scene_point_labels(scene.store, gt, config.label_distance)
             for protocol in config.protocols:
                 sets = instance_queries(
@@ -321,9 +322,12 @@ def _cache_path(out: Path, scene: Scene) -> Path:
 
 
 EVAL_VERSION = 4
-"""Bumped whenever the attempts of an unchanged scene and config would change (2: rooms that
-share a type are separate units; 3: single-threaded BLAS; 4: ground truth of any format, rooms
-with height bands), so caches written by older code are recomputed."""
+"""Raised whenever the attempts of an unchanged scene and config would change, so that cached
+attempts written by other code are computed again."""
+SCENE_KEY = b"care.eval.scene_key"
+"""Metadata of a scene's cached attempts: what they were computed from (config and inputs)."""
+EVAL_FINGERPRINT_KEY = b"care.eval.fingerprint"
+"""Metadata of a scene's cached attempts: the evaluation config's fingerprint."""
 
 
 def _scene_key(scene: Scene, config: EvalConfig) -> bytes:
@@ -355,7 +359,7 @@ def _cached(out: Path, scene: Scene, config: EvalConfig) -> bool:
         md = pq.read_schema(path).metadata or {}
     except (OSError, pa.ArrowException):
         return False
-    return md.get(b"care.eval.scene_key") == _scene_key(scene, config)
+    return md.get(SCENE_KEY) == _scene_key(scene, config)
 
 
 @dataclass(frozen=True)
@@ -373,15 +377,13 @@ def run_scenes(
     config: EvalConfig,
     out: Path,
     *,
-    workers: int | None = None,
-    ray_address: str | bool | None = None,
-    progress: bool = True,
-    runner: Runner | None = None,
+    run: Execution = DEFAULT_EXECUTION,
 ) -> pa.Table:
     """Evaluate every scene not cached under ``out/scenes``; return all attempt rows.
 
-    ``ray_address``: ``None``/``False`` for a local process pool of ``workers`` processes
-    (default: the CPU count), ``True`` or ``""`` for a local Ray, an address for a cluster.
+    The scenes run where ``run`` says (:meth:`runtime.parallel.Runner.of`: a local process
+    pool of ``run.workers`` processes, default one per CPU, or Ray), on the open pool of
+    a caller with the same settings (:func:`runtime.parallel.open_runner`).
     """
     out = Path(out)
     (out / "scenes").mkdir(parents=True, exist_ok=True)
@@ -390,14 +392,15 @@ def run_scenes(
         msg = f"scene names must be unique, got {sorted(n for n in names if names.count(n) > 1)}"
         raise EvalError(msg)
     todo = [s for s in scenes if not _cached(out, s, config)]
-    runner = runner or Runner(workers=workers or os.cpu_count() or 1, ray_address=ray_address)
-    results = run_tasks(_SceneTask(config), todo, runner)
-    for scene, table in tqdm(results, total=len(todo), desc="scenes", disable=not progress):
-        md = {
-            b"care.eval.fingerprint": config.fingerprint().encode(),
-            b"care.eval.scene_key": _scene_key(scene, config),
-        }
-        write_table_atomic(table, _cache_path(out, scene), md)
+    with open_runner(Runner.of(run)) as runner:
+        results = run_tasks(_SceneTask(config), todo, runner)
+        bar = tqdm(results, total=len(todo), desc="scenes", disable=not run.progress)
+        for scene, table in bar:
+            md = {
+                EVAL_FINGERPRINT_KEY: config.fingerprint().encode(),
+                SCENE_KEY: _scene_key(scene, config),
+            }
+            write_table_atomic(table, _cache_path(out, scene), md)
     tables = [read_table(_cache_path(out, s)).cast(ATTEMPT_SCHEMA) for s in scenes]
     return pa.concat_tables(tables) if tables else ATTEMPT_SCHEMA.empty_table()
 
@@ -492,25 +495,25 @@ def run_eval(
     config: EvalConfig,
     out: Path,
     *,
-    workers: int | None = None,
-    ray_address: str | bool | None = None,
-    progress: bool = True,
+    run: Execution = DEFAULT_EXECUTION,
     gt: Sequence[Path] = (),
     gt_defaults: GtSource | None = None,
-    runner: Runner | None = None,
 ) -> Report:
     """Evaluate a dataset (see :func:`scenes_of`) and write every output under ``out``.
 
+    ``run``: where the scenes run and whether progress shows (:func:`run_scenes`);
     ``gt``: one ground-truth file per scene (else each scene's own, see :class:`Scene`);
     ``gt_defaults``: format, transform and class map for scenes that name none."""
     scenes = with_ground_truth(scenes_of(dataset), gt, gt_defaults)
     left_out = check_scenes(scenes, config)
     out = Path(out)
-    runner = runner or Runner(workers=workers or os.cpu_count() or 1, ray_address=ray_address)
     # written into a staged copy of ``out`` that replaces it whole at the end: a kill at any
     # instant leaves the previous results or the new ones, never some of each
-    with evaluation_output(out, [s.store for s in scenes]) as staged, open_runner(runner) as live:
-        attempts = run_scenes(scenes, config, staged, progress=progress, runner=live)
+    with (
+        evaluation_output(out, [s.store for s in scenes]) as staged,
+        open_runner(Runner.of(run)) as live,
+    ):
+        attempts = run_scenes(scenes, config, staged, run=run)
         ks = {kind: config.ks(kind) for kind in MAP_TABLES}
         header = describe(config, scenes, attempts)
         dropped = {name: classes for name, classes in left_out.items() if classes}

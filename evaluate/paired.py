@@ -51,13 +51,19 @@ def mcnemar_exact(b: int, c: int) -> float:
     return float(min(1.0, 2.0 * binom.cdf(min(int(b), int(c)), n, 0.5)))
 
 
+N_RESAMPLES = 10_000
+"""Bootstrap resamples of a paired interval."""
+CONFIDENCE = 0.95
+"""Coverage of a paired interval."""
+
+
 def paired_bootstrap_ci(
     a: np.ndarray,
     b: np.ndarray,
     *,
     rng: np.random.Generator,
-    n_resamples: int = 10_000,
-    confidence: float = 0.95,
+    n_resamples: int = N_RESAMPLES,
+    confidence: float = CONFIDENCE,
     groups: np.ndarray | None = None,
 ) -> tuple[float, float]:
     """Percentile bootstrap interval of ``mean(a - b)``, resampling queries as pairs.
@@ -130,8 +136,8 @@ def compare(
     rng: np.random.Generator,
     first_a: np.ndarray | None = None,
     first_b: np.ndarray | None = None,
-    n_resamples: int = 10_000,
-    confidence: float = 0.95,
+    n_resamples: int = N_RESAMPLES,
+    confidence: float = CONFIDENCE,
     groups: np.ndarray | None = None,
 ) -> PairedComparison:
     """Everything the paired table reports for one comparison. ``first_a``/``first_b``:

@@ -9,11 +9,13 @@ resumes. With no recording it runs on the bundled sample (``data/sample``).
 The stages a task runs (ingest, fusion, the Rerun logging) are imported by the task, not by
 this module: the driver of a process pool or of Ray never fuses, and importing torch, numba
 and Rerun there cost it about 3.5 s on one core before the workers got their first task.
+
+What the job makes is its :class:`RunConfig`; how it runs (workers, Ray, the tasks'
+resources, progress bars) is one :class:`runtime.execution.Execution`, handed to every stage.
 """
 
 from __future__ import annotations
 
-import os
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
@@ -32,6 +34,7 @@ from evaluate.groundtruth import GtSource
 from evaluate.job import Scene, with_ground_truth
 from evaluate.report import Report
 from ingest.readers import is_recording, recordings_in
+from runtime.execution import DEFAULT_EXECUTION, Execution
 from runtime.parallel import Runner, open_runner, run_tasks
 from truth.dataset_index import INDEX_NAME, read_index
 
@@ -142,8 +145,9 @@ class RecordingTask:
     out: Path
     """The run's output folder: the store goes to ``out/stores/<name>``."""
     config: RunConfig
-    progress: bool = False
-    """Stage progress bars (serial runs only: parallel ones show the dataset's)."""
+    run: Execution = DEFAULT_EXECUTION
+    """How the task's stages run (:func:`run_all` turns their progress bars off where tasks
+    run side by side, and their read-ahead: :func:`one_thread_each`)."""
 
     @property
     def store(self) -> Path:
@@ -163,21 +167,22 @@ class RecordingTask:
         from ingest.api import ingest
         from ingest.pipeline import IngestConfig
 
-        config, out, name = self.config, self.out, self.name
+        config, out, name, run = self.config, self.out, self.name, self.run
         ingest_rrd = out / f"{name}.ingest.rrd" if config.rrd_ingest else None
         store = ingest(
             self.recording,
+            self.store,
             IngestConfig(
-                recording=self.recording, out=self.store, encoder=config.encoder,
-                encoder_options=config.encoder_options, vocabulary=config.vocabulary,
-                progress=self.progress, rrd=ingest_rrd,
+                encoder=config.encoder, encoder_options=config.encoder_options,
+                vocabulary=config.vocabulary, rrd=ingest_rrd,
             ),
+            run=run,
         )  # fmt: skip
         grid_rrd, inst_rrd = out / f"{name}.grid.rrd", out / f"{name}.instances.rrd"
         grid_fresh = not (store.path / "cells.parquet").is_file() or not grid_rrd.is_file()
-        fuse_grid(store, config.grid)
+        fuse_grid(store, config.grid, run=run)
         fresh = not (store.path / "instances.parquet").is_file() or not inst_rrd.is_file()
-        fuse_instances(store, config.instances)
+        fuse_instances(store, config.instances, run=run)
         if fresh:
             log_instances(store.path, inst_rrd)
         return RecordingOutcome(name, grid_due=grid_fresh)
@@ -264,20 +269,16 @@ def _run_task(task: RecordingTask | SceneLogTask) -> RecordingOutcome | None:
     return task()
 
 
-def one_thread_each(config: RunConfig) -> RunConfig:
-    """``config`` for recordings run side by side (a process pool, Ray): each task's maps
+def one_thread_each(run: Execution) -> Execution:
+    """``run`` for recordings run side by side (a process pool, Ray): each task's maps
     fused in its one thread (``read_ahead=0``), not as a pipeline of three.
 
     The tasks are the parallelism there, each holding one of the CPUs it declares; a
     pipeline in every task oversubscribes them (8 recordings on 2 cores, `bench/dataset.py`:
-    pool 84.9 -> 81.6 s, Ray 93.1 -> 87.8 s). ``read_ahead`` is a how-to setting: the maps
-    are the same bytes either way.
+    pool 84.9 -> 81.6 s, Ray 93.1 -> 87.8 s). ``read_ahead`` is how a build runs, not what
+    it makes: the maps are the same bytes either way.
     """
-    return replace(
-        config,
-        grid=replace(config.grid, read_ahead=0),
-        instances=replace(config.instances, read_ahead=0),
-    )
+    return replace(run, read_ahead=0)
 
 
 def map_recordings(
@@ -299,7 +300,13 @@ def map_recordings(
     return outcomes
 
 
-def run_all(source: Path | None, out: Path, config: RunConfig | None = None) -> RunResult:
+def run_all(
+    source: Path | None,
+    out: Path,
+    config: RunConfig | None = None,
+    *,
+    run: Execution = DEFAULT_EXECUTION,
+) -> RunResult:
     """Ingest, fuse and evaluate every recording of ``source`` (default the bundled sample)
     into ``out``: ``out/stores/<name>``, ``out/<name>.{ingest,grid,instances,eval}.rrd`` (one
     Rerun recording id per scene, so they open together) and the evaluation outputs
@@ -307,9 +314,9 @@ def run_all(source: Path | None, out: Path, config: RunConfig | None = None) -> 
     their maps and Rerun files and are listed in ``unevaluated``.
 
     Each recording's ingest and maps are one task (:class:`RecordingTask`), run one after
-    another, in a local process pool (``config.workers``) or on Ray (``config.ray_address``,
-    each task declaring ``config.task_cpus`` and ``config.task_memory``); then the
-    evaluation runs the same way. A recording that fails is reported in one line and left
+    another, in a local process pool (``run.workers``) or on Ray (``run.backend``, at
+    ``run.ray_address``, each task declaring ``run.task_cpus`` and ``run.task_memory``):
+    :meth:`runtime.parallel.Runner.of`; then the evaluation runs on the same pool. A recording that fails is reported in one line and left
     out (:attr:`RunResult.failed`); the others complete.
 
     What a kill at any instant leaves in ``out``: ``out/eval`` is the previous evaluation
@@ -325,21 +332,16 @@ def run_all(source: Path | None, out: Path, config: RunConfig | None = None) -> 
     out = Path(out)
     recordings = recordings_of(source or SAMPLE)
     planned = _scenes_with_gt(recordings, gt_sources_of(source or SAMPLE), config, out)
-    runner = Runner(
-        workers=config.workers or os.cpu_count() or 1,
-        ray_address=config.ray_address,
-        num_cpus=config.task_cpus,
-        memory=config.task_memory,
-    )
+    runner = Runner.of(run)
     with owned_output(out, "run", [rec for _, rec in recordings]):
         serial = not runner.uses_ray and (runner.workers <= 1 or len(recordings) <= 1)
-        task_config = config if serial else one_thread_each(config)
-        tasks = [
-            RecordingTask(name, Path(rec), out, task_config, progress=config.progress and serial)
-            for name, rec in recordings
-        ]
+        # stage progress bars in serial runs only: parallel ones show the dataset's
+        task_run = replace(
+            run if serial else one_thread_each(run), progress=run.progress and serial
+        )
+        tasks = [RecordingTask(name, Path(rec), out, config, task_run) for name, rec in recordings]
         with open_runner(runner) as live:  # one pool for the recordings and the evaluation
-            outcomes = map_recordings(tasks, live, progress=config.progress and not serial)
+            outcomes = map_recordings(tasks, live, progress=run.progress and not serial)
             failed = tuple((n, o.error) for n, o in outcomes.items() if o.error is not None)
             done = [(n, r) for n, r in recordings if outcomes[n].error is None]
             if not done:  # nothing made: the run fails whole, and leaves no output behind
@@ -353,9 +355,7 @@ def run_all(source: Path | None, out: Path, config: RunConfig | None = None) -> 
                            if not has and outcomes[n].error is None]  # fmt: skip
             report, attempts = None, None
             if scenes:
-                report = evaluate(
-                    scenes, config.evaluation, out / "eval", progress=config.progress, runner=live
-                )
+                report = evaluate(scenes, config.evaluation, out / "eval", run=run)  # on ``live``
                 attempts = pq.read_table(out / "eval" / "attempts.parquet")
             evaluated = {scene.name: scene for scene in scenes}
             logs = [

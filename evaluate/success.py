@@ -22,10 +22,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from care.errors import EvalError
-from care.store import read_table
-from evaluate.config import QueryProtocol
+from evaluate.config import IOU_THRESHOLD, QueryProtocol
+from evaluate.groundtruth import scene_points
 from query.map import CandidateMap
-from truth.model import GroundTruth
+from truth.model import LABEL_DISTANCE, GroundTruth
 
 __all__ = [
     "PROTOCOLS",
@@ -61,12 +61,12 @@ class QuerySet:
     """(Q, N) bool: choosing candidate c succeeds for query q."""
 
 
-def scene_point_labels(store: Path, gt: GroundTruth, max_dist: float = 0.05) -> np.ndarray:
+def scene_point_labels(
+    store: Path, gt: GroundTruth, max_dist: float = LABEL_DISTANCE
+) -> np.ndarray:
     """(P,) ground-truth instance id of each point of the store's ``scene_points.parquet``
     (0 = structure or nothing within ``max_dist``)."""
-    table = read_table(Path(store) / "scene_points.parquet", ["x", "y", "z"])
-    xyz = np.stack([table.column(c).to_numpy() for c in "xyz"], axis=1)
-    return gt.label_points(xyz, max_dist=max_dist)
+    return gt.label_points(scene_points(Path(store)), max_dist=max_dist)
 
 
 def _gt_column(gt_ids: np.ndarray, labels: np.ndarray) -> np.ndarray:
@@ -153,9 +153,9 @@ def instance_queries(
     gt: GroundTruth,
     labels: np.ndarray,
     *,
-    protocol: str = "instance",
+    protocol: QueryProtocol = QueryProtocol.INSTANCE,
     rooms: bool = True,
-    iou_threshold: float = 0.25,
+    iou_threshold: float = IOU_THRESHOLD,
 ) -> list[QuerySet]:
     """Query sets of the instance map, per room where the GT has rooms (and ``rooms``)."""
     if protocol not in PROTOCOLS:

@@ -34,9 +34,6 @@ import pyarrow as pa
 
 from fuse.measures import PROB_FLOOR, candidate_columns, pwkl_comoment, stderr_from_moments
 from fuse.welford import merge_moments
-from runtime.threads import sync_torch
-
-sync_torch()  # the process's thread count, now that torch is here (runtime.threads)
 
 __all__ = ["COLUMN_CHUNK", "CandidateSums"]
 

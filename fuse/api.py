@@ -1,4 +1,9 @@
-"""The fuse stage as two functions: a store in, its grid or instance map added to it."""
+"""The fuse stage as two functions: a store in, its grid or instance map added to it.
+
+Each takes the map's config (what the map is made from) and the run's
+:class:`runtime.execution.Execution` (how the build runs: read-ahead, memory, batch sizes,
+rebuilding a current map, progress bars).
+"""
 
 from __future__ import annotations
 
@@ -7,6 +12,7 @@ from pathlib import Path
 from care.store import Store
 from fuse.grid import GridConfig, build_grid
 from fuse.instances import InstanceConfig, build_instances
+from runtime.execution import DEFAULT_EXECUTION, Execution
 
 __all__ = ["fuse_grid", "fuse_instances"]
 
@@ -15,17 +21,23 @@ def _path(store: Store | Path) -> Path:
     return store.path if isinstance(store, Store) else Path(store)
 
 
-def fuse_grid(store: Store | Path, config: GridConfig) -> Path:
+def fuse_grid(
+    store: Store | Path, config: GridConfig, *, run: Execution = DEFAULT_EXECUTION
+) -> Path:
     """Fuse the store's views into its grid map (``cells.parquet``); returns that path.
 
-    A grid built from the same store content with the same config is kept as it is.
+    A grid built from the same store content with the same config is kept as it is (unless
+    ``run.overwrite``).
     """
-    return build_grid(_path(store), config)
+    return build_grid(_path(store), config, run=run)
 
 
-def fuse_instances(store: Store | Path, config: InstanceConfig) -> Path:
+def fuse_instances(
+    store: Store | Path, config: InstanceConfig, *, run: Execution = DEFAULT_EXECUTION
+) -> Path:
     """Build the store's instance map (``instances.parquet``); returns that path.
 
-    A map built from the same store content with the same config is kept as it is.
+    A map built from the same store content with the same config is kept as it is (unless
+    ``run.overwrite``).
     """
-    return build_instances(_path(store), config)
+    return build_instances(_path(store), config, run=run)

@@ -6,11 +6,13 @@ committed last. Building one always goes the same way, and only here:
 
 1. the store's map frame is fixed (:func:`fuse.frame.ensure_map_frame`) and the vocabulary's
    text embeddings are read;
-2. the map's metadata is assembled once (:meth:`MapSpec.metadata`): the candidate metadata
-   of :mod:`fuse.measures`, the content stamp of the store, and the config it is built with,
-   both as a fingerprint (the cache key) and as JSON (so a later command can reuse it);
+2. the map's metadata is assembled once (:meth:`MapSpec.metadata`, under the keys of
+   :mod:`fuse.keys`): the candidate metadata of :mod:`fuse.measures`, the content stamp
+   of the store, and the config it is built with, both as a fingerprint (the cache key)
+   and as JSON (so a later command can reuse it);
 3. an up-to-date map (every table present and whole, the same config, store and
-   vocabulary) is returned as it is (:meth:`MapSpec.is_current`);
+   vocabulary) is returned as it is (:meth:`MapSpec.is_current`) unless the run's
+   :attr:`runtime.execution.Execution.overwrite` asks for a rebuild;
 4. otherwise the builder writes each table to a staged temporary (:class:`StagedMap`), and
    the skeleton checks the main table against its declared columns
    (:data:`fuse.schemas.MAP_SCHEMAS`, which :func:`query.map.load_map` checks too), and a
@@ -35,15 +37,21 @@ import pyarrow.parquet as pq
 
 from care.errors import FuseError
 from care.fingerprint import canonical_json, config_json, fingerprint
+from care.keys import VOCABULARY_KEY
+from care.maps import MapKind
 from care.outputs import damaged, record_table
 from care.store import Store, read_schema
 from fuse.frame import ensure_map_frame, store_stamp
+from fuse.keys import STORE_KEY, config_json_key, config_key
 from fuse.measures import candidate_metadata
 from fuse.schemas import MAP_SCHEMAS, VIEW_TABLE_SCHEMAS, schema_problems, view_table_problems
 from fuse.vocabulary import vocabulary_text
+from runtime.execution import Execution
 from runtime.threads import Work, threads_for
 
 __all__ = [
+    "STORE_KEY",
+    "VOCABULARY_KEY",
     "MapBuild",
     "MapConfig",
     "MapSpec",
@@ -52,20 +60,6 @@ __all__ = [
     "config_json_key",
     "config_key",
 ]
-
-STORE_KEY = b"care.store.created"
-"""Metadata key of the store stamp a map was built from (:func:`fuse.frame.store_stamp`)."""
-VOCABULARY_KEY = b"care.vocabulary"
-
-
-def config_key(kind: str) -> bytes:
-    """Metadata key of the fingerprint of the config a ``kind`` map was built with."""
-    return f"care.{kind}.config".encode()
-
-
-def config_json_key(kind: str) -> bytes:
-    """Metadata key of the JSON of the config a ``kind`` map was built with."""
-    return f"care.{kind}.config_json".encode()
 
 
 def update_config(metadata: dict[bytes, bytes], kind: str, **changes: Any) -> None:
@@ -85,21 +79,16 @@ class MapConfig(Protocol):
     def vocabulary(self) -> tuple[str, ...] | None: ...
     @property
     def logit_scale(self) -> float: ...
-    @property
-    def overwrite(self) -> bool: ...
 
 
 @dataclass(frozen=True)
 class MapSpec:
-    """What a kind of map is made of: its tables, in commit order, and which config fields
-    change only how it is built (left out of its fingerprint)."""
+    """What a kind of map is made of: its tables, in commit order."""
 
-    kind: str
-    """``grid`` or ``instances``: the ``care.<kind>.config`` metadata keys."""
+    kind: MapKind
+    """Which map: its name keys the ``care.<kind>.config`` metadata."""
     tables: tuple[str, ...]
     """Table names in commit order; the last one is the map's main table."""
-    how: tuple[str, ...] = ("overwrite",)
-    """Config fields that do not shape the map (overwrite, memory, batch sizes)."""
 
     @property
     def table(self) -> str:
@@ -111,10 +100,10 @@ class MapSpec:
         return MAP_SCHEMAS[self.kind]
 
     def config_json(self, config: Any) -> str:
-        return config_json(config, self.how)
+        return config_json(config)
 
     def config_fingerprint(self, config: Any) -> str:
-        """The cache key of ``config``: a hash of its shaping fields."""
+        """The cache key of ``config``: a hash of all its fields (each shapes the map)."""
         return fingerprint(self.config_json(config), length=16)
 
     def metadata(
@@ -217,10 +206,11 @@ def build_map(
     config: MapConfig,
     write: Callable[[MapBuild], None],
     *,
+    run: Execution,
     after: Callable[[Store], None] | None = None,
 ) -> Path:
-    """Build the ``spec`` map of the store with ``config`` unless it is current; returns the
-    path of its main table.
+    """Build the ``spec`` map of the store with ``config`` unless it is current (and not
+    ``run.overwrite``); returns the path of its main table.
 
     ``write`` stages every table of the map (:meth:`StagedMap.path`); the skeleton commits
     them. ``after`` runs once the tables are in place (images derived from them). Runs on
@@ -229,7 +219,7 @@ def build_map(
     at every core) would otherwise change the map's bytes.
     """
     with threads_for(Work.FUSE):
-        return _build_map(store_path, spec, config, write, after)
+        return _build_map(store_path, spec, config, write, run.overwrite, after)
 
 
 def _build_map(
@@ -237,13 +227,14 @@ def _build_map(
     spec: MapSpec,
     config: MapConfig,
     write: Callable[[MapBuild], None],
+    overwrite: bool,
     after: Callable[[Store], None] | None,
 ) -> Path:
     ensure_map_frame(store_path)  # the gravity-aligned frame every pose is read in
     store = Store(store_path)
     vocabulary, text = vocabulary_text(store, config.vocabulary)
     metadata = spec.metadata(store, config, tuple(vocabulary))
-    if config.overwrite or not spec.is_current(store, metadata):
+    if overwrite or not spec.is_current(store, metadata):
         with StagedMap(store, spec) as staged:
             write(MapBuild(store, tuple(vocabulary), text, metadata, staged))
             staged.commit()

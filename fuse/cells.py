@@ -24,9 +24,6 @@ from scipy import sparse
 from care.errors import FuseError
 from care.frames import Frame
 from fuse.pixels import cell_tops, pixel_runs, run_sums
-from runtime.threads import sync_torch
-
-sync_torch()  # the process's thread count, now that torch is here (runtime.threads)
 
 __all__ = ["CellIndex", "ViewSamples", "pack_cells", "unpack_cells", "view_samples"]
 
@@ -245,14 +242,15 @@ def view_samples(
     stride: int = 1,
     z_min: float = -np.inf,
     z_max: float = np.inf,
-    sigma_z: float | None = 2.5,
+    sigma_z: float | None,
     text: np.ndarray | None = None,
 ) -> ViewSamples:
     """The (view, cell) samples of one view with its (fh, fw, d) feature map.
 
     Every valid depth pixel (every ``stride``-th) is back-projected, kept if its world
     height lies in ``[z_min, z_max]``, and assigned to its cell and feature patch. A pixel
-    weighs ``exp(-depth^2 / (2 sigma_z^2))`` (``sigma_z=None``: 1). With ``text`` (n, d), the
+    weighs ``exp(-depth^2 / (2 sigma_z^2))`` (``sigma_z=None``: 1; the grid's is
+    ``GridConfig.sigma_z``). With ``text`` (n, d), the
     samples' dot products with the vocabulary come along (``ViewSamples.dots``). The top of
     a cell is its highest pixel, the first in row-major order among equals.
 

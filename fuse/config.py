@@ -4,6 +4,11 @@ They live apart from the builders (:mod:`fuse.grid`, :mod:`fuse.instances`, whic
 numpy, Arrow and open3d) so the CLI can generate its options from them without paying
 for those imports on every ``care`` call. Each field's default and the docstring under it
 are the one source of the default and ``--help`` of ``care fuse grid``/``instances``.
+
+A map config holds only what shapes the map: its fingerprint (the map's cache key) and the
+settings JSON a map records are of all its fields. How a build runs (read-ahead, memory,
+batch sizes, rebuilding a current map, progress bars) is the run's
+:class:`runtime.execution.Execution`, passed to the builders beside the config.
 """
 
 from __future__ import annotations
@@ -12,16 +17,15 @@ import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import ClassVar
 
 from care.checks import check_numbers
 from care.config import member
 from care.errors import FuseError
 from care.fingerprint import config_json, fingerprint
-from runtime.readahead import READ_AHEAD
 
 __all__ = [
     "DEFAULT_LOGIT_SCALE",
+    "DEFAULT_STRIDE",
     "GridConfig",
     "InstanceConfig",
     "InstanceFeatures",
@@ -30,6 +34,8 @@ __all__ = [
 
 DEFAULT_LOGIT_SCALE = 100.0
 """CLIP's learned logit scale: the default s of softmax(s * f . t) of both maps."""
+DEFAULT_STRIDE = 2
+"""Depth pixels used by both maps: every second one in both image directions."""
 
 
 class ProposalMethod(StrEnum):
@@ -52,15 +58,12 @@ class InstanceFeatures(StrEnum):
 
 @dataclass(frozen=True)
 class GridConfig:
-    """How a grid map is fused (shared by ``care fuse grid``, ``care run`` and
-    :func:`fuse.grid.build_grid`)."""
-
-    HOW: ClassVar[tuple[str, ...]] = ("overwrite", "memory_budget", "cells_per_pass", "read_ahead")
-    """Fields that change how the map is built, not what it holds (left out of its key)."""
+    """What a grid map is fused from (shared by ``care fuse grid``, ``care run`` and
+    :func:`fuse.grid.build_grid`): every field shapes the map."""
 
     cell_size: float = 0.05
     """Cell edge in metres."""
-    stride: int = 2
+    stride: int = DEFAULT_STRIDE
     """Use every stride-th depth pixel in both image directions (1 = full resolution; 2, the
     default, is the same map at a quarter of the work)."""
     z_min: float = -0.2
@@ -78,25 +81,8 @@ class GridConfig:
     names (default: the names cached in the store)."""
     obstacle_height: float = 0.1
     """A cell whose highest point is above this height (m) is an obstacle."""
-    overwrite: bool = False
-    """Rebuild even if a finished grid with the same config exists."""
-    memory_budget: int | None = None
-    """Memory the fusion may use, e.g. 8G or 512M (default: half of this machine's); a floor
-    too large for it is fused in several passes over the views."""
-    cells_per_pass: int | None = None
-    """Cells fused per pass, overriding what the budget allows (tests, benchmarks)."""
-    read_ahead: int = READ_AHEAD
-    """Views prepared ahead of the fusion's merge: one background thread decodes the store,
-    another computes each view's samples, each up to this many views ahead, so the three
-    overlap on a machine's cores (0: all in one thread). The map is the same either way."""
 
     def __post_init__(self) -> None:
-        if self.read_ahead < 0:
-            msg = f"invalid grid config: read_ahead={self.read_ahead}; need 0 or more"
-            raise FuseError(msg)
-        if self.cells_per_pass is not None and self.cells_per_pass < 1:
-            msg = f"invalid grid config: cells_per_pass={self.cells_per_pass}; need at least 1"
-            raise FuseError(msg)
         check_numbers(
             FuseError,
             "grid config",
@@ -115,23 +101,19 @@ class GridConfig:
             raise FuseError(msg)
 
     def fingerprint(self) -> str:
-        """The map's cache key: a hash of everything that shapes it (not how it is built:
-        ``overwrite``, memory)."""
+        """The map's cache key: a hash of every field (each one shapes the map)."""
         return fingerprint(self.settings(), length=16)
 
     def settings(self) -> str:
-        """The config as JSON (``care.grid.config_json``), what a later command reuses: every
-        field but :attr:`HOW` (so a map's bytes do not depend on how it was built)."""
-        return config_json(self, self.HOW)
+        """The config as JSON (``care.grid.config_json``), what a later command reuses."""
+        return config_json(self)
 
 
 @dataclass(frozen=True)
 class InstanceConfig:
-    """How an instance map is built (shared by ``care fuse instances``, ``care run`` and
-    :func:`fuse.instances.build_instances`); the proposers read their settings from it."""
-
-    HOW: ClassVar[tuple[str, ...]] = ("overwrite", "batch_size", "read_ahead")
-    """Fields that change how the map is built, not what it holds (left out of its key)."""
+    """What an instance map is built from (shared by ``care fuse instances``, ``care run``
+    and :func:`fuse.instances.build_instances`; the proposers read their settings from it):
+    every field shapes the map."""
 
     proposals: ProposalMethod = ProposalMethod.GEOMETRIC
     """Proposal method: geometric (planes removed, then DBSCAN) or labels (oracle masks from
@@ -141,7 +123,7 @@ class InstanceConfig:
     (bounding-box crops re-encoded; encoders with crop support only)."""
     voxel_size: float = 0.03
     """Voxel edge (m) of the scene cloud."""
-    stride: int = 2
+    stride: int = DEFAULT_STRIDE
     """Back-project every stride-th depth pixel in both image directions."""
     max_depth: float = 8.0
     """Depth (m) beyond which pixels are left out of the scene cloud."""
@@ -182,16 +164,8 @@ class InstanceConfig:
     vocabulary: tuple[str, ...] | None = None
     """Class names of the columns: a bundled vocabulary name, a file, or comma-separated
     names (default: the names cached in the store)."""
-    batch_size: int = 8
-    """Views projected (and crops encoded) at once."""
-    read_ahead: int = READ_AHEAD
-    """Views decoded ahead of their use on a background thread, overlapping reading the
-    store with the projections on a second core (0: read in the same thread). The map is
-    the same."""
     seed: int = 0
     """Seed of RANSAC (open3d's global random seed)."""
-    overwrite: bool = False
-    """Rebuild even if an up-to-date map (or scene cloud) exists."""
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -211,12 +185,8 @@ class InstanceConfig:
             "cluster_eps": self.cluster_eps,
             "top_k": self.top_k,
             "depth_tolerance": self.depth_tolerance,
-            "batch_size": self.batch_size,
         }
         bad = [f"{k}={v}" for k, v in sizes.items() if not v > 0]
-        if self.read_ahead < 0:
-            msg = f"invalid instance config: read_ahead={self.read_ahead}; need 0 or more"
-            raise FuseError(msg)
         check_numbers(
             FuseError,
             "instance config",
@@ -229,13 +199,11 @@ class InstanceConfig:
             raise FuseError(msg)
 
     def fingerprint(self, names: Sequence[str] | None = None) -> str:
-        """Hash of the settings ``names`` (default: all that shape the map; ``overwrite`` and
-        ``batch_size`` only change how it is built)."""
+        """Hash of the settings ``names`` (default: all of them, the map's cache key)."""
         if names is None:
             return fingerprint(self.settings(), length=16)
         return fingerprint({k: getattr(self, k) for k in names}, length=16)
 
     def settings(self) -> str:
-        """The config as JSON (``care.instances.config_json``), what a later command reuses:
-        every field but :attr:`HOW`."""
-        return config_json(self, self.HOW)
+        """The config as JSON (``care.instances.config_json``), what a later command reuses."""
+        return config_json(self)

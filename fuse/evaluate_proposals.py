@@ -10,6 +10,7 @@ import numpy as np
 
 from care.errors import FuseError
 from care.store import Store, read_table, source_recording
+from truth.model import LABEL_DISTANCE
 
 __all__ = ["PointLabeller", "best_iou", "instance_map_iou", "proposal_iou"]
 
@@ -17,7 +18,7 @@ __all__ = ["PointLabeller", "best_iou", "instance_map_iou", "proposal_iou"]
 class PointLabeller(Protocol):
     """Anything that labels points with ground-truth instance ids (``truth.model.GroundTruth``)."""
 
-    def label_points(self, points: np.ndarray, max_dist: float = 0.05) -> np.ndarray: ...
+    def label_points(self, points: np.ndarray, max_dist: float = LABEL_DISTANCE) -> np.ndarray: ...
 
 
 def best_iou(
@@ -57,7 +58,7 @@ def proposal_iou(
     masks: Sequence[np.ndarray],
     gt: PointLabeller,
     *,
-    max_dist: float = 0.05,
+    max_dist: float = LABEL_DISTANCE,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``(gt_ids, best IoU)`` of each ground-truth instance against the masks.
 
@@ -70,17 +71,17 @@ def proposal_iou(
 
 
 def instance_map_iou(
-    store_path: Path, recording: Path | None = None, *, max_dist: float = 0.05
+    store_path: Path, recording: Path | None = None, *, max_dist: float = LABEL_DISTANCE
 ) -> tuple[np.ndarray, np.ndarray]:
     """``(gt_ids, best IoU)`` of the store's instance map against the recording's ground truth.
 
     ``recording`` defaults to the source path ingest recorded in the store's meta; its
     ground truth (``<stem>.gt.parquet``/``.json``, sample-world recordings only) is loaded
-    with :meth:`truth.model.GroundTruth.load`.
+    with :func:`truth.formats.native.read_native`.
     """
     from fuse.instances import INSTANCES_TABLE, SCENE_POINTS_TABLE
     from fuse.pointcloud import read_scene_points
-    from truth.model import GroundTruth
+    from truth.formats.native import read_native
 
     store = Store(store_path)
     if recording is None:
@@ -92,4 +93,4 @@ def instance_map_iou(
     cloud = read_scene_points(store.table_path(SCENE_POINTS_TABLE))
     table = read_table(store.table_path(INSTANCES_TABLE), ["point_indices"])
     masks = [np.asarray(m, np.int64) for m in table.column("point_indices").to_pylist()]
-    return proposal_iou(cloud.points, masks, GroundTruth.load(recording), max_dist=max_dist)
+    return proposal_iou(cloud.points, masks, read_native(recording), max_dist=max_dist)

@@ -4,9 +4,9 @@ One pass over the store's views: each view becomes its (view, cell) samples
 (:func:`fuse.cells.view_samples`), which are listed in ``cell_views.parquet`` and merged
 into per-cell streaming statistics (:class:`fuse.accumulate.CandidateSums`, 5.7 KB a cell
 at d = 512, n = 100). Memory grows with the occupied cells, never with the number of views,
-and is capped by ``GridConfig.memory_budget``: cells beyond what the budget holds are fused
-in further passes over only the views that see them (:func:`build_grid`). At the end the
-store gets:
+and is capped by the run's ``Execution.memory_budget``: cells beyond what the budget holds
+are fused in further passes over only the views that see them (:func:`build_grid`). At the
+end the store gets:
 
 - ``cells.parquet``: the common candidate columns (``fuse.measures.candidate_columns``) plus
   ``ix, iy`` (int32, from the grid origin), ``x, y`` (cell centre, metres), ``z_max``
@@ -29,7 +29,9 @@ store gets:
   row 0 is the largest y (north up), column = ix; and the obstacle layer as a ROS
   ``map_server`` occupancy map, ``map.pgm`` + ``map.yaml`` (:mod:`fuse.rosmap`).
 
-A finished grid whose config and store match is not rebuilt (``overwrite`` forces it).
+A finished grid whose config and store match is not rebuilt (the run's ``overwrite`` forces
+it). How the build runs (read-ahead, memory budget, progress) is the run's
+:class:`runtime.execution.Execution`; the map is the same bytes whatever it says.
 """
 
 from __future__ import annotations
@@ -49,6 +51,8 @@ from PIL import Image
 from tqdm import tqdm
 
 from care.errors import FuseError
+from care.keys import SCHEMA_VERSION_KEY
+from care.maps import MapKind
 from care.outputs import write_atomic
 from care.store import SCHEMA_VERSION, Store, append_rows, open_writer, read_table
 from fuse.accumulate import CandidateSums
@@ -63,6 +67,7 @@ from fuse.rosmap import occupancy_image, write_ros_map
 from fuse.schemas import CELL_VIEWS_FIELDS
 from fuse.sidecar import SidecarWriter, sidecar_path
 from runtime.budget import check_raster
+from runtime.execution import DEFAULT_EXECUTION, Execution
 from runtime.malloc import resident_bytes
 from runtime.readahead import read_ahead
 
@@ -91,9 +96,7 @@ VIEWS_GROUP_ROWS = 1 << 20
 def cell_views_schema() -> pa.Schema:
     """``cell_views.parquet``: one row per (view, cell) sample, the columns declared in
     :data:`fuse.schemas.CELL_VIEWS_FIELDS`, all plain numbers (polars, duckdb)."""
-    return pa.schema(
-        CELL_VIEWS_FIELDS, metadata={b"care.schema_version": str(SCHEMA_VERSION).encode()}
-    )
+    return pa.schema(CELL_VIEWS_FIELDS, metadata={SCHEMA_VERSION_KEY: str(SCHEMA_VERSION).encode()})
 
 
 def grid_image(
@@ -221,6 +224,7 @@ def _views(store: Store, config: GridConfig, wanted: set[int] | None = None):
 def _view_samples(
     store: Store,
     config: GridConfig,
+    run: Execution,
     text: np.ndarray,
     wanted: set[int] | None = None,
     desc: str = "fuse grid",
@@ -228,13 +232,13 @@ def _view_samples(
     """``(view_id, samples)`` of the store's views in view order (only ``wanted`` ones).
 
     A view's samples depend on that view alone, so they are made ahead of the merge, which
-    must take views in order: with ``config.read_ahead`` > 0 one background thread decodes
+    must take views in order: with ``run.read_ahead`` > 0 one background thread decodes
     the store and another computes each view's samples, each up to ``read_ahead`` views
     ahead (:mod:`runtime.readahead`), while the caller merges. The three overlap on a
     machine's cores (the per-view work releases the GIL in its array code); the views, and
     so the map, are the same bytes either way.
     """
-    ahead = config.read_ahead
+    ahead = run.read_ahead
     decoded = read_ahead(_views(store, config, wanted), ahead)
 
     def sample() -> Iterator[tuple[int, ViewSamples]]:
@@ -244,7 +248,9 @@ def _view_samples(
 
     total = store.num_views if wanted is None else len(wanted)
     with closing(read_ahead(sample(), ahead)) as samples:  # ended here, even on an error
-        yield from tqdm(samples, total=total, desc=desc, unit="view", leave=False)
+        yield from tqdm(
+            samples, total=total, desc=desc, unit="view", leave=False, disable=not run.progress
+        )
 
 
 def _known_cells(store: Store, index: CellIndex, keys: np.ndarray) -> np.ndarray:
@@ -263,6 +269,7 @@ def _known_cells(store: Store, index: CellIndex, keys: np.ndarray) -> np.ndarray
 def _fuse_views(
     store: Store,
     config: GridConfig,
+    run: Execution,
     sums: CandidateSums,
     capacity: int,
     *,
@@ -279,7 +286,7 @@ def _fuse_views(
     layers = _CellLayers() if build else None
     later: dict[int, list[int]] = {}
     with nullcontext() if views_path is None else _ViewsWriter(views_path) as writer:
-        for view_id, samples in _view_samples(store, config, text):
+        for view_id, samples in _view_samples(store, config, run, text):
             ids = index.lookup(samples.keys) if build else _known_cells(store, index, samples.keys)
             if ids.size and ids.max() >= capacity:
                 keep = np.flatnonzero(ids < capacity)
@@ -299,6 +306,7 @@ def _fuse_views(
 def _fuse_pass(
     store: Store,
     config: GridConfig,
+    run: Execution,
     sums: CandidateSums,
     index: CellIndex,
     first_id: int,
@@ -308,7 +316,7 @@ def _fuse_pass(
     as ``sums`` holds) from the views that see them, in view order as the first pass."""
     last = first_id + sums.size
     desc = f"fuse grid (cells {first_id}+)"
-    for _, samples in _view_samples(store, config, sums.text, set(views), desc):
+    for _, samples in _view_samples(store, config, run, sums.text, set(views), desc):
         ids = index.find(samples.keys)
         keep = np.flatnonzero((ids >= first_id) & (ids < last))
         part = samples.take(keep)
@@ -318,6 +326,7 @@ def _fuse_pass(
 def _cell_columns(
     store: Store,
     config: GridConfig,
+    run: Execution,
     first: _FirstPass,
     capacity: int,
     *,
@@ -338,13 +347,13 @@ def _cell_columns(
             sums = CandidateSums(text.shape[1], text, scale, capacity=size, limit=size)
         sums.ensure(size)  # the pass's cells (one no sample reached still gets its row)
         if p > 0:
-            _fuse_pass(store, config, sums, first.index, first_id, first.later.get(p, []))
+            _fuse_pass(store, config, run, sums, first.index, first_id, first.later.get(p, []))
         weight = sums.weight
         # the next chunk's columns are made on a background thread while the caller writes
         # this one (Parquet and the sidecar release the GIL); ended with the pass, so a stop
         # waits for one chunk at most and the pass's state goes before the next is allocated
         columns = sums.iter_columns(first_id=first_id, with_log_confidence=with_log_confidence)
-        with closing(read_ahead(columns, min(config.read_ahead, 1))) as chunks:
+        with closing(read_ahead(columns, min(run.read_ahead, 1))) as chunks:
             for chunk in chunks:
                 lo = chunk.column("candidate_id")[0].as_py() - first_id
                 yield chunk, weight[lo : lo + chunk.num_rows]
@@ -434,17 +443,18 @@ default, 30 MB each at most in the benchmark's 14 m room), the cell_views writer
 map columns, the cell index."""
 
 
-def cells_per_pass(config: GridConfig, dim: int, num_classes: int) -> int:
-    """Cells whose streaming state fits the memory budget beside what is already resident.
+def cells_per_pass(run: Execution, dim: int, num_classes: int) -> int:
+    """Cells whose streaming state fits the run's memory budget beside what is already
+    resident.
 
-    ``config.cells_per_pass`` wins when set; otherwise ``(budget - resident - FIXED_MEMORY)``
+    ``run.cells_per_pass`` wins when set; otherwise ``(budget - resident - FIXED_MEMORY)``
     over the state of a cell (:meth:`CandidateSums.bytes_per_candidate`, plus its index and
     layer entries). A floor whose cells all fit is fused in one pass, exactly as without a
     budget.
     """
-    if config.cells_per_pass is not None:
-        return config.cells_per_pass
-    budget = config.memory_budget or default_memory_budget()
+    if run.cells_per_pass is not None:
+        return run.cells_per_pass
+    budget = run.memory_budget or default_memory_budget()
     free = budget - resident_bytes() - FIXED_MEMORY
     per_cell = CandidateSums.bytes_per_candidate(dim, num_classes) + 64
     if free < 1024 * per_cell:
@@ -459,6 +469,7 @@ def cells_per_pass(config: GridConfig, dim: int, num_classes: int) -> int:
 def _write_cells(
     store: Store,
     config: GridConfig,
+    run: Execution,
     text: np.ndarray,
     first: _FirstPass,
     capacity: int,
@@ -480,7 +491,7 @@ def _write_cells(
     sidecar = SidecarWriter(sidecar_path(final), n_cells, text.shape[1], n_top, len(text), metadata)
     try:
         for chunk, weight in _cell_columns(
-            store, config, first, capacity, with_log_confidence=True
+            store, config, run, first, capacity, with_log_confidence=True
         ):
             sidecar.write(chunk)
             if "log_confidence" in chunk.column_names:
@@ -490,7 +501,7 @@ def _write_cells(
             table = _cells_chunk(chunk, rows, grid_ix, grid_iy, layout, layers, config, weight)
             if writer is None:
                 md = {**(table.schema.metadata or {}), **metadata}
-                md[b"care.schema_version"] = str(SCHEMA_VERSION).encode()
+                md[SCHEMA_VERSION_KEY] = str(SCHEMA_VERSION).encode()
                 writer = open_writer(path, table.schema.with_metadata(md))
             append_rows(writer, table.replace_schema_metadata(writer.schema.metadata))
         sidecar.commit()
@@ -500,14 +511,18 @@ def _write_cells(
             writer.close()
 
 
-GRID_MAP = MapSpec("grid", (CELL_VIEWS_TABLE, CELLS_TABLE), how=GridConfig.HOW)
+GRID_MAP = MapSpec(MapKind.GRID, (CELL_VIEWS_TABLE, CELLS_TABLE))
 """The grid's tables (the per-view samples first: a current ``cells.parquet`` implies them)."""
 
 
-def build_grid(store_path: Path, config: GridConfig | None = None) -> Path:
+def build_grid(
+    store_path: Path, config: GridConfig | None = None, *, run: Execution = DEFAULT_EXECUTION
+) -> Path:
     """Fuse the store's views into ``cells.parquet`` (and siblings); returns its path.
 
-    Memory follows ``config.memory_budget``, not the floor area: the streaming pass keeps
+    ``config`` is what the map is made from; ``run`` how the build runs (read-ahead,
+    memory, rebuilding a current map, progress). Memory follows ``run.memory_budget``,
+    not the floor area: the streaming pass keeps
     the state of the first :func:`cells_per_pass` cells (ids in order of first appearance)
     and notes which views see the others; each further block of cells is then fused in a
     pass over just those views. Every cell gets the same samples in the same view order
@@ -520,7 +535,8 @@ def build_grid(store_path: Path, config: GridConfig | None = None) -> Path:
         store_path,
         GRID_MAP,
         config,
-        lambda build: _fuse_grid(build, config),
+        lambda build: _fuse_grid(build, config, run),
+        run=run,
         after=lambda store: write_grid_images(
             store,
             read_table(store.table_path(CELLS_TABLE), ["ix", "iy", "r", "g", "b", "obstacle"]),
@@ -528,22 +544,22 @@ def build_grid(store_path: Path, config: GridConfig | None = None) -> Path:
     )
 
 
-def _fuse_grid(build: MapBuild, config: GridConfig) -> None:
+def _fuse_grid(build: MapBuild, config: GridConfig, run: Execution) -> None:
     """Stage ``cell_views`` and ``cells`` (and commit the query sidecar) of a new grid."""
     store, text = build.store, build.text
-    if config.read_ahead > 0:  # else everything in this thread (the kernels load on first use)
+    if run.read_ahead > 0:  # else everything in this thread (the kernels load on first use)
         # the kernels load on their own thread while the check decodes its sample (not
         # awaited: a kernel's first call waits for its loading, under numba's lock)
         loading = ThreadPoolExecutor(1, thread_name_prefix="care-kernels")
         loading.submit(warm_up)
         loading.shutdown(wait=False)  # its thread ends with the loading
-    decoders = DECODERS if config.read_ahead > 0 else 1
+    decoders = DECODERS if run.read_ahead > 0 else 1
     check_height_band(store, config.z_min, config.z_max, decoders)  # before any work
     dim = store.encoder.dim
-    capacity = cells_per_pass(config, dim, len(text))
+    capacity = cells_per_pass(run, dim, len(text))
     sums = CandidateSums(dim, text, config.logit_scale, limit=capacity)
     views = build.staged.path(CELL_VIEWS_TABLE)
-    first = _fuse_views(store, config, sums, capacity, views_path=views)
+    first = _fuse_views(store, config, run, sums, capacity, views_path=views)
     del sums  # first.sums holds it, until _cell_columns lets it go
     if first.index.size == 0:
         msg = (
@@ -553,7 +569,7 @@ def _fuse_grid(build: MapBuild, config: GridConfig) -> None:
         raise FuseError(msg)
     cells = build.staged.path(CELLS_TABLE)
     final = store.table_path(CELLS_TABLE)
-    _write_cells(store, config, text, first, capacity, cells, build.metadata, final)
+    _write_cells(store, config, run, text, first, capacity, cells, build.metadata, final)
 
 
 def cell_keys(cells: pa.Table) -> np.ndarray:
@@ -573,22 +589,23 @@ def fused_columns(
     text: np.ndarray,
     keys: np.ndarray,
     *,
+    run: Execution = DEFAULT_EXECUTION,
     with_log_confidence: bool = False,
 ) -> pa.Table:
     """The common candidate columns of the cells ``keys`` (packed, row i = candidate i) for
     the vocabulary embeddings ``text`` at ``config.logit_scale``: the store's views streamed
     through the build's own per-view code and passes (:func:`_fuse_views`,
-    :func:`_cell_columns`, same memory budget), so a grid built with ``config`` has these
+    :func:`_cell_columns`, under ``run``'s memory budget), so a grid built with ``config`` has these
     columns bit for bit (and, ``with_log_confidence``, its query sidecar's log-confidence
     column). Every view's cells must be among ``keys`` (the map's own store and config)."""
-    capacity = cells_per_pass(config, store.encoder.dim, len(text))
+    capacity = cells_per_pass(run, store.encoder.dim, len(text))
     sums = CandidateSums(store.encoder.dim, text, config.logit_scale, limit=capacity)
-    first = _fuse_views(store, config, sums, capacity, index=CellIndex.from_keys(keys))
+    first = _fuse_views(store, config, run, sums, capacity, index=CellIndex.from_keys(keys))
     del sums  # first.sums holds it, until _cell_columns lets it go
     chunks = [
         chunk
         for chunk, _ in _cell_columns(
-            store, config, first, capacity, with_log_confidence=with_log_confidence
+            store, config, run, first, capacity, with_log_confidence=with_log_confidence
         )
     ]
     if not chunks:  # no cells: the empty columns

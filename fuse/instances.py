@@ -13,9 +13,10 @@
    atomically, the per-view table first. Instance features use weights 1, so ``stderr``
    is the plain form of method.md.
 
-A finished map with the same config, store and vocabulary is not rebuilt (``overwrite``
-forces it); :func:`recompute_instances` redoes only the columns for a new vocabulary or
-logit scale from ``instance_views.parquet``.
+A finished map with the same config, store and vocabulary is not rebuilt (the run's
+``overwrite`` forces it; how the build runs is its :class:`runtime.execution.Execution`);
+:func:`recompute_instances` redoes only the columns for a new vocabulary or logit scale
+from ``instance_views.parquet``.
 """
 
 from __future__ import annotations
@@ -29,11 +30,13 @@ import pyarrow.parquet as pq
 
 from care.encoders import Encoder
 from care.errors import FuseError
+from care.maps import MapKind
 from care.outputs import damaged
 from care.store import Store, write_table_atomic
 from fuse.build import MapBuild, MapSpec, build_map
 from fuse.config import InstanceConfig, InstanceFeatures
 from fuse.frame import store_stamp
+from fuse.keys import CLOUD_CONFIG_KEY, STORE_KEY
 from fuse.measures import list_column
 from fuse.pointcloud import (
     SceneCloud,
@@ -44,6 +47,7 @@ from fuse.pointcloud import (
 from fuse.proposals import PROPOSERS, Proposals
 from fuse.recompute import recompute_candidates, sums_from_views
 from fuse.views import ViewSelection, crop_features, require_crops, select_views
+from runtime.execution import DEFAULT_EXECUTION, Execution
 
 __all__ = [
     "INSTANCES_TABLE",
@@ -76,7 +80,9 @@ INSTANCE_VIEWS_SCHEMA = pa.schema(
 _CLOUD_FIELDS = ("voxel_size", "stride", "max_depth")
 
 
-def _scene_cloud(store: Store, config: InstanceConfig) -> tuple[SceneCloud, dict | None]:
+def _scene_cloud(
+    store: Store, config: InstanceConfig, run: Execution
+) -> tuple[SceneCloud, dict | None]:
     """The scene cloud, reused from ``scene_points.parquet`` when it is current.
 
     A new cloud comes with the metadata to write it under; the build writes it together
@@ -84,8 +90,8 @@ def _scene_cloud(store: Store, config: InstanceConfig) -> tuple[SceneCloud, dict
     """
     path = store.table_path(SCENE_POINTS_TABLE)
     key = config.fingerprint(_CLOUD_FIELDS).encode()
-    meta = {b"care.cloud.config": key, b"care.store.created": store_stamp(store)}
-    if path.is_file() and not config.overwrite and not damaged(store.path, [path.name]):
+    meta = {CLOUD_CONFIG_KEY: key, STORE_KEY: store_stamp(store)}
+    if path.is_file() and not run.overwrite and not damaged(store.path, [path.name]):
         md = pq.read_schema(path).metadata or {}
         if all(md.get(k) == v for k, v in meta.items()):
             return read_scene_points(path), None
@@ -94,20 +100,24 @@ def _scene_cloud(store: Store, config: InstanceConfig) -> tuple[SceneCloud, dict
         voxel_size=config.voxel_size,
         stride=config.stride,
         max_depth=config.max_depth,
-        read_ahead=config.read_ahead,
+        run=run,
     )
     return cloud, meta
 
 
-def _store_encoder(store: Store, config: InstanceConfig) -> Encoder:
+def _store_encoder(store: Store, run: Execution) -> Encoder:
     """The model that made the store's features (its recorded weights and options)."""
     from care.encoders.record import encoder_for_store
 
-    return encoder_for_store(store.path, batch_size=config.batch_size)
+    return encoder_for_store(store.path, batch_size=run.batch_size)
 
 
 def _per_view_features(
-    store: Store, config: InstanceConfig, selection: ViewSelection, encoder: Encoder | None
+    store: Store,
+    config: InstanceConfig,
+    run: Execution,
+    selection: ViewSelection,
+    encoder: Encoder | None,
 ) -> np.ndarray:
     if config.features == "masked":
         assert selection.features is not None  # select_views pooled them
@@ -118,8 +128,7 @@ def _per_view_features(
         selection,
         encoder,
         padding=config.crop_padding,
-        batch_size=config.batch_size,
-        read_ahead=config.read_ahead,
+        run=run,
     )
 
 
@@ -167,9 +176,8 @@ def _geometry_columns(points: np.ndarray, proposals: Proposals) -> dict[str, pa.
 
 
 INSTANCE_MAP = MapSpec(
-    "instances",
+    MapKind.INSTANCES,
     (SCENE_POINTS_TABLE, INSTANCE_VIEWS_TABLE, INSTANCES_TABLE),
-    how=InstanceConfig.HOW,
 )
 """The instance map's tables: the cloud, the per-view rows and the masks that index into
 them belong together, committed in this order."""
@@ -179,13 +187,16 @@ def build_instances(
     store_path: Path,
     config: InstanceConfig | None = None,
     *,
+    run: Execution = DEFAULT_EXECUTION,
     encoder: Encoder | None = None,
 ) -> Path:
     """Build ``instances.parquet`` (and ``instance_views``, ``scene_points``) in the store.
 
     Args:
         store_path: the feature store directory.
-        config: the build settings (default :class:`InstanceConfig`).
+        config: what the map is made from (default :class:`InstanceConfig`).
+        run: how the build runs: views read ``batch_size`` at a time, ``read_ahead``
+            ahead; ``overwrite`` rebuilds a current map (and scene cloud); progress bars.
         encoder: the encoder for ``features="crops"``; default: the store's own model,
             rebuilt from its record (:func:`care.encoders.record.encoder_for_store`).
 
@@ -194,17 +205,21 @@ def build_instances(
     (:func:`fuse.viz_instances.log_instances`).
     """
     config = config or InstanceConfig()
-    return build_map(store_path, INSTANCE_MAP, config, lambda build: _build(build, config, encoder))
+    return build_map(
+        store_path, INSTANCE_MAP, config, lambda build: _build(build, config, run, encoder), run=run
+    )
 
 
-def _build(build: MapBuild, config: InstanceConfig, encoder: Encoder | None) -> None:
+def _build(
+    build: MapBuild, config: InstanceConfig, run: Execution, encoder: Encoder | None
+) -> None:
     """Stage the tables of a new instance map (the cloud only when it is not current)."""
     store = build.store
     if config.features == "crops":  # before any work, not after the views are chosen
-        encoder = encoder or _store_encoder(store, config)
+        encoder = encoder or _store_encoder(store, run)
         require_crops(encoder)
-    cloud, cloud_meta = _scene_cloud(store, config)
-    proposals = PROPOSERS[config.proposals](cloud, store, config)
+    cloud, cloud_meta = _scene_cloud(store, config, run)
+    proposals = PROPOSERS[config.proposals](cloud, store, config, run=run)
     if len(proposals) == 0:
         msg = (
             f"{store.path}: the {config.proposals} proposals found no instance in "
@@ -220,8 +235,7 @@ def _build(build: MapBuild, config: InstanceConfig, encoder: Encoder | None) -> 
         depth_tolerance=config.depth_tolerance,
         min_visible_points=config.min_visible_points,
         pool_features=config.features == "masked",
-        batch_size=config.batch_size,
-        read_ahead=config.read_ahead,
+        run=run,
     )
     if not (selection.view_ids >= 0).any():
         msg = (
@@ -230,7 +244,7 @@ def _build(build: MapBuild, config: InstanceConfig, encoder: Encoder | None) -> 
             "--set min_visible_points=N"
         )
         raise FuseError(msg)
-    views = _views_table(selection, _per_view_features(store, config, selection, encoder))
+    views = _views_table(selection, _per_view_features(store, config, run, selection, encoder))
     staged_views = build.staged.path(INSTANCE_VIEWS_TABLE)
     write_table_atomic(views, staged_views, build.metadata)
     sums = sums_from_views(

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import pyarrow as pa
 
 from care.errors import FuseError
+from care.keys import GRID_CELL_SIZE_KEY, GRID_ORIGIN_KEY, GRID_SHAPE_KEY
 
 __all__ = ["CELLS_TABLE", "GridLayout"]
 
@@ -34,9 +35,9 @@ class GridLayout:
         md = table.schema.metadata or {}
         try:
             return cls(
-                float(md[b"care.grid.cell_size"]),
-                tuple(json.loads(md[b"care.grid.origin"])),
-                tuple(json.loads(md[b"care.grid.shape"])),
+                float(md[GRID_CELL_SIZE_KEY]),
+                tuple(json.loads(md[GRID_ORIGIN_KEY])),
+                tuple(json.loads(md[GRID_SHAPE_KEY])),
             )
         except KeyError as err:
             msg = f"cells table lacks grid metadata {err}; rebuild it with `care fuse grid`"
@@ -44,7 +45,7 @@ class GridLayout:
 
     def metadata(self) -> dict[bytes, bytes]:
         return {
-            b"care.grid.cell_size": repr(self.cell_size).encode(),
-            b"care.grid.origin": json.dumps(list(self.origin)).encode(),
-            b"care.grid.shape": json.dumps(list(self.shape)).encode(),
+            GRID_CELL_SIZE_KEY: repr(self.cell_size).encode(),
+            GRID_ORIGIN_KEY: json.dumps(list(self.origin)).encode(),
+            GRID_SHAPE_KEY: json.dumps(list(self.shape)).encode(),
         }

@@ -26,11 +26,13 @@ import numpy as np
 import pyarrow as pa
 from scipy.special import logsumexp
 
+from care.keys import ENCODER_NAME_KEY, LOGIT_SCALE_KEY, VOCABULARY_KEY
 from fuse.config import DEFAULT_LOGIT_SCALE
 
 __all__ = [
     "DEFAULT_LOGIT_SCALE",
     "MAX_TOP_CLASSES",
+    "MEASURE_COLUMNS",
     "PROB_FLOOR",
     "candidate_columns",
     "candidate_metadata",
@@ -50,7 +52,8 @@ __all__ = [
     "weighted_stderr",
 ]
 
-"""CLIP's learned logit scale; the paper's distributions use it."""
+MEASURE_COLUMNS = ("confidence", "entropy", "stderr", "pwkl", "num_views")
+"""A candidate's columns that say how sure the map is of it, in display order."""
 
 PROB_FLOOR = 1e-12
 """Probabilities are clamped here before a log, so a class with P = 0 stays finite."""
@@ -306,7 +309,7 @@ def candidate_metadata(
 ) -> dict[bytes, bytes]:
     """Schema metadata every map table carries (the schema version is added on write)."""
     return {
-        b"care.vocabulary": json.dumps(list(vocabulary)).encode(),
-        b"care.logit_scale": repr(float(logit_scale)).encode(),
-        b"care.encoder.name": encoder_name.encode(),
+        VOCABULARY_KEY: json.dumps(list(vocabulary)).encode(),
+        LOGIT_SCALE_KEY: repr(float(logit_scale)).encode(),
+        ENCODER_NAME_KEY: encoder_name.encode(),
     }

@@ -26,7 +26,7 @@ from tqdm import tqdm
 from care.errors import FuseError, StoreError
 from care.store import Store, read_table, write_table_atomic
 from geometry.transforms import backproject, transform_points
-from runtime.readahead import READ_AHEAD
+from runtime.execution import DEFAULT_EXECUTION, Execution
 from runtime.readahead import read_ahead as ahead
 
 __all__ = [
@@ -48,6 +48,9 @@ SCENE_POINTS_SCHEMA = pa.schema(
         pa.field("b", pa.uint8(), nullable=False),
     ]
 )
+
+FLUSH_POINTS = 2_000_000
+"""Pending points merged into the voxel sums at a time (bounds the memory of a cloud)."""
 
 _KEY_BITS = 21
 _KEY_OFFSET = 1 << (_KEY_BITS - 1)
@@ -83,7 +86,7 @@ class VoxelAccumulator:
         voxel_size: float,
         origin: np.ndarray | None = None,
         *,
-        flush_points: int = 2_000_000,
+        flush_points: int = FLUSH_POINTS,
     ) -> None:
         if voxel_size <= 0:
             msg = f"voxel size must be positive, got {voxel_size}"
@@ -153,32 +156,31 @@ class VoxelAccumulator:
 def fuse_scene_points(
     store: Store,
     *,
-    voxel_size: float = 0.03,
-    stride: int = 2,
-    max_depth: float = 8.0,
-    flush_points: int = 2_000_000,
-    read_ahead: int = READ_AHEAD,
-    progress: bool = True,
+    voxel_size: float,
+    stride: int,
+    max_depth: float,
+    flush_points: int = FLUSH_POINTS,
+    run: Execution = DEFAULT_EXECUTION,
 ) -> SceneCloud:
     """Back-project every view of ``store`` and voxel-average the points into one cloud.
 
     Args:
         store: the feature store (only views.parquet is read).
-        voxel_size: edge of the averaging voxel, metres.
+        voxel_size: edge of the averaging voxel, metres (``InstanceConfig.voxel_size``).
         stride: use every ``stride``-th pixel in both directions.
         max_depth: ignore depth beyond this (metres); far depth is noisy on real sensors.
         flush_points: pending points merged into the voxel sums at a time (memory bound).
-        read_ahead: views decoded ahead on a background thread (:mod:`runtime.readahead`).
-        progress: show a tqdm bar over views.
+        run: its ``read_ahead`` views decoded ahead on a background thread
+            (:mod:`runtime.readahead`); a tqdm bar over views with its ``progress``.
     """
     if stride < 1:
         msg = f"stride must be >= 1, got {stride}"
         raise FuseError(msg)
     acc = VoxelAccumulator(voxel_size, flush_points=flush_points)
     # the views are decoded on a background thread while this one back-projects them
-    with closing(ahead(store.iter_frames(extras=False), read_ahead)) as frames:
+    with closing(ahead(store.iter_frames(extras=False), run.read_ahead)) as frames:
         for _, frame in tqdm(
-            frames, total=store.num_views, desc="scene points", disable=not progress
+            frames, total=store.num_views, desc="scene points", disable=not run.progress
         ):
             depth = np.where(frame.depth_m <= max_depth, frame.depth_m, 0)
             pts_cam, pix = backproject(depth, frame.K, stride)

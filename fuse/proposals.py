@@ -1,6 +1,7 @@
 """Class-agnostic instance proposals: point-index masks over the scene cloud, by plugin.
 
-``PROPOSERS`` maps a method name to a function ``(cloud, store, settings) -> Proposals``:
+``PROPOSERS`` maps a method name to a function ``(cloud, store, settings, *, run) ->
+Proposals`` (``run``: how views are read, :class:`runtime.execution.Execution`):
 
 - ``geometric``: no labels needed. The dominant planes are found one after the other with RANSAC
   (:func:`geometry.planes.fit_plane`, seeded: the same planes in every process); a plane counts
@@ -18,8 +19,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 from tqdm import tqdm
@@ -30,6 +31,7 @@ from fuse.config import InstanceConfig, ProposalMethod
 from fuse.pointcloud import SceneCloud
 from fuse.views import iter_view_batches, visible_hits
 from geometry.planes import along, fit_plane
+from runtime.execution import DEFAULT_EXECUTION, Execution
 
 __all__ = [
     "PROPOSERS",
@@ -166,7 +168,11 @@ def _corner_points(
 
 
 def geometric_proposals(
-    cloud: SceneCloud, store: Store | None, settings: InstanceConfig
+    cloud: SceneCloud,
+    store: Store | None,
+    settings: InstanceConfig,
+    *,
+    run: Execution = DEFAULT_EXECUTION,
 ) -> Proposals:
     """Masks of the clusters left after removing floor, walls and ceiling (see module doc)."""
     points = np.asarray(cloud.points, np.float64)
@@ -195,7 +201,11 @@ def _compress_votes(keys: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, n
 
 
 def label_proposals(
-    cloud: SceneCloud, store: Store | None, settings: InstanceConfig, *, progress: bool = True
+    cloud: SceneCloud,
+    store: Store | None,
+    settings: InstanceConfig,
+    *,
+    run: Execution = DEFAULT_EXECUTION,
 ) -> Proposals:
     """Oracle masks: each scene point takes the majority instance id over the views seeing it."""
     if store is None:
@@ -205,9 +215,9 @@ def label_proposals(
     keys = np.zeros(0, np.int64)
     counts = np.zeros(0, np.int64)
     seen = False
-    bar = tqdm(total=store.num_views, desc="label votes", disable=not progress)
+    bar = tqdm(total=store.num_views, desc="label votes", disable=not run.progress)
     for batch in iter_view_batches(
-        store, batch_size=settings.batch_size, extras=("instance",), read_ahead=settings.read_ahead
+        store, batch_size=run.batch_size, extras=("instance",), read_ahead=run.read_ahead
     ):
         bar.update(len(batch.view_ids))
         inst = batch.extras.get("instance")
@@ -243,7 +253,19 @@ def label_proposals(
     return Proposals(masks, ids)
 
 
-Proposer = Callable[[SceneCloud, Store | None, InstanceConfig], Proposals]
+class Proposer(Protocol):
+    """A proposal method: masks over ``cloud`` (``store``: its views, where the method
+    reads them) with ``settings``, reading views as ``run`` says."""
+
+    def __call__(
+        self,
+        cloud: SceneCloud,
+        store: Store | None,
+        settings: InstanceConfig,
+        *,
+        run: Execution = ...,
+    ) -> Proposals: ...
+
 
 PROPOSERS: dict[ProposalMethod, Proposer] = {
     ProposalMethod.GEOMETRIC: geometric_proposals,

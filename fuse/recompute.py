@@ -30,14 +30,17 @@ import pyarrow as pa
 
 from care.config import recorded_fields
 from care.errors import FuseError
+from care.keys import LOGIT_SCALE_KEY
 from care.store import Store, iter_batches, read_table, write_table_atomic
 from fuse.accumulate import COLUMN_CHUNK, CandidateSums
-from fuse.build import STORE_KEY, config_json_key, update_config
+from fuse.build import update_config
 from fuse.config import GridConfig
 from fuse.frame import store_stamp
+from fuse.keys import STORE_KEY, config_json_key
 from fuse.measures import MAX_TOP_CLASSES, candidate_metadata
 from fuse.sidecar import SidecarWriter, sidecar_path
 from fuse.vocabulary import vocabulary_text
+from runtime.execution import DEFAULT_EXECUTION, Execution
 from runtime.threads import Work, threads_for
 
 __all__ = ["grid_config_of", "recompute_candidates", "recompute_grid", "sums_from_views"]
@@ -98,17 +101,16 @@ def recompute_grid(
     vocabulary: Sequence[str] | None = None,
     logit_scale: float | None = None,
     *,
-    memory_budget: int | None = None,
-    cells_per_pass: int | None = None,
+    run: Execution = DEFAULT_EXECUTION,
 ) -> Path:
     """Rewrite the candidate columns of ``cells.parquet`` for another vocabulary or scale.
 
     The grid's own columns (position, colour, obstacle...) are kept; ``None`` keeps the
     current logit scale, and the store's cached names when ``vocabulary`` is None. The
     per-view cell features come from the store's views again (see the module docstring),
-    fused under ``memory_budget`` as a build would be (default: half the machine;
-    ``cells_per_pass`` overrides it, as in :class:`fuse.config.GridConfig`), on the thread
-    pools of :attr:`runtime.threads.Work.FUSE` like :func:`fuse.fuse_grid`.
+    fused as a build with the same ``run`` would be (its ``memory_budget``, or
+    ``cells_per_pass``; its read-ahead), on the thread pools of
+    :attr:`runtime.threads.Work.FUSE` like :func:`fuse.fuse_grid`.
     """
     from fuse.grid import CELLS_TABLE, cell_keys, fused_columns
 
@@ -121,10 +123,10 @@ def recompute_grid(
                 f"changed since); rebuild it with `care fuse grid {store.path} --overwrite`"
             )
             raise FuseError(msg)
-        config = replace(
-            config, logit_scale=scale, memory_budget=memory_budget, cells_per_pass=cells_per_pass
+        config = replace(config, logit_scale=scale)
+        return fused_columns(
+            store, config, text, cell_keys(cells), run=run, with_log_confidence=True
         )
-        return fused_columns(store, config, text, cell_keys(cells), with_log_confidence=True)
 
     return _recompute(store_path, CELLS_TABLE, "grid", columns, vocabulary, logit_scale)
 
@@ -177,7 +179,7 @@ def _recompute(
     path = store.table_path(table_name)
     table = read_table(path)
     md = dict(table.schema.metadata or {})
-    scale = float(md[b"care.logit_scale"]) if logit_scale is None else float(logit_scale)
+    scale = float(md[LOGIT_SCALE_KEY]) if logit_scale is None else float(logit_scale)
     names, text = vocabulary_text(store, vocabulary)
     common = columns(store, table, text, scale)
     new = pa.table(

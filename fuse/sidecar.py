@@ -30,15 +30,18 @@ import numpy as np
 import pyarrow as pa
 
 from care.fingerprint import fingerprint as content_fingerprint
+from care.keys import LOGIT_SCALE_KEY, VOCABULARY_KEY
+from care.maps import MapKind
+from fuse.keys import STORE_KEY, config_key
 
 __all__ = ["FINGERPRINT_KEYS", "SidecarWriter", "fingerprint", "read_sidecar", "sidecar_path"]
 
 FINGERPRINT_KEYS = (
-    b"care.vocabulary",
-    b"care.logit_scale",
-    b"care.grid.config",
-    b"care.instances.config",
-    b"care.store.created",
+    VOCABULARY_KEY,
+    LOGIT_SCALE_KEY,
+    config_key(MapKind.GRID),
+    config_key(MapKind.INSTANCES),
+    STORE_KEY,
 )
 """Metadata of the map table that a sidecar must share to describe the same map."""
 

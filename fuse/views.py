@@ -27,6 +27,7 @@ from care.encoders.base import Encoder, l2_normalise
 from care.errors import FuseError
 from care.frames import Frame
 from care.store import Store
+from runtime.execution import BATCH_SIZE, DEFAULT_EXECUTION, Execution
 from runtime.readahead import READ_AHEAD
 from runtime.readahead import read_ahead as ahead
 
@@ -107,7 +108,7 @@ class ViewSelection:
 def iter_view_batches(
     store: Store,
     *,
-    batch_size: int = 8,
+    batch_size: int = BATCH_SIZE,
     rgb: bool = False,
     extras: Sequence[str] = (),
     features: bool = False,
@@ -290,13 +291,11 @@ def select_views(
     points: np.ndarray,
     masks: Sequence[np.ndarray],
     *,
-    top_k: int = 5,
-    depth_tolerance: float = 0.1,
-    min_visible_points: int = 5,
+    top_k: int,
+    depth_tolerance: float,
+    min_visible_points: int,
     pool_features: bool = True,
-    batch_size: int = 8,
-    read_ahead: int = READ_AHEAD,
-    progress: bool = True,
+    run: Execution = DEFAULT_EXECUTION,
 ) -> ViewSelection:
     """Rank the store's views for each mask by visible point count; keep the best ``top_k``.
 
@@ -304,13 +303,13 @@ def select_views(
         store: the feature store.
         points: (N, 3) scene points the masks index.
         masks: M arrays of point indices (masks may overlap).
-        top_k: views kept per mask.
+        top_k: views kept per mask (the map's: :class:`fuse.config.InstanceConfig`).
         depth_tolerance: see :func:`visible_hits`.
         min_visible_points: a view with fewer visible points of a mask is not its view.
         pool_features: also pool each kept view's dense features inside the mask.
-        batch_size: views projected at once.
-        read_ahead: views decoded ahead on background threads (:func:`iter_view_batches`).
-        progress: show a tqdm bar over views.
+        run: its ``batch_size`` views projected at once, decoded ``read_ahead`` views
+            ahead on background threads (:func:`iter_view_batches`), a progress bar over
+            views with ``progress``.
     """
     M = len(masks)
     lengths = np.array([len(m) for m in masks], np.int64)
@@ -325,9 +324,9 @@ def select_views(
     best_view = np.zeros((M, 0), np.int64)
     best_box = np.zeros((M, 0, 4), np.int64)
     best_feat: np.ndarray | None = None
-    bar = tqdm(total=store.num_views, desc="view selection", disable=not progress)
+    bar = tqdm(total=store.num_views, desc="view selection", disable=not run.progress)
     for batch in iter_view_batches(
-        store, batch_size=batch_size, features=pool_features, read_ahead=read_ahead
+        store, batch_size=run.batch_size, features=pool_features, read_ahead=run.read_ahead
     ):
         hits = visible_hits(
             sub, batch.depth, batch.K, batch.cam_to_world, depth_tolerance=depth_tolerance
@@ -388,23 +387,25 @@ def crop_features(
     *,
     padding: float = 0.1,
     min_size: int = 8,
-    batch_size: int = 8,
-    read_ahead: int = READ_AHEAD,
-    progress: bool = True,
+    run: Execution = DEFAULT_EXECUTION,
 ) -> np.ndarray:
     """Per-view features (M, k, d) from re-encoding the bounding-box crop of each mask.
 
     Each selected (mask, view) box is grown by ``padding`` of its size on every side (at
     least ``min_size`` pixels wide), clipped to the image, cut from the view's RGB and
-    encoded with ``encoder.encode_crops``; unselected slots stay zero.
+    encoded with ``encoder.encode_crops``; unselected slots stay zero. Views are read
+    ``run.batch_size`` at a time, ``run.read_ahead`` ahead.
     """
     require_crops(encoder)
     M, k = selection.view_ids.shape
     out = np.zeros((M, k, encoder.dim), np.float32)
     sel_m, sel_r = np.nonzero(selection.view_ids >= 0)
     sel_view = selection.view_ids[sel_m, sel_r]
-    bar = tqdm(total=store.num_views, desc="crops", disable=not progress)
-    for batch in iter_view_batches(store, batch_size=batch_size, rgb=True, read_ahead=read_ahead):
+    bar = tqdm(total=store.num_views, desc="crops", disable=not run.progress)
+    batches = iter_view_batches(
+        store, batch_size=run.batch_size, rgb=True, read_ahead=run.read_ahead
+    )
+    for batch in batches:
         assert batch.rgb is not None  # requested above
         _, H, W, _ = batch.rgb.shape
         pos = np.searchsorted(batch.view_ids, sel_view)

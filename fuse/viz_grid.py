@@ -26,11 +26,13 @@ import pyarrow as pa
 import rerun as rr
 import rerun.blueprint as rrb
 
-from care.encoders.labels import STRUCTURE_NAMES
 from care.errors import FuseError
+from care.keys import LOGIT_SCALE_KEY, VOCABULARY_KEY
 from care.store import Store, read_table
 from care.viz import open_scene_recording, overview_eye, panels
+from care.vocab import STRUCTURE_NAMES
 from fuse.grid import CELLS_TABLE, GridLayout, grid_image
+from fuse.measures import MEASURE_COLUMNS
 from fuse.vocabulary import vocabulary_text
 
 __all__ = [
@@ -52,7 +54,7 @@ GRID_ENTITY = "grid"
 """Parent of the top-down image layers: ``grid/rgb``, ``grid/entropy``, ..."""
 GRID_CELLS_3D = "world/grid/cells"
 """The occupied cells as 3D points at (x, y, z_max), coloured by RGB."""
-MEASURE_LAYERS = ("confidence", "entropy", "stderr", "pwkl", "num_views")
+MEASURE_LAYERS = MEASURE_COLUMNS
 """Measure layers in tab order; ``confidence`` is for the class chosen at logging time."""
 STATUS_OBSERVED, STATUS_UNOBSERVED, STATUS_INFINITE = 0, 1, 2
 """Classes of a layer's ``status`` overlay."""
@@ -96,7 +98,7 @@ def layer_entity(layer: str) -> str:
 
 def default_class(cells: pa.Table) -> str | None:
     """The object class (not wall, floor, ...) that most cells have as their top class."""
-    vocabulary = json.loads((cells.schema.metadata or {}).get(b"care.vocabulary", b"[]"))
+    vocabulary = json.loads((cells.schema.metadata or {}).get(VOCABULARY_KEY, b"[]"))
     top = [c[0] for c in cells.column("top_classes").to_pylist() if c]
     counts = Counter(vocabulary[i] for i in top if vocabulary[i].lower() not in STRUCTURE_NAMES)
     if counts:
@@ -154,7 +156,7 @@ def confidence_raster(store: Store, cells: pa.Table, target: str) -> np.ndarray:
     _, text = vocabulary_text(store, [target])
     feature = cells.column("feature").combine_chunks()
     flat = feature.values.to_numpy(zero_copy_only=False).astype(np.float64)
-    scale = float(md.get(b"care.logit_scale", b"100"))
+    scale = float(md.get(LOGIT_SCALE_KEY, b"100"))
     logits = scale * flat.reshape(len(feature), -1) @ text[0].astype(np.float64)
     conf = np.exp(logits - cells.column("log_norm").to_numpy())
     return grid_image(ix, iy, conf, layout.shape)

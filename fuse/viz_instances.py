@@ -28,6 +28,7 @@ import pyarrow.compute as pc
 import rerun as rr
 import rerun.blueprint as rrb
 
+from care.keys import VOCABULARY_KEY
 from care.store import Store, read_table
 from care.viz import log_camera, open_scene_recording, overview_eye, panels
 
@@ -122,7 +123,7 @@ def log_instances(store_path: Path, rrd: Path, *, scene: str | None = None) -> P
     cloud = read_scene_points(store.table_path(SCENE_POINTS_TABLE))
     table = read_table(store.table_path(INSTANCES_TABLE))
     views = read_table(store.table_path(INSTANCE_VIEWS_TABLE), ["instance_id", "view_id", "rank"])
-    vocabulary = json.loads((table.schema.metadata or {}).get(b"care.vocabulary", b"[]"))
+    vocabulary = json.loads((table.schema.metadata or {}).get(VOCABULARY_KEY, b"[]"))
     rec = open_scene_recording(rrd, scene or Path(store_path).name)
     n = table.num_rows
     inst = views.column("instance_id").to_numpy()

@@ -8,7 +8,7 @@
 - :mod:`ingest.tf`: the TF buffer (chains, interpolation),
 - :mod:`ingest.sync`: stamp matching of depth and labels to colour,
 - :mod:`ingest.source`: a recording as a stream of posed :class:`care.frames.Frame`,
-- :mod:`ingest.pipeline`: ``run_ingest(IngestConfig)`` into a store,
+- :mod:`ingest.pipeline`: ``run_ingest(recording, out, IngestConfig)`` into a store,
 - :mod:`ingest.viz`: Rerun logging of an ingest.
 """
 

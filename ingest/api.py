@@ -2,22 +2,30 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 from care.encoders import Encoder
 from care.store import Store
 from ingest.pipeline import IngestConfig, run_ingest
+from runtime.execution import DEFAULT_EXECUTION, Execution
 
 __all__ = ["ingest"]
 
 
-def ingest(recording: Path, config: IngestConfig, *, encoder: Encoder | None = None) -> Store:
-    """Ingest ``recording`` into the store ``config.out`` and open it.
+def ingest(
+    recording: Path,
+    out: Path,
+    config: IngestConfig | None = None,
+    *,
+    run: Execution = DEFAULT_EXECUTION,
+    encoder: Encoder | None = None,
+) -> Store:
+    """Ingest ``recording`` into the store ``out`` and open it.
 
-    Everything the store depends on is in the arguments (``config.recording`` is replaced by
-    ``recording``); an up-to-date store (same recording content and options) is returned
-    without any work, or a model loaded. ``encoder``: an already built encoder instance.
+    Everything the store depends on is in the arguments: the recording, and what the store
+    is made from (``config``, default :class:`IngestConfig`); ``run`` says how the job runs
+    (``overwrite`` rebuilds a current store, ``progress`` shows a bar). An up-to-date store
+    (same recording content and options) is returned without any work, or a model loaded.
+    ``encoder``: an already built encoder instance.
     """
-    run_ingest(replace(config, recording=Path(recording)), encoder)
-    return Store(config.out)
+    return Store(run_ingest(recording, out, config, run=run, encoder=encoder))

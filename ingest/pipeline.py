@@ -6,6 +6,11 @@ The store is committed atomically with a meta.json that records where it came fr
 what was dropped; its ``fingerprint`` (source identity + configuration) lets a re-run with
 the same inputs return at once (idempotent), while any change to the recording or to the
 options rebuilds it.
+
+:func:`run_ingest` takes where things are (the recording, the store), what the store is
+made from (:class:`IngestConfig`) and how the job runs (the run's
+:class:`runtime.execution.Execution`: ``overwrite`` rebuilds a current store, ``progress``
+shows a bar).
 """
 
 from __future__ import annotations
@@ -24,17 +29,18 @@ from care.encoders.record import RECORD_KEY, EncoderRecord
 from care.errors import IngestError, StoreError
 from care.fingerprint import config_fields, content_digest
 from care.fingerprint import fingerprint as content_fingerprint
-from care.frames import Frame
+from care.frames import DEFAULT_WORLD_FRAME, Frame
 from care.outputs import check_file_output, check_output, damaged, output_lock
 from care.store import META_FILE, SCHEMA_VERSION, StoreMeta, StoreWriter
 from ingest.select import FrameSelection, FrameSelector
 from ingest.source import ReadOptions, RecordingFrames, first_distortion
+from runtime.execution import DEFAULT_EXECUTION, Execution
 from runtime.threads import Work, threads_for
 
 __all__ = ["INGEST_VERSION", "IngestConfig", "fingerprint", "request_fingerprint", "run_ingest"]
 
-_WHERE_AND_HOW = ("recording", "out", "rrd", "force", "progress")
-"""Ingest settings the store does not record: where things are and how the job ran."""
+_NOT_RECORDED = ("rrd",)
+"""Fields of :class:`IngestConfig` the store does not record: where its Rerun file goes."""
 
 INGEST_VERSION = "1"
 """Bumped when ingest's output for the same input changes; part of the fingerprint."""
@@ -42,12 +48,10 @@ INGEST_VERSION = "1"
 
 @dataclass(frozen=True)
 class IngestConfig:
-    """One ingest job (``care ingest``'s options are generated from it)."""
+    """What a store is made from, and the Rerun file logged beside it (``care ingest``'s
+    options are generated from it). Where the recording and the store are, and how the job
+    runs (:class:`runtime.execution.Execution`), are :func:`run_ingest`'s arguments."""
 
-    recording: Path
-    """MCAP file, rosbag2 directory or ROS 1 bag."""
-    out: Path
-    """Store directory to create (replaced atomically if it exists and is stale)."""
     read: ReadOptions = field(default_factory=ReadOptions)
     """Topic, frame and synchronisation choices."""
     encoder: str | None = None
@@ -64,10 +68,6 @@ class IngestConfig:
     """Write a Rerun recording of the ingest here."""
     rrd_every: int = 10
     """Log the back-projected point cloud of every Nth frame."""
-    force: bool = False
-    """Rebuild even if the store is up to date."""
-    progress: bool = True
-    """Show a tqdm progress bar."""
 
     def __post_init__(self) -> None:
         check_numbers(
@@ -145,29 +145,30 @@ def request_fingerprint(config: IngestConfig, source: dict[str, Any]) -> str:
     )
 
 
-def _up_to_date(config: IngestConfig, fp: str, key: str = "fingerprint") -> bool:
-    if config.force or not (config.out / META_FILE).is_file():
+def _up_to_date(job: _Job, fp: str, key: str = "fingerprint") -> bool:
+    config, out = job.config, job.out
+    if job.run.overwrite or not (out / META_FILE).is_file():
         return False
     if config.rrd is not None and not config.rrd.is_file():
         return False
     try:
-        meta = StoreMeta.read(config.out)
+        meta = StoreMeta.read(out)
     except StoreError:
         return False
     # same inputs, and every table as it was committed (size and checksum): a damaged
     # store is rebuilt, not trusted
-    current = getattr(meta, key) == fp and bool(meta.tables) and not damaged(config.out)
-    return current and not _distortion_kept(config, meta)
+    current = getattr(meta, key) == fp and bool(meta.tables) and not damaged(out)
+    return current and not _distortion_kept(job, meta)
 
 
-def _distortion_kept(config: IngestConfig, meta: StoreMeta) -> bool:
+def _distortion_kept(job: _Job, meta: StoreMeta) -> bool:
     """True for a store made before ingest removed lens distortion from a recording whose
     camera info has non-zero D: its fingerprint matches (D is in the recording's checksum,
     the code is what changed) but its images are still distorted. Zero-D recordings keep
     their stores and fingerprints; a store that records its distortion needs no look."""
     if meta.distortion is not None:
         return False
-    return not first_distortion(Path(config.recording), config.read).is_zero
+    return not first_distortion(job.recording, job.config.read).is_zero
 
 
 def _vocabulary(config: IngestConfig, label_names: tuple[str, ...]) -> list[str]:
@@ -178,8 +179,9 @@ def _vocabulary(config: IngestConfig, label_names: tuple[str, ...]) -> list[str]
     return list(vocabulary_option(config.vocabulary))
 
 
-def _open_logger(config: IngestConfig, frames: RecordingFrames) -> Any:
+def _open_logger(job: _Job, frames: RecordingFrames) -> Any:
     """A Rerun logger writing to a temporary file that :meth:`keep` renames into place."""
+    config = job.config
     if config.rrd is None:
         return None
     from ingest.viz import IngestLogger
@@ -187,56 +189,75 @@ def _open_logger(config: IngestConfig, frames: RecordingFrames) -> Any:
     return IngestLogger(
         config.rrd,
         every=config.rrd_every,
-        world_frame=frames.world_frame or "map",
+        world_frame=frames.world_frame or DEFAULT_WORLD_FRAME,
         camera_frame=frames.camera_frame or "camera_optical_frame",
-        scene=Path(config.out).name,
+        scene=job.out.name,
     )
 
 
-def run_ingest(config: IngestConfig, encoder: Encoder | None = None) -> Path:
-    """Build the store ``config.out`` from ``config.recording``; returns the store path.
+@dataclass(frozen=True)
+class _Job:
+    """One ingest: the recording, the store it becomes, what it is made from and how the
+    job runs."""
+
+    recording: Path
+    out: Path
+    config: IngestConfig
+    run: Execution
+
+
+def run_ingest(
+    recording: Path,
+    out: Path,
+    config: IngestConfig | None = None,
+    *,
+    run: Execution = DEFAULT_EXECUTION,
+    encoder: Encoder | None = None,
+) -> Path:
+    """Build the store ``out`` from ``recording`` with ``config``; returns the store path.
 
     ``encoder`` overrides ``config.encoder`` with an instance (e.g. one built in a test or
-    shared across many recordings). Returns at once if the store is up to date. Runs on the
-    thread pools of :attr:`runtime.threads.Work.DEFAULT` whoever calls it (the encoder's
-    forward pass on :attr:`~runtime.threads.Work.ENCODE`'s).
+    shared across many recordings). Returns at once if the store is up to date (unless
+    ``run.overwrite``). Runs on the thread pools of :attr:`runtime.threads.Work.DEFAULT`
+    whoever calls it (the encoder's forward pass on :attr:`~runtime.threads.Work.ENCODE`'s).
     """
+    job = _Job(Path(recording), Path(out), config or IngestConfig(), run)
     with threads_for(Work.DEFAULT):
-        return _run_ingest(config, encoder)
+        return _run_ingest(job, encoder)
 
 
-def _run_ingest(config: IngestConfig, encoder: Encoder | None) -> Path:
-    recording = Path(config.recording)
+def _run_ingest(job: _Job, encoder: Encoder | None) -> Path:
+    recording, config, out = job.recording, job.config, job.out
     if not recording.exists():
         msg = f"{recording}: no such file or directory; check the recording path."
         raise IngestError(msg)
     # refused before any work: a path we did not create, the recording itself, ...
-    check_output(config.out, kind="store", inputs=[recording])
+    check_output(out, kind="store", inputs=[recording])
     if config.rrd is not None:
         check_file_output(config.rrd, inputs=[recording])
     source = _source_identity(recording)
     request = request_fingerprint(config, source) if encoder is None else None
-    if request is not None and _up_to_date(config, request, "request_fingerprint"):
-        return config.out  # before building the encoder: no model is loaded
+    if request is not None and _up_to_date(job, request, "request_fingerprint"):
+        return out  # before building the encoder: no model is loaded
     if encoder is None and config.encoder is not None:
         encoder = make_encoder(config.encoder, config.encoder_options)
-    with output_lock(config.out):
-        check_output(config.out, kind="store", inputs=[recording])  # as the lock found it
+    with output_lock(out):
+        check_output(out, kind="store", inputs=[recording])  # as the lock found it
         fp = fingerprint(config, encoder, source)
-        if _up_to_date(config, fp):
-            return config.out
-        _build(config, recording, encoder, source, fp, request)
-    return config.out
+        if _up_to_date(job, fp):
+            return out
+        _build(job, encoder, source, fp, request)
+    return out
 
 
 def _build(
-    config: IngestConfig,
-    recording: Path,
+    job: _Job,
     encoder: Encoder | None,
     source: dict[str, Any],
     fp: str,
     request: str | None,
 ) -> None:
+    config, recording = job.config, job.recording
     with RecordingFrames(recording, config.read) as frames:
         vocab = _vocabulary(config, frames.label_names)
         if encoder is not None:
@@ -244,16 +265,16 @@ def _build(
         info = encoder.info(vocab) if encoder is not None else None
         # the text side first: a missing text table or model fails before any frame is read
         text = encoder.encode_text(vocab) if encoder is not None and vocab else None
-        logger = _open_logger(config, frames)
+        logger = _open_logger(job, frames)
         total = frames.topics[frames.selection.rgb].count if frames.selection else None
         bar = tqdm(
             total=total,
             desc=f"ingest {recording.name}",
             unit="frame",
-            disable=not config.progress,
+            disable=not job.run.progress,
         )
         try:
-            with StoreWriter(config.out, info) as writer:
+            with StoreWriter(job.out, info) as writer:
                 selector = FrameSelector(config.select)
                 _stream(
                     frames,
@@ -266,7 +287,7 @@ def _build(
                 )
                 if text is not None:
                     writer.set_text(vocab, text)
-                meta = _meta(config, frames, source, fp, vocab, encoder)
+                meta = _meta(job, frames, source, fp, vocab, encoder)
                 meta["counts"]["skipped"] = dict(sorted(selector.skipped.items()))
                 writer.commit({**meta, "request_fingerprint": request})
         except BaseException:
@@ -319,15 +340,16 @@ def _stream(
 
 
 def _meta(
-    config: IngestConfig,
+    job: _Job,
     frames: RecordingFrames,
     source: dict[str, Any],
     fp: str,
     vocab: list[str],
     encoder: Encoder | None,
 ) -> dict[str, Any]:
+    config = job.config
     described = frames.describe()
-    recorded = config_fields(config, _WHERE_AND_HOW)
+    recorded = config_fields(config, _NOT_RECORDED)
     for name in ReadOptions.HOW:  # limits that only refuse: not what the store is
         recorded["read"].pop(name, None)
     record = (
@@ -338,8 +360,8 @@ def _meta(
         "fingerprint": fp,
         "source": {
             # relative to the store: no machine's absolute path inside a store
-            "path": os.path.relpath(Path(config.recording).resolve(), Path(config.out).resolve()),
-            "name": Path(config.recording).name,
+            "path": os.path.relpath(job.recording.resolve(), job.out.resolve()),
+            "name": job.recording.name,
             **source,
         },
         "topics": described["topics"],

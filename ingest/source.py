@@ -36,7 +36,7 @@ import numpy as np
 
 from care.checks import check_numbers
 from care.errors import IngestError
-from care.frames import Frame
+from care.frames import DEFAULT_WORLD_FRAME, Frame
 from ingest import decode
 from ingest.readers import RecordingReader, TopicInfo, open_reader
 from ingest.sync import Match, StampSync
@@ -262,7 +262,7 @@ class RecordingFrames:
         assert self.camera_frame is not None
         frames = self._tf.frames
         if self.camera_frame not in frames:
-            return next((f for f in _WORLD_FRAME_NAMES if f in frames), "map")
+            return next((f for f in _WORLD_FRAME_NAMES if f in frames), DEFAULT_WORLD_FRAME)
         root = self._tf.root(self.camera_frame)
         chain = {root}
         chain.update(f for f in frames if self._tf.root(f) == root)

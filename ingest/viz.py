@@ -22,9 +22,10 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from care.frames import Frame
+from care.frames import DEFAULT_WORLD_FRAME, Frame
 from care.viz import depth_png, jpeg, open_scene_recording, panels, set_stamp
 from geometry.transforms import backproject, transform_points
+from ingest.write import CAMERA_FRAME, WORLD_FRAME
 
 __all__ = [
     "CAMERA_ENTITY",
@@ -53,7 +54,7 @@ _DEPTH_RANGE_M = (0.0, 6.0)
 """Colour range of the depth view; indoor RGB-D cameras see a few metres."""
 
 
-def ingest_blueprint(world_frame: str = "map", camera_frame: str = "camera_optical_frame"):
+def ingest_blueprint(world_frame: str = WORLD_FRAME, camera_frame: str = CAMERA_FRAME):
     """Layout of an ingest recording: camera image and depth side by side on top, the 3D map
     building up beside the TF tree below; the time panel open to scrub through the frames."""
     return rrb.Blueprint(
@@ -92,8 +93,8 @@ class IngestLogger:
         rrd_path: Path,
         *,
         every: int = 10,
-        world_frame: str = "map",
-        camera_frame: str = "camera_optical_frame",
+        world_frame: str = WORLD_FRAME,
+        camera_frame: str = CAMERA_FRAME,
         scene: str | None = None,
     ) -> None:
         self.path = Path(rrd_path)
@@ -101,7 +102,7 @@ class IngestLogger:
         self.scene = scene or self.path.name.split(".")[0]
         self.rec = open_scene_recording(self.tmp, self.scene)
         self.every = max(1, int(every))
-        self.world_frame = world_frame or "map"
+        self.world_frame = world_frame or DEFAULT_WORLD_FRAME
         self.camera_frame = camera_frame or "camera_optical_frame"
         self._positions: list[np.ndarray] = []
         self._static_done = False

@@ -33,7 +33,8 @@ import numpy as np
 from PIL import Image
 
 from care.errors import IngestError
-from care.frames import Frame
+from care.frames import DEFAULT_WORLD_FRAME, Frame
+from ingest.formats import RecordingFormat
 from ingest.typestores import ros1_typestore, ros2_typestore
 
 __all__ = [
@@ -45,7 +46,7 @@ __all__ = [
     "write_recording",
 ]
 
-WORLD_FRAME = "map"
+WORLD_FRAME = DEFAULT_WORLD_FRAME
 BASE_FRAME = "base_link"
 CAMERA_FRAME = "camera_optical_frame"
 
@@ -70,14 +71,12 @@ DEFAULT_BASE_TO_CAMERA[:3, :3] = _OPTICAL_FROM_BASE_AXES
 DEFAULT_BASE_TO_CAMERA[:3, 3] = (0.2, 0.0, 1.0)
 """A realistic static mount: camera 0.2 m ahead of and 1.0 m above base_link, looking forward."""
 
-Fmt = Literal["mcap", "ros2", "ros1"]
-
 
 def write_recording(
     path: Path,
     frames: Iterable[Frame],
     *,
-    fmt: Fmt,
+    fmt: RecordingFormat | str,
     compressed_rgb: bool = False,
     base_to_camera: np.ndarray | None = None,
     label_names: Sequence[str] = (),
@@ -87,7 +86,8 @@ def write_recording(
     """Stream ``frames`` into a new recording at ``path`` and return ``path``.
 
     Args:
-        path: ``.mcap`` file (fmt "mcap"), rosbag2 directory ("ros2") or ``.bag`` ("ros1").
+        path: ``.mcap`` file (:attr:`RecordingFormat.MCAP`), rosbag2 directory (``ROS2``)
+            or ``.bag`` (``ROS1``).
             Written to a temporary sibling and renamed at the end; an existing path is replaced.
         frames: synchronised frames; each is serialised and written as it arrives.
         fmt: container format.
@@ -99,8 +99,8 @@ def write_recording(
         ros2_storage: storage plugin of a rosbag2 directory.
     """
     path = Path(path)
-    if fmt not in ("mcap", "ros2", "ros1"):
-        msg = f"write_recording: unknown format {fmt!r}; choose mcap, ros2 or ros1"
+    if fmt not in set(RecordingFormat):
+        msg = f"write_recording: unknown format {fmt!r}; choose {RecordingFormat.choices()}"
         raise IngestError(msg)
     mount = DEFAULT_BASE_TO_CAMERA if base_to_camera is None else np.asarray(base_to_camera)
     # A temporary sibling directory holding a file of the final name: rosbag2 names its
@@ -110,7 +110,7 @@ def write_recording(
     tmp_dir.mkdir(parents=True)
     tmp = tmp_dir / path.name
     try:
-        sink = _make_sink(fmt, tmp, ros2_storage)
+        sink = _make_sink(RecordingFormat(fmt), tmp, ros2_storage)
         try:
             _write_frames(sink, frames, mount, compressed_rgb, tuple(label_names), depth_offset_ns)
         except BaseException:
@@ -293,10 +293,10 @@ class _Rosbag1Sink(_Sink):
             self._writer.close()
 
 
-def _make_sink(fmt: Fmt, path: Path, ros2_storage: str) -> _Sink:
-    if fmt == "mcap":
+def _make_sink(fmt: RecordingFormat, path: Path, ros2_storage: str) -> _Sink:
+    if fmt is RecordingFormat.MCAP:
         return _McapSink(path)
-    if fmt == "ros2":
+    if fmt is RecordingFormat.ROS2:
         return _Rosbag2Sink(path, ros2_storage)
     return _Rosbag1Sink(path)
 

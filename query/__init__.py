@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 from query.confidence import confidence, log_confidence, rank_by_confidence
-from query.map import MEASURES, CandidateMap, MapKind, load_map, map_from_table
+from query.map import MEASURES, CandidateMap, load_map, map_from_table
 from query.text import TextMatch, resolve_text
 
 __all__ = [
     "MEASURES",
     "CandidateMap",
-    "MapKind",
     "TextMatch",
     "confidence",
     "load_map",

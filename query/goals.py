@@ -31,6 +31,8 @@ import numpy as np
 import pyarrow.parquet as pq
 
 from care.errors import QueryError
+from care.frames import DEFAULT_WORLD_FRAME
+from care.keys import GRID_SHAPE_KEY
 from care.store import META_FILE, StoreMeta, read_map_frame, read_table
 from fuse.layout import CELLS_TABLE, GridLayout
 from query.map import CandidateMap
@@ -87,7 +89,7 @@ class Goal:
 
     map_from_world: np.ndarray | None = None
     """(4, 4) the store's map frame (None: the map frame is the recording's world frame)."""
-    world_frame: str = "map"
+    world_frame: str = DEFAULT_WORLD_FRAME
     """The recording's world frame name."""
 
     def pose_matrix(self) -> np.ndarray:
@@ -204,12 +206,11 @@ class FreeSpace:
             return None
         header = read_table(path, [])
         md = header.schema.metadata or {}
-        if b"care.grid.shape" not in md or not {"ix", "iy", "obstacle"} <= set(
-            pq.read_schema(path).names
-        ):
+        columns = ["ix", "iy", "obstacle"]
+        if GRID_SHAPE_KEY not in md or not set(columns) <= set(pq.read_schema(path).names):
             return None
         layout = GridLayout.from_table(header)
-        cells = read_table(path, ["ix", "iy", "obstacle"])
+        cells = read_table(path, columns)
         ix = cells.column("ix").to_numpy().astype(np.int64)
         iy = cells.column("iy").to_numpy().astype(np.int64)
         obstacle = cells.column("obstacle").to_numpy(zero_copy_only=False).astype(bool)
@@ -264,7 +265,7 @@ class GoalMaker:
     map_from_world: np.ndarray | None = None
     """The store's map frame when it is not the world frame (goals then also come in the world
     frame)."""
-    world_frame: str = "map"
+    world_frame: str = DEFAULT_WORLD_FRAME
 
     @classmethod
     def from_store(cls, store: Path, config: GoalConfig | None = None) -> GoalMaker:
@@ -276,7 +277,7 @@ class GoalMaker:
         stamps = (
             read_table(views, ["stamp_ns"]).column("stamp_ns").to_numpy() if views.is_file() else []
         )
-        world = str((meta and meta.world_frame) or "map")
+        world = str((meta and meta.world_frame) or DEFAULT_WORLD_FRAME)
         frame = _map_frame(store)
         return cls(
             frame_id=world if frame is None else MAP_FRAME_ID,

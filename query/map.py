@@ -13,7 +13,6 @@ import dataclasses
 import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from enum import StrEnum
 from functools import cached_property
 from pathlib import Path
 
@@ -21,9 +20,12 @@ import numpy as np
 import pyarrow as pa
 
 from care.errors import QueryError
+from care.keys import ENCODER_NAME_KEY, GRID_CELL_SIZE_KEY
+from care.maps import MapKind
 from care.store import read_schema, read_table
 from fuse.schemas import QUERY_COLUMNS, schema_problems
 from fuse.sidecar import read_sidecar
+from query.store_text import StoreText
 
 __all__ = [
     "LOG_CONFIDENCE_CACHE",
@@ -32,20 +34,10 @@ __all__ = [
     "NOT_IN_TOP",
     "REPLAN_COLUMNS",
     "CandidateMap",
-    "MapKind",
     "list_column",
     "load_map",
     "map_from_table",
 ]
-
-
-class MapKind(StrEnum):
-    """The two maps a store holds (:data:`MAP_TABLES` names each one's table)."""
-
-    INSTANCES = "instances"
-    """OpenMask3D-like instance map."""
-    GRID = "grid"
-    """VLMaps-like top-down grid map."""
 
 
 MAP_TABLES: dict[MapKind, str] = {MapKind.INSTANCES: "instances", MapKind.GRID: "cells"}
@@ -117,7 +109,7 @@ class CandidateMap:
     encoder_name: str = ""
     cell_size: float | None = None
     text_encoder: Callable[[Sequence[str]], np.ndarray] | None = None
-    """The store's own text side for free text (:class:`query.openvocab.StoreText`, set by
+    """The store's own text side for free text (:class:`query.store_text.StoreText`, set by
     :func:`load_map`); None for maps built in memory."""
     log_confidence_rows: np.ndarray | None = None
     """(n, N) float32 ``log P_c[y]`` per class, class-major (memory-mapped from the map's
@@ -199,7 +191,9 @@ class CandidateMap:
             pwkl=self.pwkl[ids],
             num_views=self.num_views[ids],
             positions=self.positions[ids],
-            point_offsets=offsets if self.kind == "instances" else np.zeros(len(ids) + 1, np.int64),
+            point_offsets=offsets
+            if self.kind == MapKind.INSTANCES
+            else np.zeros(len(ids) + 1, np.int64),
             point_indices=self.point_indices[pos.astype(np.int64)],
             encoder_name=self.encoder_name,
             cell_size=self.cell_size,
@@ -264,7 +258,7 @@ class CandidateMap:
         cell; other maps compare every centre.
         """
         xy = self.positions[:, :2]
-        if self.kind != "grid" or not self.cell_size:
+        if self.kind != MapKind.GRID or not self.cell_size:
             d2 = ((xy - xy[candidate]) ** 2).sum(-1)
             return np.flatnonzero(d2 <= radius**2)
         raster, cells = self._cell_raster
@@ -347,12 +341,12 @@ def map_from_table(
         top = list_column(table, "top_classes", np.int16).reshape(n_cand, -1)
     else:
         features, top = sidecar["feature"], sidecar["top_classes"]
-    if kind == "grid":
+    if kind == MapKind.GRID:
         positions = np.stack(
             [table.column(c).to_numpy().astype(np.float32) for c in ("x", "y", "z_max")], axis=1
         ).reshape(n_cand, 3)
         offsets, indices = np.zeros(n_cand + 1, np.int64), np.zeros(0, np.int64)
-        cell = md.get(b"care.grid.cell_size")
+        cell = md.get(GRID_CELL_SIZE_KEY)
         cell_size = float(cell) if cell is not None else None
     else:
         positions = list_column(table, "center", np.float32).reshape(n_cand, 3)
@@ -377,7 +371,7 @@ def map_from_table(
         positions=positions,
         point_offsets=offsets,
         point_indices=indices,
-        encoder_name=(md.get(b"care.encoder.name") or b"").decode(),
+        encoder_name=(md.get(ENCODER_NAME_KEY) or b"").decode(),
         cell_size=cell_size,
         log_confidence_rows=None if sidecar is None else sidecar["log_confidence"],
     )
@@ -412,7 +406,7 @@ def _vocabulary_text(
 
 
 def load_map(
-    store: Path, kind: MapKind = "instances", *, weights: Path | None = None
+    store: Path, kind: MapKind = MapKind.INSTANCES, *, weights: Path | None = None
 ) -> CandidateMap:
     """Read a store's ``instances.parquet`` or ``cells.parquet`` (and ``text.parquet``).
 
@@ -437,8 +431,6 @@ def load_map(
     columns = None if sidecar is None else [n for n in schema.names if n not in wide]
     table = read_table(path, columns)
     vocabulary = tuple(json.loads(_meta(table, "care.vocabulary", path)))
-    from query.openvocab import StoreText
-
     text = _vocabulary_text(store, vocabulary, weights)
     cmap = map_from_table(table, text, kind, path=path, sidecar=sidecar)
     return dataclasses.replace(cmap, text_encoder=StoreText(store, weights))

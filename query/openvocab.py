@@ -17,59 +17,21 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from weakref import WeakKeyDictionary
 
 import numpy as np
 
-from care.errors import CareError, QueryError
+from care.errors import QueryError
 from query.confidence import confidence as class_confidence
 from query.confidence import log_confidence as class_log_confidence
 from query.map import LOG_CONFIDENCE_CACHE, NOT_IN_TOP, CandidateMap
+from query.store_text import NoTextSideError
 from query.text import TextMatch, resolve_text
 
-__all__ = ["NoTextSideError", "QueryTarget", "StoreText", "open_queries", "open_query"]
+__all__ = ["QueryTarget", "open_queries", "open_query"]
 
 _CHUNK = 1 << 16
 """Candidates per block when ranking the query among every class (bounds the (N, n) logits)."""
-
-
-class NoTextSideError(QueryError):
-    """The store's model cannot embed this text (a precomputed store without it in its text
-    table): the query falls back to the sentence model. Any other failure is an error."""
-
-
-class StoreText:
-    """A store's own text side, built at the first free-text query and kept (CLIP loads once).
-
-    Calling it embeds texts. It raises :class:`NoTextSideError` when the store's model has no text
-    side for them, and any other :class:`~care.errors.CareError` (moved weights, another
-    version) as it is.
-    """
-
-    def __init__(self, store: Path, weights: Path | None = None) -> None:
-        self.store, self.weights = Path(store), weights
-        self._embed: Callable[[Sequence[str]], np.ndarray] | None = None
-        self._lookup_only = False
-        self.describe = "store text encoder"
-
-    def __call__(self, texts: Sequence[str]) -> np.ndarray:
-        if self._embed is None:
-            from care.encoders.record import store_record, store_text_encoder
-
-            record = store_record(self.store, weights=self.weights)
-            embed = store_text_encoder(self.store, weights=self.weights)
-            if embed is None:
-                msg = f"{self.store}: the store's {record.name} encoder has no text table"
-                raise NoTextSideError(msg)
-            self._embed, self._lookup_only = embed, record.name == "precomputed"
-            self.describe = f"{record.name} text encoder"
-        try:
-            return self._embed(texts)
-        except CareError as err:
-            if self._lookup_only:  # the text table lacks this text
-                raise NoTextSideError(str(err)) from err
-            raise
 
 
 _VOCAB_LOGITS: WeakKeyDictionary[CandidateMap, np.ndarray] = WeakKeyDictionary()
@@ -174,7 +136,7 @@ def open_query(
 
     A vocabulary class (case-insensitive) is itself. Other text joins the vocabulary through
     ``embed`` (default: the map's :attr:`~query.map.CandidateMap.text_encoder`, the store's own
-    text side). Only when that model has no text side for it (:class:`NoTextSideError`) does
+    text side, :class:`query.store_text.StoreText`). Only when that model has no text side for it (:class:`NoTextSideError`) does
     the text map to the nearest classes by the sentence model; a broken model is an error.
     ``QueryTarget.match.method`` says which.
     """

@@ -18,6 +18,7 @@ import numpy as np
 from care.checks import check_numbers
 from care.config import member
 from care.errors import ReplanError
+from care.maps import MapKind
 from query.map import MEASURES, REPLAN_COLUMNS, CandidateMap
 from replan.strategies import (
     CRITERIA,
@@ -32,7 +33,9 @@ from replan.strategies import (
 )
 
 __all__ = [
+    "DEFAULT_ATTEMPTS",
     "DEFAULT_EXCLUDE_RADIUS",
+    "DEFAULT_K",
     "Attempts",
     "Choice",
     "ReplanConfig",
@@ -44,6 +47,10 @@ __all__ = [
 
 DEFAULT_EXCLUDE_RADIUS = 1.0
 """Metres around a failed grid cell that later attempts skip (the success radius)."""
+DEFAULT_K = 4
+"""Size parameter of a replan's candidate set when none is given."""
+DEFAULT_ATTEMPTS = 2
+"""Attempts per query when none is given: the first answer and one replan."""
 
 
 @dataclass(frozen=True)
@@ -55,7 +62,7 @@ class ReplanConfig:
     """Replan strategy."""
     criterion: Criterion = Criterion.CONFIDENCE
     """Candidate set of the strategies that choose within one."""
-    k: int = 4
+    k: int = DEFAULT_K
     """Size parameter of the candidate set (>= 1)."""
     exclude_radius: float = DEFAULT_EXCLUDE_RADIUS
     """Grid: metres around a failed cell skipped later; also the radius of a visited place."""
@@ -160,9 +167,9 @@ def run_attempts(
     success: np.ndarray,
     columns: dict[str, np.ndarray],
     *,
-    criterion: str = "confidence",
-    k: int = 4,
-    attempts: int = 2,
+    criterion: Criterion = Criterion.CONFIDENCE,
+    k: int = DEFAULT_K,
+    attempts: int = DEFAULT_ATTEMPTS,
     rank: np.ndarray | None = None,
     positions: np.ndarray | None = None,
     exclude_radius: float = 0.0,
@@ -300,7 +307,7 @@ def next_goal(
     places = np.asarray(visited_at, dtype=np.float64).reshape(-1, 2)
     available = np.ones_like(conf, dtype=bool)
     available[0, candidates_near(cmap, places, default_radius)] = False
-    radius = default_radius if cmap.kind == "grid" else 0.0
+    radius = default_radius if cmap.kind == MapKind.GRID else 0.0
     available[0, visited_ids] = False
     if radius > 0:  # the map's spatial index: each exclusion costs its window, not N
         for v in np.unique(visited_ids):

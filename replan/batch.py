@@ -24,6 +24,7 @@ import numpy as np
 import pyarrow as pa
 
 from care.errors import ReplanError
+from care.maps import MapKind
 from query.confidence import rank_by_confidence
 from query.goals import Goal, GoalMaker
 from query.map import MEASURES, REPLAN_COLUMNS, CandidateMap
@@ -288,8 +289,8 @@ def plan_batch(
 
     config = config or BatchConfig()
     columns = {name: cmap.column(name) for name in REPLAN_COLUMNS}
-    positions = cmap.positions if cmap.kind == "grid" else None
-    radius = config.exclude_radius if cmap.kind == "grid" else 0.0
+    positions = cmap.positions if cmap.kind == MapKind.GRID else None
+    radius = config.exclude_radius if cmap.kind == MapKind.GRID else 0.0
     rng = np.random.default_rng(config.seed)
     cache: dict[int, Goal] = {}
     parts: list[pa.Table] = []

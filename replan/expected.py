@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from replan.attempts import available_after
-from replan.strategies import Strategy, best_of, candidate_set, get_strategy
+from replan.attempts import DEFAULT_ATTEMPTS, DEFAULT_K, available_after
+from replan.strategies import Criterion, Strategy, best_of, candidate_set, get_strategy
 
 __all__ = ["expected_random_success"]
 
@@ -23,9 +23,9 @@ def expected_random_success(
     conf: np.ndarray,
     success: np.ndarray,
     *,
-    criterion: str = "confidence",
-    k: int = 4,
-    attempts: int = 2,
+    criterion: Criterion = Criterion.CONFIDENCE,
+    k: int = DEFAULT_K,
+    attempts: int = DEFAULT_ATTEMPTS,
     rank: np.ndarray | None = None,
     positions: np.ndarray | None = None,
     exclude_radius: float = 0.0,

@@ -16,12 +16,10 @@ from enum import StrEnum
 from care.checks import check_numbers
 from care.config import member
 from care.errors import CareError
+from care.store import BATCH_SIZE
 from runtime.readahead import READ_AHEAD
 
-__all__ = ["BATCH_SIZE", "Backend", "Execution"]
-
-BATCH_SIZE = 8
-"""Views handled at once where a stage batches them (projected, cropped, encoded)."""
+__all__ = ["BATCH_SIZE", "DEFAULT_EXECUTION", "Backend", "Execution"]
 
 
 class Backend(StrEnum):
@@ -78,3 +76,7 @@ class Execution:
                              else {"cells_per_pass": self.cells_per_pass})},
             positive={"task_cpus": self.task_cpus},
         )  # fmt: skip
+
+
+DEFAULT_EXECUTION = Execution()
+"""Every setting at its default: the ``run`` of a stage function called without one."""

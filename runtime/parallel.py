@@ -17,11 +17,13 @@ import signal
 import socket
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
+from contextvars import ContextVar
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
 from care.errors import CareError
+from runtime.execution import Backend, Execution
 
 __all__ = [
     "RAY_HOOK",
@@ -73,12 +75,15 @@ def setup_worker() -> None:
 
 @dataclass(frozen=True)
 class Runner:
-    """Where :func:`run_tasks` runs tasks, and what each task declares to Ray."""
+    """Where :func:`run_tasks` runs tasks, and what each task declares to Ray; made from a
+    run's :class:`runtime.execution.Execution` by :meth:`of`."""
 
     workers: int = 1
     """Local processes (1: one after another in this process)."""
-    ray_address: str | bool | None = None
-    """None/False: no Ray; True or "": a local Ray; an address: a running cluster."""
+    backend: Backend = Backend.PROCESSES
+    """A local process pool, or Ray."""
+    address: str | None = None
+    """A running Ray cluster's address (with the Ray backend; None: a local Ray)."""
     num_cpus: float = 1.0
     """CPUs a Ray task declares."""
     memory: int | None = None
@@ -86,13 +91,21 @@ class Runner:
     executor: Executor | None = field(default=None, compare=False, repr=False)
     """A process pool kept up across :func:`run_tasks` calls (:func:`open_runner`)."""
 
-    @property
-    def uses_ray(self) -> bool:
-        return self.ray_address is not None and self.ray_address is not False
+    @classmethod
+    def of(cls, run: Execution) -> Runner:
+        """The runner of ``run``'s tasks: ``run.workers`` processes (default: one per CPU)
+        or Ray, each task declaring ``run.task_cpus`` and ``run.task_memory``."""
+        return cls(
+            workers=run.workers or os.cpu_count() or 1,
+            backend=run.backend,
+            address=run.ray_address or None,
+            num_cpus=run.task_cpus,
+            memory=run.task_memory,
+        )
 
     @property
-    def address(self) -> str | None:
-        return None if self.ray_address is True or not self.ray_address else str(self.ray_address)
+    def uses_ray(self) -> bool:
+        return self.backend is Backend.RAY
 
     def describe(self) -> str:
         if self.uses_ray:
@@ -100,21 +113,34 @@ class Runner:
         return "serial" if self.workers <= 1 else f"{self.workers} processes"
 
 
+_OPEN: ContextVar[tuple[Runner, ...]] = ContextVar("care_open_runners", default=())
+"""The runners whose pools are open here (:func:`open_runner`), innermost last."""
+
+
 @contextlib.contextmanager
 def open_runner(runner: Runner) -> Iterator[Runner]:
     """``runner`` with its process pool started once for every :func:`run_tasks` inside the
     block (a dataset's recordings, then its evaluation): the workers' start-up, imports
-    included, is paid once."""
+    included, is paid once. Inside the block of a runner with the same settings, that
+    runner's pool is the one used (a stage called with the same execution settings as its
+    caller shares its caller's workers)."""
+    for live in reversed(_OPEN.get()):
+        if live == runner:
+            yield live
+            return
     if runner.uses_ray or runner.workers <= 1 or runner.executor is not None:
         yield runner
         return
     pool = _pool(runner.workers)
+    live = replace(runner, executor=pool)
+    token = _OPEN.set((*_OPEN.get(), live))
     try:
-        yield replace(runner, executor=pool)
+        yield live
     except KeyboardInterrupt:  # Ctrl-C: stop the workers, do not wait for their tasks
         stop_pool(pool)
         raise
     finally:  # an error: the workers finish what they hold, as the pool's own exit does
+        _OPEN.reset(token)
         pool.shutdown()
 
 

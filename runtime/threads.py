@@ -117,10 +117,11 @@ _PROCESS_THREADS: int | None = None
 
 
 def sync_torch() -> None:
-    """Give torch the process's thread count; called by modules right after ``import torch``
-    (torch is not imported just to size its pool: a second or more of start-up that most
-    commands do not need; the OMP_NUM_THREADS variable would do it, but with it set an
-    interrupted run is killed by its SIGINT instead of exiting with 130)."""
+    """Give torch, if imported, the process's thread count; called where work starts
+    (:func:`threads_for`, :func:`use_threads`), not where torch is imported (torch is not
+    imported just to size its pool: a second or more of start-up that most commands do not
+    need; the OMP_NUM_THREADS variable would do it, but with it set an interrupted run is
+    killed by its SIGINT instead of exiting with 130)."""
     if _PROCESS_THREADS is not None and "torch" in sys.modules:
         sys.modules["torch"].set_num_threads(_PROCESS_THREADS)
 
@@ -160,8 +161,10 @@ def use_threads(work: Work) -> int:
 def threads_for(work: Work) -> Iterator[int]:
     """Run a block with the pools of ``work``, restoring the previous ones afterwards.
 
-    torch is not imported for it: a module that imports torch inside the block sizes it
-    through :func:`sync_torch`, and the block's end restores it."""
+    torch is not imported for it: a torch already imported is sized at the block's start
+    (:func:`sync_torch`) and restored at its end. Modules that import torch do not size it
+    themselves, so work whose bytes depend on the thread count (a map build, a scene's
+    evaluation) runs in such a block, its modules imported before it starts."""
     from threadpoolctl import threadpool_limits
 
     global _PROCESS_THREADS

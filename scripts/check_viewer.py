@@ -13,7 +13,7 @@ showed no view), 3 when the viewer cannot start at all (the test suite skips on 
 
 ``--time TIMELINE=N`` moves the time cursor of recordings that have that timeline (e.g. to a
 query worth showing); ``--readme DIR`` also writes each window screenshot downscaled to
-``--width`` pixels and palette-optimised, for the README.
+``--width`` pixels and palette-optimised, for the documents.
 """
 
 from __future__ import annotations

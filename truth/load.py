@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from care.errors import GroundTruthError
+from truth.formats.annotations import ANNOTATION_SUFFIXES
 from truth.model import GroundTruth
 
 __all__ = [
@@ -59,7 +60,7 @@ def beside_paths(recording: Path) -> list[tuple[Path, GtFormat]]:
         (folder / f"{stem}.gt.json", GtFormat.NATIVE),
         *(
             (folder / f"{stem}.annotations{ext}", GtFormat.ANNOTATIONS)
-            for ext in (".json", ".yaml", ".yml", ".csv")
+            for ext in ANNOTATION_SUFFIXES
         ),
         (folder / f"{stem}.labels.ply", GtFormat.PLY),
         (folder / f"{stem}.scannet", GtFormat.SCANNET),
@@ -102,7 +103,7 @@ def detect_format(path: Path) -> GtFormat:
     ):  # fmt: skip
         return GtFormat.MATTERPORT
     suffix = path.suffix.lower()
-    if suffix in (".json", ".yaml", ".yml", ".csv"):
+    if suffix in ANNOTATION_SUFFIXES:
         return GtFormat.ANNOTATIONS
     if suffix == ".ply":
         return GtFormat.PLY
@@ -238,7 +239,9 @@ def export_ground_truth(gt: GroundTruth, recording: Path, formats: Sequence[str]
     out: list[Path] = []
     for fmt in todo:
         if fmt == "native":
-            gt.save(recording)
+            from truth.formats.native import write_native
+
+            write_native(gt, recording)
             out += [folder / f"{stem}.gt.json", folder / f"{stem}.gt.parquet"]
         elif fmt in ("json", "yaml", "csv"):
             from truth.formats.annotations import write_annotations

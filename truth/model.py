@@ -12,15 +12,15 @@ A :class:`GroundTruth` is
 - **frame**: the name of the frame everything is expressed in (``world`` for the sample
   world, the dataset's name for a scan read as it is, ``map`` after ``--gt-transform``).
 
-The file formats live in their own modules (:mod:`truth.formats`); the geometry in
-:mod:`truth.geometry`.
+The file formats live in their own modules (:mod:`truth.formats`, the sample world's native
+files in :mod:`truth.formats.native`), which import this model and not the other way; the
+geometry in :mod:`truth.geometry`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from functools import cached_property
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -38,12 +38,15 @@ from truth.geometry import (
     yaw_rotation,
 )
 
-__all__ = ["INSTANCE_COLUMNS", "GroundTruth", "Room", "instances_table"]
+__all__ = ["INSTANCE_COLUMNS", "LABEL_DISTANCE", "GroundTruth", "Room", "instances_table"]
 
 INSTANCE_COLUMNS = ("instance_id", "class_name", "class_id", "room_id", "bbox_min", "bbox_max")
 """The columns every instance has (the box columns are derived from the bounds if absent)."""
 
 BOX_COLUMNS = ("box_center", "box_size", "box_rotation")
+
+LABEL_DISTANCE = 0.05
+"""Metres: a scene point farther than this from every ground-truth point gets no label."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -176,7 +179,7 @@ class GroundTruth:
 
         return cKDTree(np.asarray(self.points, dtype=np.float64).reshape(-1, 3))
 
-    def label_points(self, points: np.ndarray, max_dist: float = 0.05) -> np.ndarray:
+    def label_points(self, points: np.ndarray, max_dist: float = LABEL_DISTANCE) -> np.ndarray:
         """(N,) int32 ground-truth instance of each point, 0 for structure or nothing.
 
         A point takes the instance of the nearest ground-truth point within ``max_dist``
@@ -328,18 +331,3 @@ class GroundTruth:
             instances=instances_table(rows),
             point_instance=point_instance,
         )
-
-    # -- the sample world's native files (kept here for the callers that used them) -------
-
-    def save(self, recording_path: Path) -> None:
-        """Write the native ``<stem>.gt.parquet`` + ``<stem>.gt.json`` beside a recording."""
-        from truth.formats.native import write_native
-
-        write_native(self, recording_path)
-
-    @classmethod
-    def load(cls, path: Path) -> GroundTruth:
-        """The native ground truth of the recording at ``path`` (or the ``.gt.json`` given)."""
-        from truth.formats.native import read_native
-
-        return read_native(path)

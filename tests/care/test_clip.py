@@ -56,6 +56,7 @@ def _random_frames(n: int, h: int = 48, w: int = 64) -> list[Frame]:
     return [_frame(rng.integers(0, 256, (h, w, 3), dtype=np.uint8), i) for i in range(n)]
 
 
+@pytest.mark.slow
 def test_shapes_normalisation_and_metadata(encoder: ClipEncoder) -> None:
     feats = encoder.encode_views(_random_frames(3))
     # 48 x 64 view, short side scaled to 2 * 32 = 64: 64 x 85.3 px -> 8 x round(10.67) = 11 cells.

@@ -215,8 +215,9 @@ def test_store_round_trip(feature_file: Path, tmp_path: Path) -> None:
     )
 
 
+@pytest.mark.slow
 def test_cli_precomputed_store_from_listed_stamps(tmp_path: Path) -> None:
-    """The README's path: list the stamps, compute features for them elsewhere (here: random),
+    """The documented path (docs/inputs.md, *Precomputed features*): list the stamps, compute features for them elsewhere (here: random),
     ingest; a missing text table fails before any frame; free text in the table joins the
     vocabulary, other text falls back to the sentence model and says so."""
     import json

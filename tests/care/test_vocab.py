@@ -25,7 +25,7 @@ def _column(path: Path, name: str) -> list[str]:
 def test_matterport_category_mapping_raw_and_other_columns(shared_data: Path) -> None:
     path = shared_data / "labels" / "matterport_category_mapping.tsv"
     raw = load_vocabulary(path)
-    assert len(raw) == 1659  # the README's count of raw categories
+    assert len(raw) == 1659  # the file's distinct raw categories
     assert raw[:2] == ["wall", "door"]
     assert raw == _column(path, "raw_category")
     mpcat = load_vocabulary(path, column="mpcat40")

@@ -15,8 +15,9 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from care.store import TEXT_SCHEMA, write_table_atomic
+from care.store import META_VERSION, TEXT_SCHEMA, write_table_atomic
 from fuse.measures import candidate_columns, candidate_metadata
+from truth.formats.native import write_native
 from truth.model import GroundTruth, Room, instances_table
 
 VOCAB = ["chair", "table", "sofa", "lamp", "bed"]
@@ -74,7 +75,7 @@ def make_scene(root: Path, name: str, seed: int) -> tuple[Path, Path]:
     gt = GroundTruth(("void", *VOCAB), instances_table(rows), rooms, points, point_instance)
     recording = root / f"{name}.mcap"
     recording.write_bytes(b"")
-    gt.save(recording)
+    write_native(gt, recording)
 
     store = root / "stores" / name
     store.mkdir(parents=True)
@@ -136,7 +137,12 @@ def make_scene(root: Path, name: str, seed: int) -> tuple[Path, Path]:
         pa.table({"name": VOCAB, "embedding": list(text)}, schema=TEXT_SCHEMA),
         store / "text.parquet",
     )
-    meta_json = {"schema_version": 1, "num_views": 0, "source": {"path": str(recording.resolve())}}
+    meta_json = {
+        "meta_version": META_VERSION,
+        "schema_version": 1,
+        "num_views": 0,
+        "source": {"path": str(recording.resolve())},
+    }
     (store / "meta.json").write_text(json.dumps(meta_json))
     return recording, store
 

@@ -16,8 +16,9 @@ import pytest
 
 from evaluate.groundtruth import GtSource
 from evaluate.job import EvalConfig, Scene, run_eval, scenes_of
+from runtime.execution import Execution
+from truth.formats.native import read_native
 from truth.load import EXPORT_FORMATS, export_ground_truth, find_beside
-from truth.model import GroundTruth
 
 CONFIG = EvalConfig(seeds=2, bootstrap=50, k_instances=(2, 4), k_grid=(4, 8))
 ROOMLESS = ("scannet", "replica")
@@ -50,7 +51,7 @@ def _same(a: pa.Table, b: pa.Table) -> bool:
 
 
 def _eval(scene: Scene, out: Path, config: EvalConfig = CONFIG, **gt) -> tuple[pa.Table, str]:
-    report = run_eval([scene], config, out, workers=1, progress=False, **gt)
+    report = run_eval([scene], config, out, run=Execution(workers=1, progress=False), **gt)
     return report.summary, report.markdown
 
 
@@ -58,10 +59,11 @@ def _eval(scene: Scene, out: Path, config: EvalConfig = CONFIG, **gt) -> tuple[p
 def exported(dataset: Path) -> Scene:
     """Scene 0 of the dataset with its ground truth exported in every format."""
     scene = scenes_of(dataset)[0]
-    export_ground_truth(GroundTruth.load(scene.recording), scene.recording, ["all"])
+    export_ground_truth(read_native(scene.recording), scene.recording, ["all"])
     return scene
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fmt", EXPORT_FORMATS)
 def test_every_format_gives_the_native_results(exported: Scene, tmp_path: Path, fmt: str) -> None:
     rooms = fmt not in ROOMLESS
@@ -73,11 +75,12 @@ def test_every_format_gives_the_native_results(exported: Scene, tmp_path: Path, 
     assert "## Paired comparisons" in markdown
 
 
+@pytest.mark.slow
 def test_ground_truth_is_found_beside_the_recording_and_named_in_the_index(
     dataset: Path, tmp_path: Path
 ) -> None:
     scene = scenes_of(dataset)[0]
-    export_ground_truth(GroundTruth.load(scene.recording), scene.recording, ["scannet"])
+    export_ground_truth(read_native(scene.recording), scene.recording, ["scannet"])
     native, _ = _eval(scene, tmp_path / "native", EvalConfig(**{**CONFIG.__dict__, "rooms": False}))
     # beside by name: without the native files the ScanNet folder is the one found
     for p in (dataset / "scene_0.gt.json", dataset / "scene_0.gt.parquet"):
@@ -93,11 +96,12 @@ def test_ground_truth_is_found_beside_the_recording_and_named_in_the_index(
     assert scenes[0].gt.path == dataset / "scene_0.scannet"
 
 
+@pytest.mark.slow
 def test_gt_transform_brings_a_scan_into_the_map_frame(dataset: Path, tmp_path: Path) -> None:
     """Ground truth stored in another frame (rotated 90 degrees, shifted) is refused as not
     overlapping, and gives the native results once --gt-transform undoes the move."""
     scene = scenes_of(dataset)[0]
-    gt = GroundTruth.load(scene.recording)
+    gt = read_native(scene.recording)
     move = np.array([[0, -1, 0, 3.0], [1, 0, 0, -2.0], [0, 0, 1, 0.5], [0, 0, 0, 1]])
     moved = tmp_path / "scan" / "scene_0.mcap"
     moved.parent.mkdir()
@@ -143,6 +147,7 @@ def _bad_inputs(root: Path) -> dict[str, tuple[Path, str]]:
     return out
 
 
+@pytest.mark.slow
 def test_bad_ground_truth_is_one_line_and_no_results(dataset: Path, tmp_path: Path) -> None:
     store = dataset / "stores" / "scene_0"
     for case, (path, message) in _bad_inputs(tmp_path).items():
@@ -160,7 +165,7 @@ def test_bad_ground_truth_is_one_line_and_no_results(dataset: Path, tmp_path: Pa
 def test_an_instance_without_points_is_refused(dataset: Path, tmp_path: Path) -> None:
     """A ScanNet object whose segments hold no vertex: an empty mask, refused by name."""
     scene = scenes_of(dataset)[0]
-    export_ground_truth(GroundTruth.load(scene.recording), scene.recording, ["scannet"])
+    export_ground_truth(read_native(scene.recording), scene.recording, ["scannet"])
     agg = scene.recording.with_name("scene_0.scannet") / "scene_0.aggregation.json"
     doc = json.loads(agg.read_text())
     doc["segGroups"].append({"id": 99, "objectId": 99, "segments": [12345], "label": "chair"})
@@ -171,6 +176,7 @@ def test_an_instance_without_points_is_refused(dataset: Path, tmp_path: Path) ->
     assert "no points" in done.stderr
 
 
+@pytest.mark.slow
 def test_unknown_classes_can_be_ignored_or_renamed(dataset: Path, tmp_path: Path) -> None:
     store = str(dataset / "stores" / "scene_0")
     gt = tmp_path / "boxes.csv"
@@ -229,6 +235,7 @@ def test_help_names_the_formats() -> None:
         assert name in text
 
 
+@pytest.mark.slow
 def test_care_run_refuses_bad_ground_truth_before_any_work(dataset: Path, tmp_path: Path) -> None:
     """``care run --gt``: a corrupt file stops the run in one line before the (long) ingest,
     and nothing is written."""
@@ -254,6 +261,7 @@ def test_care_run_refuses_bad_ground_truth_before_any_work(dataset: Path, tmp_pa
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_a_changed_ground_truth_file_is_not_served_from_the_cache(
     exported: Scene, tmp_path: Path
 ) -> None:

@@ -18,7 +18,11 @@ from care.store import read_table, write_table_atomic
 from evaluate.job import EvalConfig, evaluate_scene, run_eval, run_scenes, scenes_of
 from evaluate.report import auroc, per_query
 from query import load_map
-from truth.model import GroundTruth
+from runtime.execution import Backend, Execution
+from truth.formats.native import read_native
+
+SERIAL = Execution(workers=1, progress=False)
+RAY = Execution(backend=Backend.RAY, progress=False)
 
 SMALL = EvalConfig(seeds=3, bootstrap=200, k_instances=(1, 2, 4), k_grid=(4, 16))
 
@@ -49,7 +53,7 @@ def _rows(table, **eq):
 def test_first_attempt_matches_brute_force(dataset) -> None:
     scene = scenes_of(dataset)[1]
     table = evaluate_scene(scene, SMALL)
-    gt = GroundTruth.load(scene.recording)
+    gt = read_native(scene.recording)
     cmap = load_map(scene.store, "instances")
     vocab = list(cmap.vocabulary)
     P = softmax(
@@ -96,9 +100,10 @@ def test_oracle_bounds_and_random_seeds_against_closed_form(dataset) -> None:
     assert set(table.column("attempt").to_pylist()) <= {1, 2}
 
 
+@pytest.mark.slow
 def test_run_resumes_and_writes_every_output(dataset, tmp_path) -> None:
     out = tmp_path / "eval"
-    report = run_eval(dataset, SMALL, out, workers=1, progress=False)
+    report = run_eval(dataset, SMALL, out, run=SERIAL)
     for name in (
         "attempts.parquet",
         "summary.parquet",
@@ -122,7 +127,7 @@ def test_run_resumes_and_writes_every_output(dataset, tmp_path) -> None:
     assert "k=40" not in md.split("Grid map")[0]
     cached = {p: p.stat().st_mtime_ns for p in (out / "scenes").glob("*.parquet")}
     assert len(cached) == 3
-    again = run_eval(dataset, SMALL, out, workers=1, progress=False)
+    again = run_eval(dataset, SMALL, out, run=SERIAL)
     assert {p: p.stat().st_mtime_ns for p in (out / "scenes").glob("*.parquet")} == cached
     assert _same(again.summary, report.summary)
     # a changed config recomputes
@@ -130,23 +135,22 @@ def test_run_resumes_and_writes_every_output(dataset, tmp_path) -> None:
         scenes_of(dataset)[:1],
         EvalConfig(seeds=2, k_instances=(1,), k_grid=(4,)),
         out,
-        workers=1,
-        progress=False,
+        run=SERIAL,
     )
     assert (out / "scenes" / "scene_0.parquet").stat().st_mtime_ns != cached[
         out / "scenes" / "scene_0.parquet"
     ]
     # a re-fused map (its table rewritten) recomputes its scene alone
-    run_eval(dataset, SMALL, out, workers=1, progress=False)
+    run_eval(dataset, SMALL, out, run=SERIAL)
     cached = {p.name: p.stat().st_mtime_ns for p in (out / "scenes").glob("*.parquet")}
     table = dataset / "stores" / "scene_1" / "instances.parquet"
     st = table.stat()
     os.utime(table, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000_000))
-    run_eval(dataset, SMALL, out, workers=1, progress=False)
+    run_eval(dataset, SMALL, out, run=SERIAL)
     now = {p.name: p.stat().st_mtime_ns for p in (out / "scenes").glob("*.parquet")}
     assert now == cached  # touched, not changed: the cache key is the content
     write_table_atomic(read_table(table), table, {b"care.test": b"rewritten"})
-    run_eval(dataset, SMALL, out, workers=1, progress=False)
+    run_eval(dataset, SMALL, out, run=SERIAL)
     now = {p.name: p.stat().st_mtime_ns for p in (out / "scenes").glob("*.parquet")}
     assert now["scene_1.parquet"] != cached["scene_1.parquet"]
     assert now["scene_0.parquet"] == cached["scene_0.parquet"]
@@ -162,11 +166,12 @@ def test_auroc_matches_sklearn(dataset) -> None:
     assert np.isnan(auroc(score, np.zeros(200, bool)))
 
 
+@pytest.mark.slow
 def test_process_pool_and_ray_are_bit_identical(dataset, tmp_path, ray_session) -> None:
     scenes = scenes_of(dataset)
-    local = run_scenes(scenes, SMALL, tmp_path / "a", workers=1, progress=False)
-    pool = run_scenes(scenes, SMALL, tmp_path / "b", workers=2, progress=False)
-    ray_run = run_scenes(scenes, SMALL, tmp_path / "c", ray_address=True, progress=False)
+    local = run_scenes(scenes, SMALL, tmp_path / "a", run=SERIAL)
+    pool = run_scenes(scenes, SMALL, tmp_path / "b", run=Execution(workers=2, progress=False))
+    ray_run = run_scenes(scenes, SMALL, tmp_path / "c", run=RAY)
     assert _same(local, pool)
     assert _same(local, ray_run)
 
@@ -186,12 +191,13 @@ def test_a_failing_ray_task_is_its_own_one_line_error(dataset, tmp_path, ray_ses
     scenes = scenes_of(dataset)
     (scenes[1].store / "cells.parquet").unlink()
     with pytest.raises(CareError) as err:
-        run_scenes(scenes, SMALL, tmp_path / "r", ray_address=True, progress=False)
+        run_scenes(scenes, SMALL, tmp_path / "r", run=RAY)
     assert "cells.parquet" in str(err.value)
     assert "\n" not in str(err.value)
     assert type(err.value).__module__ == "care.errors"  # not Ray's wrapper
 
 
+@pytest.mark.slow
 def test_cli_eval_query_replan(dataset, tmp_path) -> None:
     store = dataset / "stores" / "scene_0"
     run = [sys.executable, "-m", "care_cli.main"]
@@ -256,6 +262,7 @@ def test_cli_eval_query_replan(dataset, tmp_path) -> None:
     assert "| No replan (top1 acc) | - |" in e.stdout
 
 
+@pytest.mark.slow
 def test_cli_eval_with_ray_matches_the_process_pool(dataset, tmp_path, ray_session) -> None:
     from typer.testing import CliRunner
 

@@ -13,8 +13,11 @@ from statsmodels.stats.multitest import multipletests
 
 from evaluate.job import EvalConfig, run_eval
 from evaluate.paired import compare, comparison_rng, holm, mcnemar_exact, paired_bootstrap_ci
-from evaluate.paired_report import paired_table
 from evaluate.report import per_query
+from evaluate.report.paired import paired_table
+from runtime.execution import Execution
+
+SERIAL = Execution(workers=1, progress=False)
 
 
 def _loop_ci(a, b, rng, n, groups=None):
@@ -72,7 +75,7 @@ def test_compare_counts_discordant_pairs_and_first_ties() -> None:
 
 def test_paired_table_against_the_attempt_rows(dataset: Path, tmp_path: Path) -> None:
     config = EvalConfig(seeds=3, bootstrap=200, k_instances=(2, 4), k_grid=(4, 8))
-    run_eval(dataset, config, tmp_path / "out", workers=1, progress=False)
+    run_eval(dataset, config, tmp_path / "out", run=SERIAL)
     import pyarrow.parquet as pq
 
     attempts = pq.read_table(tmp_path / "out" / "attempts.parquet")
@@ -122,6 +125,7 @@ def test_paired_table_against_the_attempt_rows(dataset: Path, tmp_path: Path) ->
     assert "## Paired comparisons (same queries)" in (tmp_path / "out" / "results.md").read_text()
 
 
+@pytest.mark.slow
 def test_an_interval_does_not_depend_on_what_else_ran(dataset: Path, tmp_path: Path) -> None:
     """One generator per comparison: dropping strategies leaves the others' intervals as they were."""
     full = EvalConfig(seeds=2, bootstrap=100, k_instances=(2,), k_grid=(4,))
@@ -131,8 +135,8 @@ def test_an_interval_does_not_depend_on_what_else_ran(dataset: Path, tmp_path: P
             "strategies": ("no_replan", "max_confidence", "min_stderr", "random_topk"),
         }
     )
-    run_eval(dataset, full, tmp_path / "full", workers=1, progress=False)
-    run_eval(dataset, some, tmp_path / "some", workers=1, progress=False)
+    run_eval(dataset, full, tmp_path / "full", run=SERIAL)
+    run_eval(dataset, some, tmp_path / "some", run=SERIAL)
     attempts_full = tmp_path / "full" / "attempts.parquet"
     assert attempts_full.is_file()
     import pyarrow.parquet as pq

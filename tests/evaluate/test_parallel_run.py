@@ -18,11 +18,13 @@ import pytest
 
 from evaluate.job import EvalConfig
 from evaluate.pipeline import RunConfig, run_all
+from runtime.execution import Backend, Execution
 from world.record import DatasetConfig, make_dataset
 
 ROOT = Path(__file__).resolve().parents[2]
-CONFIG = RunConfig(evaluation=EvalConfig(attempts=2, seeds=1), rrd_ingest=False, progress=False)
+CONFIG = RunConfig(evaluation=EvalConfig(attempts=2, seeds=1), rrd_ingest=False)
 """What ``care run --seeds 1 --no-rrd-ingest`` builds (the cluster run goes through the CLI)."""
+SERIAL = Execution(workers=1, progress=False)
 
 
 @pytest.fixture(scope="module")
@@ -107,7 +109,7 @@ def _cluster_run(dataset: Path, out: Path) -> subprocess.CompletedProcess[str]:
 def serial_run(dataset: Path) -> Path:
     """A serial run beside the dataset: what every other way must give, byte for byte."""
     out = dataset.parent / "serial"
-    run_all(dataset, out, replace(CONFIG, workers=1))
+    run_all(dataset, out, CONFIG, run=SERIAL)
     return out
 
 
@@ -136,9 +138,10 @@ def test_same_bytes_serial_pool_and_local_ray(
     dataset: Path, serial: dict[str, bytes], ray_session: object
 ) -> None:
     # beside the serial run: a store names its recording relative to itself
-    run_all(dataset, dataset.parent / "pool", replace(CONFIG, workers=2))
+    run_all(dataset, dataset.parent / "pool", CONFIG, run=replace(SERIAL, workers=2))
     assert _differences(serial, dataset.parent / "pool") == []
-    run_all(dataset, dataset.parent / "ray", replace(CONFIG, ray_address=True))  # shared session
+    ray = Execution(backend=Backend.RAY, progress=False)
+    run_all(dataset, dataset.parent / "ray", CONFIG, run=ray)  # shared session
     assert _differences(serial, dataset.parent / "ray") == []
     # each scene's grid, instance and evaluation recordings, logged by the workers' tasks
     logged = _rrd_counts(dataset.parent / "serial")
@@ -155,6 +158,7 @@ def test_same_bytes_on_a_two_node_cluster(dataset: Path, serial: dict[str, bytes
     assert _differences(serial, dataset.parent / "cluster") == []
 
 
+@pytest.mark.slow
 def test_moved_dataset_and_outputs_are_current(serial_run: Path, tmp_path: Path) -> None:
     """The dataset and the run's outputs copied to another directory (as to another
     machine): nothing is rebuilt or re-evaluated, and the bytes are the same."""
@@ -164,12 +168,13 @@ def test_moved_dataset_and_outputs_are_current(serial_run: Path, tmp_path: Path)
     out = moved / serial_run.name
     kept = [*(out / "stores").rglob("*.parquet"), *(out / "eval" / "scenes").glob("*.parquet")]
     made = {p: p.stat().st_mtime_ns for p in kept}  # stores, maps, cached scene results
-    run_all(moved / "data", out, replace(CONFIG, workers=1))
+    run_all(moved / "data", out, CONFIG, run=SERIAL)
     assert {p: p.stat().st_mtime_ns for p in made} == made
     stores = "\n".join(p.read_text() for p in (out / "stores").glob("*/*.json"))
     assert str(serial_run.parent) not in stores  # no absolute path of the old place
 
 
+@pytest.mark.slow
 def test_failing_recording_is_one_line_and_the_others_complete(
     dataset: Path, tmp_path: Path, run_cli
 ) -> None:
@@ -195,7 +200,7 @@ def test_workers_start_with_the_process_settings(ray_session: object) -> None:
     workers' own progress bars), the driver does not."""
     from runtime.parallel import Runner, openmp_threads, run_tasks
 
-    for runner in (Runner(workers=2), Runner(ray_address=True)):
+    for runner in (Runner(workers=2), Runner(backend=Backend.RAY)):
         got = dict(run_tasks(os.getenv, ["TQDM_DISABLE", "OMP_NUM_THREADS"], runner))
         assert got["TQDM_DISABLE"] == "1", runner
         # and one OpenMP thread per worker, like its other pools (open3d's results do not
@@ -215,7 +220,7 @@ def test_a_started_task_runs_on_the_runner_and_keeps_its_one_line_error(
     from care.store import Store
     from runtime.parallel import Runner, open_runner, run_tasks, start_task
 
-    for runner in (Runner(workers=1), Runner(workers=2), Runner(ray_address=True)):
+    for runner in (Runner(workers=1), Runner(workers=2), Runner(backend=Backend.RAY)):
         with open_runner(runner) as live:
             pid = start_task(os.getpid, runner=live).result()
             assert (pid == os.getpid()) == (runner.workers == 1 and not runner.uses_ray)
@@ -241,6 +246,7 @@ def test_the_driver_of_a_run_imports_no_stage() -> None:
     assert done.stdout.strip() == "[]"
 
 
+@pytest.mark.slow
 def test_a_failing_report_leaves_no_plot_to_land_after_its_error(
     serial_run: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -249,7 +255,7 @@ def test_a_failing_report_leaves_no_plot_to_land_after_its_error(
     output after the run has said it failed."""
     import pyarrow.parquet as pq
 
-    import evaluate.preregistered
+    import evaluate.report.preregistered
     from evaluate.report import write_report
     from query.map import MAP_TABLES
     from runtime.parallel import Runner, open_runner
@@ -257,7 +263,7 @@ def test_a_failing_report_leaves_no_plot_to_land_after_its_error(
     def broken(*args: object, **kwargs: object) -> None:
         raise RuntimeError("a table failed")
 
-    monkeypatch.setattr(evaluate.preregistered, "write_preregistered", broken)
+    monkeypatch.setattr(evaluate.report.preregistered, "write_preregistered", broken)
     attempts = pq.read_table(serial_run / "eval" / "attempts.parquet")
     ks = {kind: CONFIG.evaluation.ks(kind) for kind in MAP_TABLES}
     with open_runner(Runner(workers=2)) as live:

@@ -10,7 +10,7 @@ from statsmodels.stats.contingency_tables import mcnemar
 from statsmodels.stats.multitest import multipletests
 
 from evaluate.paired import comparison_rng
-from evaluate.preregistered import (
+from evaluate.report.preregistered import (
     PAPER_SETTINGS,
     best_of_k_table,
     by_class_table,

@@ -12,6 +12,8 @@ import pytest
 from care.viz import rrd_entity_counts
 from evaluate.pipeline import SAMPLE
 
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[2]
 
 

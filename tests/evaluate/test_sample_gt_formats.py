@@ -1,6 +1,6 @@
 """The bundled sample recording evaluated with its ground truth exported in every format gives
 the native results: bit for bit where the format keeps the labelled points, within the box
-approximation (stated in the README) where it keeps only boxes."""
+approximation (stated in docs/evaluation.md) where it keeps only boxes."""
 
 from __future__ import annotations
 
@@ -14,8 +14,11 @@ import pytest
 from evaluate.job import EvalConfig, Scene, run_eval
 from evaluate.pipeline import SAMPLE, RunConfig, run_all
 from evaluate.report import per_query
+from runtime.execution import Execution
+from truth.formats.native import read_native
 from truth.load import export_ground_truth
-from truth.model import GroundTruth
+
+pytestmark = pytest.mark.slow
 
 POINT_FORMATS = {"labels.ply": True, "scannet": False, "matterport": True, "replica": False}
 """Exported name -> whether the format keeps rooms (else compared without rooms)."""
@@ -42,21 +45,20 @@ def test_sample_recording_in_every_format(tmp_path: Path) -> None:
     data = tmp_path / "sample"
     shutil.copytree(SAMPLE, data)
     recording = data / "scene_000.mcap"
-    export_ground_truth(GroundTruth.load(recording), recording, ["all"])
+    export_ground_truth(read_native(recording), recording, ["all"])
     config = EvalConfig(seeds=2, bootstrap=50)
-    result = run_all(
-        data, tmp_path / "run", RunConfig(evaluation=config, workers=1, progress=False)
-    )
+    serial = Execution(workers=1, progress=False)
+    result = run_all(data, tmp_path / "run", RunConfig(evaluation=config), run=serial)
     store = result.stores[0]
     scene = Scene("scene_000", store, recording.resolve())
     flat = EvalConfig(**{**config.__dict__, "rooms": False})
     native = {
         True: result.report.summary,
-        False: run_eval([scene], flat, tmp_path / "flat", workers=1, progress=False).summary,
+        False: run_eval([scene], flat, tmp_path / "flat", run=serial).summary,
     }
     for name, rooms in POINT_FORMATS.items():
         report = run_eval(
-            [scene], config if rooms else flat, tmp_path / name, workers=1, progress=False,
+            [scene], config if rooms else flat, tmp_path / name, run=serial,
             gt=[data / f"scene_000.{name}"],
         )  # fmt: skip
         assert _same(report.summary, native[rooms]), name
@@ -74,8 +76,7 @@ def test_sample_recording_in_every_format(tmp_path: Path) -> None:
             [scene],
             config,
             tmp_path / name,
-            workers=1,
-            progress=False,
+            run=serial,
             gt=[data / f"scene_000.{name}"],
         )
         rows = per_query(pq.read_table(tmp_path / name / "attempts.parquet")).to_pylist()

@@ -8,11 +8,12 @@ import numpy as np
 
 from evaluate.success import grid_queries, grid_success, instance_iou, instance_queries
 from query import load_map
+from truth.formats.native import read_native
 from truth.model import GroundTruth
 
 
 def test_instance_iou_matches_set_arithmetic(dataset) -> None:
-    gt = GroundTruth.load(dataset / "scene_0.mcap")
+    gt = read_native(dataset / "scene_0.mcap")
     cmap = load_map(dataset / "stores" / "scene_0", "instances")
     labels = gt.label_points(gt.points)
     np.testing.assert_array_equal(labels, gt.point_instance)
@@ -36,7 +37,7 @@ def test_grid_success_is_floor_distance() -> None:
 
 
 def test_query_sets_room_by_room_and_protocols(dataset) -> None:
-    gt = GroundTruth.load(dataset / "scene_0.mcap")
+    gt = read_native(dataset / "scene_0.mcap")
     cmap = load_map(dataset / "stores" / "scene_0", "instances")
     labels = gt.label_points(gt.points)
     sets = instance_queries(cmap, gt, labels, protocol="instance")
@@ -65,7 +66,7 @@ def test_query_sets_room_by_room_and_protocols(dataset) -> None:
 def test_rooms_of_one_type_are_separate_units(dataset) -> None:
     """Two kitchens in one scene are two units: grouped by name they would merge their
     queries (and a failure in one would be hidden by a success in the other)."""
-    gt = GroundTruth.load(dataset / "scene_0.mcap")
+    gt = read_native(dataset / "scene_0.mcap")
     twins = GroundTruth(
         gt.class_names, gt.instances,
         [dataclasses.replace(r, name="kitchen") for r in gt.rooms], gt.points, gt.point_instance,

@@ -9,11 +9,14 @@ import pyarrow.parquet as pq
 import pytest
 
 from care.encoders import EncoderOptions
-from evaluate.dataset_stats import MeasureConfig, map_dataset
 from evaluate.job import EvalConfig, run_eval
+from research.dataset_stats import MeasureConfig, map_dataset
+from runtime.execution import Execution
 from runtime.threads import ENV_VAR, Work, use_threads
 from world.presets import PRESETS, WorldPreset
 from world.record import DatasetConfig, make_dataset
+
+pytestmark = pytest.mark.slow
 
 
 def test_one_and_two_threads_give_identical_results(
@@ -39,7 +42,7 @@ def test_one_and_two_threads_give_identical_results(
             use_threads(Work.DEFAULT)
             out = tmp_path / f"threads{n}"
             scenes = map_dataset(dataset, out, hashed)
-            run_eval(scenes, evaluation, out / "eval", workers=1, progress=False)
+            run_eval(scenes, evaluation, out / "eval", run=Execution(workers=1, progress=False))
             store = out / "stores" / "scene_000"
             tables = {
                 "instances": store / "instances.parquet",

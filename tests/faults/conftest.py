@@ -178,14 +178,14 @@ def good(tmp_path_factory: pytest.TempPathFactory, recording: Path) -> Path:
     from fuse.grid import GridConfig, build_grid
     from fuse.instances import InstanceConfig, build_instances
     from ingest.pipeline import IngestConfig, run_ingest
+    from runtime.execution import Execution
 
     root = tmp_path_factory.mktemp("faults_good")
-    store = run_ingest(
-        IngestConfig(recording=recording, out=root / "store", encoder="labels", progress=False)
-    )
-    build_grid(store, GridConfig(cell_size=0.1))
-    build_instances(store, InstanceConfig(proposals="labels"))
-    run_eval(store, eval_config(), root / "eval", workers=1, progress=False)
+    run = Execution(workers=1, progress=False)
+    store = run_ingest(recording, root / "store", IngestConfig(encoder="labels"), run=run)
+    build_grid(store, GridConfig(cell_size=0.1), run=run)
+    build_instances(store, InstanceConfig(proposals="labels"), run=run)
+    run_eval(store, eval_config(), root / "eval", run=run)
     return root
 
 

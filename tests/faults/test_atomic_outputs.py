@@ -29,6 +29,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[2]
 NEW_MAPS = ("--maps", "instances,grid")
 """The new evaluation over the earlier one (``--maps instances``)."""
@@ -94,7 +96,8 @@ exec(os.environ["CARE_HOOK_MAIN"])
 EVAL_MAIN = "from care_cli.main import main\nsys.argv = ['care', *sys.argv[1:]]\nmain()"
 RUN_MAIN = (
     "import base64, pickle\nfrom evaluate.pipeline import run_all\n"
-    "run_all(*pickle.loads(base64.b64decode(os.environ['CARE_HOOK_ARGS'])))"
+    "*args, run = pickle.loads(base64.b64decode(os.environ['CARE_HOOK_ARGS']))\n"
+    "run_all(*args, run=run)"
 )
 
 
@@ -302,6 +305,13 @@ def test_eval_killed_anywhere_is_old_or_new(
 # -- (c) care run ---------------------------------------------------------------------------
 
 
+def _serial():
+    """How the fault suite's ``care run`` runs: one recording after another, no bars."""
+    from runtime.execution import Execution
+
+    return Execution(workers=1, progress=False)
+
+
 def _run_config(seeds: int):
     """``care run`` on the fault suite's recording: its maps as the ``good`` store's, the
     evaluation as ``fx.EVAL_FLAGS`` but for ``seeds``."""
@@ -312,8 +322,7 @@ def _run_config(seeds: int):
     evaluation = EvalConfig(seeds=seeds, bootstrap=10, k_grid=(4, 8), k_instances=(2, 4))
     return RunConfig(
         encoder="labels", grid=GridConfig(cell_size=0.1),
-        instances=InstanceConfig(proposals="labels"), evaluation=evaluation, workers=1,
-        progress=False, rrd_ingest=False,
+        instances=InstanceConfig(proposals="labels"), evaluation=evaluation, rrd_ingest=False,
     )  # fmt: skip
 
 
@@ -329,9 +338,9 @@ def runs(recording: Path, tmp_path_factory: pytest.TempPathFactory) -> Runs:
     from evaluate.pipeline import run_all
 
     root = tmp_path_factory.mktemp("atomic_runs")
-    run_all(recording, root / "old", _run_config(1))
+    run_all(recording, root / "old", _run_config(1), run=_serial())
     shutil.copytree(root / "old", root / "new")
-    run_all(recording, root / "new", _run_config(2))
+    run_all(recording, root / "new", _run_config(2), run=_serial())
     runs = Runs(root / "old", root / "new")
     assert _files(runs.old / "stores") == _files(runs.new / "stores")
     assert _files(runs.old / "eval") != _files(runs.new / "eval")
@@ -354,7 +363,7 @@ def test_run_killed_anywhere_is_old_or_new(
     snaps_dir = tmp_path / "snaps"
     r = _hooked(
         RUN_MAIN, watch=run.parent, snapshots=snaps_dir,
-        payload=(recording, run, _run_config(2)),
+        payload=(recording, run, _run_config(2), _serial()),
     )  # fmt: skip
     assert r.returncode == 0, r.stderr
     snaps = _snapshots(snaps_dir)
@@ -369,7 +378,7 @@ def test_run_killed_anywhere_is_old_or_new(
     snap = after[0]
     where = tmp_path / "resume"
     shutil.copytree(snap, where, symlinks=True)
-    run_all(recording, where / "run", _run_config(2))
+    run_all(recording, where / "run", _run_config(2), run=_serial())
     assert _run_state(runs, where / "run")[0] == "new"
     assert not fx.leftovers(where)
     code, out, err = care("check", where / "run")

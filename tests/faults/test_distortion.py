@@ -183,17 +183,18 @@ def twin_store(tmp_path_factory: pytest.TempPathFactory, twin: list) -> Path:
     from care.encoders import EncoderOptions
     from fuse.grid import GridConfig, build_grid
     from ingest.pipeline import IngestConfig, run_ingest
+    from runtime.execution import Execution
 
     root = tmp_path_factory.mktemp("distortion_twin")
     store = run_ingest(
+        _write_bag(root / "pinhole", twin),
+        root / "store",
         IngestConfig(
-            recording=_write_bag(root / "pinhole", twin),
-            out=root / "store",
             encoder="precomputed",
             encoder_options=EncoderOptions(precomputed=_features(root)),
             vocabulary="thing,other",
-            progress=False,
-        )
+        ),
+        run=Execution(progress=False),
     )
     build_grid(store, GridConfig(cell_size=CELL))
     return store
@@ -202,6 +203,7 @@ def twin_store(tmp_path_factory: pytest.TempPathFactory, twin: list) -> Path:
 # -- views ---------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model", sorted(LENSES))
 def test_distorted_views_match_the_undistorted_twin(
     care, fx, twin: list, twin_store: Path, tmp_path: Path, model: str
@@ -234,6 +236,7 @@ def test_distorted_views_match_the_undistorted_twin(
     assert fx.meta(tmp_path / "store")["distortion"] == [{"model": model, "D": list(lens[1])}]
 
 
+@pytest.mark.slow
 def test_zero_distortion_stores_the_recording_as_it_was(
     care, fx, twin: list, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -259,6 +262,7 @@ def test_zero_distortion_stores_the_recording_as_it_was(
     assert set(stores.values()) == {fx.tables(tmp_path / "no step")["views.parquet"]}
 
 
+@pytest.mark.slow
 def test_nonzero_distortion_changes_the_store(care, fx, twin: list, tmp_path: Path) -> None:
     frames = twin[:2]
     for name, lens in {"zero": ZERO, "distorted": ("plumb_bob", LENSES["plumb_bob"])}.items():
@@ -293,6 +297,7 @@ def test_ros1_camera_info_names_d_in_capitals() -> None:
     assert decode.distortion(msg, "/info") == ("plumb_bob", LENSES["plumb_bob"])
 
 
+@pytest.mark.slow
 def test_unknown_model_with_nonzero_d_is_refused(care, fx, twin: list, tmp_path: Path) -> None:
     bag = _write_bag(tmp_path / "bag", twin[:1], ("kannala_brandt8", (0.1, 0.0, 0.0, 0.0)))
     code, _, err = care("ingest", bag, "--out", tmp_path / "store")
@@ -306,6 +311,7 @@ def test_unknown_model_with_nonzero_d_is_refused(care, fx, twin: list, tmp_path:
     assert not (tmp_path / "store").exists()
 
 
+@pytest.mark.slow
 def test_store_that_kept_the_distortion_is_rebuilt(care, fx, twin: list, tmp_path: Path) -> None:
     """A store made before ingest removed distortion (its meta has no ``distortion``) matches
     its recording's fingerprint, yet a distorted recording's store is rebuilt; a zero-D one
@@ -341,6 +347,7 @@ def _within_a_cell(a: np.ndarray, b: np.ndarray) -> float:
     return float((distance <= CELL * 1.01).mean())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model", ["equidistant", "plumb_bob"])
 def test_distorted_recording_gives_the_twins_map(
     care, twin: list, twin_store: Path, tmp_path: Path, model: str

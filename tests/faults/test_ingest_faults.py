@@ -19,6 +19,7 @@ from mcap.writer import Writer as McapWriter
 # -- where the store may go ----------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_out_is_a_regular_file(care, fx, recording: Path, tmp_path: Path) -> None:
     out = tmp_path / "notes.txt"
     out.write_text("my notes")
@@ -31,6 +32,7 @@ def test_out_is_a_regular_file(care, fx, recording: Path, tmp_path: Path) -> Non
     assert code == 0
 
 
+@pytest.mark.slow
 def test_out_is_a_user_directory(care, fx, recording: Path, tmp_path: Path) -> None:
     user = tmp_path / "thesis"
     (user / "chapters").mkdir(parents=True)
@@ -48,6 +50,7 @@ def test_out_is_a_user_directory(care, fx, recording: Path, tmp_path: Path) -> N
     assert fx.snapshot(user / "chapters") == before
 
 
+@pytest.mark.slow
 def test_out_is_the_input_bag_directory(care, fx, tmp_path: Path) -> None:
     bag = fx.write_bag(tmp_path / "bag")
     before = fx.snapshot(bag)
@@ -59,6 +62,7 @@ def test_out_is_the_input_bag_directory(care, fx, tmp_path: Path) -> None:
     assert fx.snapshot(bag) == before
 
 
+@pytest.mark.slow
 def test_out_inside_the_input_bag(care, fx, tmp_path: Path) -> None:
     bag = fx.write_bag(tmp_path / "bag")
     before = fx.snapshot(bag)
@@ -67,6 +71,7 @@ def test_out_inside_the_input_bag(care, fx, tmp_path: Path) -> None:
     assert care("ingest", bag, "--out", tmp_path / "store")[0] == 0
 
 
+@pytest.mark.slow
 def test_out_is_an_ancestor_of_the_input(care, fx, tmp_path: Path) -> None:
     bag = fx.write_bag(tmp_path / "data" / "bag")
     before = fx.snapshot(tmp_path / "data")
@@ -75,6 +80,7 @@ def test_out_is_an_ancestor_of_the_input(care, fx, tmp_path: Path) -> None:
     assert care("ingest", bag, "--out", tmp_path / "store")[0] == 0
 
 
+@pytest.mark.slow
 def test_out_under_a_regular_file(care, fx, recording: Path, tmp_path: Path) -> None:
     (tmp_path / "file").write_text("x")
     before = fx.snapshot(tmp_path / "file")
@@ -83,6 +89,7 @@ def test_out_under_a_regular_file(care, fx, recording: Path, tmp_path: Path) -> 
     assert care("ingest", recording, "--out", tmp_path / "store")[0] == 0
 
 
+@pytest.mark.slow
 def test_out_parent_not_writable(care, fx, recording: Path, tmp_path: Path) -> None:
     locked = tmp_path / "locked"
     locked.mkdir()
@@ -94,6 +101,7 @@ def test_out_parent_not_writable(care, fx, recording: Path, tmp_path: Path) -> N
     assert code == 0, err
 
 
+@pytest.mark.slow
 def test_rrd_is_a_user_file(care, fx, recording: Path, tmp_path: Path) -> None:
     rrd = tmp_path / "report.pdf"
     rrd.write_bytes(b"%PDF-1.7 my report")
@@ -112,6 +120,7 @@ def test_rrd_is_a_user_file(care, fx, recording: Path, tmp_path: Path) -> None:
     )
 
 
+@pytest.mark.slow
 def test_rrd_is_a_directory(care, fx, recording: Path, tmp_path: Path) -> None:
     (tmp_path / "viz").mkdir()
     code, _, err = care("ingest", recording, "--out", tmp_path / "store", "--rrd", tmp_path / "viz")
@@ -122,12 +131,14 @@ def test_rrd_is_a_directory(care, fx, recording: Path, tmp_path: Path) -> None:
 # -- damaged recordings ---------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_missing_recording(care, fx, tmp_path: Path) -> None:
     code, _, err = care("ingest", tmp_path / "nope.mcap", "--out", tmp_path / "store")
     fx.assert_fault(code, err, r"nope\.mcap: no such file", clean=(tmp_path,))
     assert not (tmp_path / "store").exists()
 
 
+@pytest.mark.slow
 def test_truncated_mcap(care, fx, recording: Path, tmp_path: Path) -> None:
     cut = tmp_path / "cut.mcap"
     data = recording.read_bytes()
@@ -139,6 +150,7 @@ def test_truncated_mcap(care, fx, recording: Path, tmp_path: Path) -> None:
     assert care("ingest", cut, "--out", tmp_path / "store")[0] == 0
 
 
+@pytest.mark.slow
 def test_invalid_yaml_in_rosbag2_metadata(care, fx, tmp_path: Path) -> None:
     bag = fx.write_bag(tmp_path / "bag")
     good = (bag / "metadata.yaml").read_text()
@@ -149,6 +161,7 @@ def test_invalid_yaml_in_rosbag2_metadata(care, fx, tmp_path: Path) -> None:
     assert care("ingest", bag, "--out", tmp_path / "store")[0] == 0
 
 
+@pytest.mark.slow
 def test_mcap_with_no_messages(care, fx, tmp_path: Path) -> None:
     empty = tmp_path / "empty.mcap"
     with empty.open("wb") as f:
@@ -163,6 +176,7 @@ def test_mcap_with_no_messages(care, fx, tmp_path: Path) -> None:
 # -- impossible poses and timing ------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("quat", "xyz", "pattern"),
     [
@@ -183,6 +197,7 @@ def test_impossible_pose(care, fx, tmp_path: Path, quat, xyz, pattern: str) -> N
     assert care("ingest", good, "--out", tmp_path / "store")[0] == 0
 
 
+@pytest.mark.slow
 def test_camera_not_connected_to_world(care, fx, tmp_path: Path) -> None:
     edges = (("map", "base_link"), ("camera_link", "camera_optical_frame"))
     bag = fx.write_bag(tmp_path / "bag", tf_edges=edges)
@@ -203,6 +218,7 @@ def test_camera_not_connected_to_world(care, fx, tmp_path: Path) -> None:
     assert code == 0, err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("delta", [+7, -7], ids=["longer", "shorter"])
 def test_image_payload_of_wrong_length(care, fx, tmp_path: Path, delta: int) -> None:
     bag = fx.write_bag(tmp_path / "bag", rgb_bytes_delta=delta)
@@ -266,6 +282,7 @@ def test_bad_option(care, fx, recording: Path, tmp_path: Path, flags, pattern, e
 # -- a damaged store is found and rebuilt -------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("damage", ["truncate", "delete", "flip-byte", "meta-json"])
 def test_damaged_store_is_rebuilt(care, fx, copy_good, recording: Path, damage: str) -> None:
     store = copy_good("store")
@@ -301,6 +318,7 @@ def test_damaged_store_is_rebuilt(care, fx, copy_good, recording: Path, damage: 
 # -- a full disk and a kill -----------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_disk_full_keeps_previous_store(
     care, fx, copy_good, recording: Path, tmp_path: Path
 ) -> None:
@@ -323,6 +341,7 @@ def test_disk_full_keeps_previous_store(
     assert care("check", store)[0] == 0
 
 
+@pytest.mark.slow
 def test_killed_ingest_leaves_nothing_after_rerun(
     care, fx, good: Path, recording: Path, tmp_path: Path
 ) -> None:
@@ -345,6 +364,7 @@ def test_killed_ingest_leaves_nothing_after_rerun(
     assert set(fx.tables(out)) == {"views.parquet", "features.parquet", "text.parquet"}
 
 
+@pytest.mark.slow
 def test_interrupted_ingest_leaves_nothing(care, fx, copy_good, recording: Path) -> None:
     """Ctrl-C (SIGINT) mid-ingest: one line, exit 130, the temporary removed, the previous
     store whole."""
@@ -364,6 +384,7 @@ def test_interrupted_ingest_leaves_nothing(care, fx, copy_good, recording: Path)
     assert code == 0, err
 
 
+@pytest.mark.slow
 def test_concurrent_ingests_into_one_out(care, fx, recording: Path, tmp_path: Path) -> None:
     out = tmp_path / "store"
     procs = [
@@ -375,6 +396,7 @@ def test_concurrent_ingests_into_one_out(care, fx, recording: Path, tmp_path: Pa
     assert not fx.leftovers(tmp_path)
 
 
+@pytest.mark.slow
 def test_same_input_same_bytes(care, fx, good: Path, recording: Path, tmp_path: Path) -> None:
     """Determinism: the same input twice gives byte-identical tables."""
     assert care("ingest", recording, "--out", tmp_path / "a", "--encoder", "labels")[0] == 0

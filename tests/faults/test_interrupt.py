@@ -15,6 +15,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.slow
+
 MOMENTS = (0.15, 0.5, 1.0, 1.8, 2.6)
 """Seconds after the start at which Ctrl-C comes (the program loads for the first ~0.5 s)."""
 WITHIN = 1.5

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.slow
+
 COMMANDS = {
     "ingest --out": lambda rec, store, link: ("ingest", rec, "--out", link),
     "ingest --rrd": lambda rec, store, link: ("ingest", rec, "--out", link.parent / "s", "--rrd", link),

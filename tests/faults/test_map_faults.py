@@ -26,6 +26,7 @@ def _truncate(path: Path, keep: int = 600) -> None:
 # -- fuse ---------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("flags", "pattern", "exit_code"),
     [
@@ -135,6 +136,7 @@ def test_text_embeddings_of_another_dimension(care, fx, copy_good) -> None:
     )
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("table", "kind", "rebuild"),
     [
@@ -181,6 +183,7 @@ def test_fuse_rrd_is_a_user_file(care, fx, copy_good, tmp_path: Path) -> None:
     assert fx.snapshot(rrd) == {str(rrd): before[str(rrd)]}
 
 
+@pytest.mark.slow
 def test_fuse_disk_full_keeps_previous_map(care, fx, copy_good) -> None:
     store = copy_good("store")
     before = fx.snapshot(store)
@@ -197,6 +200,7 @@ def test_fuse_disk_full_keeps_previous_map(care, fx, copy_good) -> None:
     assert care("check", store)[0] == 0
 
 
+@pytest.mark.slow
 def test_killed_fuse_is_swept_by_the_next_run(care, fx, copy_good) -> None:
     store = copy_good("store")
     proc = fx.care_popen("fuse", "grid", store, "--cell-size", "0.05")
@@ -213,6 +217,7 @@ def test_killed_fuse_is_swept_by_the_next_run(care, fx, copy_good) -> None:
     assert not fx.leftovers(store.parent)
 
 
+@pytest.mark.slow
 def test_fuse_store_directory_not_writable(care, fx, copy_good) -> None:
     store = copy_good("store")
     before = fx.snapshot(store)
@@ -227,6 +232,7 @@ def test_fuse_store_directory_not_writable(care, fx, copy_good) -> None:
 # -- query / replan -----------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("args", "pattern", "exit_code"),
     [
@@ -310,6 +316,7 @@ def test_query_replan_bad_input(care, fx, good: Path, args, pattern: str, exit_c
     assert care("replan", store, "chair", "--visited", "0")[0] == 0
 
 
+@pytest.mark.slow
 def test_query_store_without_maps(care, fx, recording: Path, tmp_path: Path) -> None:
     assert care("ingest", recording, "--out", tmp_path / "store", "--encoder", "labels")[0] == 0
     code, _, err = care("query", tmp_path / "store", "chair", "--map", "grid")
@@ -321,6 +328,7 @@ def test_query_store_without_maps(care, fx, recording: Path, tmp_path: Path) -> 
 # -- eval ---------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_eval_out_is_a_file(care, fx, good: Path, tmp_path: Path) -> None:
     out = tmp_path / "results.csv"
     out.write_text("a,b\n1,2\n")
@@ -351,6 +359,7 @@ def test_eval_out_is_a_user_directory(care, fx, good: Path, tmp_path: Path) -> N
     )
 
 
+@pytest.mark.slow
 def test_eval_out_inside_a_store(care, fx, copy_good) -> None:
     store = copy_good("store")
     before = fx.snapshot(store)
@@ -358,6 +367,7 @@ def test_eval_out_inside_a_store(care, fx, copy_good) -> None:
     fx.assert_fault(code, err, r"is the input .* or inside it", clean=(store,), intact=before)
 
 
+@pytest.mark.slow
 def test_eval_out_is_a_store(care, fx, copy_good, good: Path) -> None:
     store = copy_good("store")
     before = fx.snapshot(store)
@@ -367,6 +377,7 @@ def test_eval_out_is_a_store(care, fx, copy_good, good: Path) -> None:
     )
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("flags", "pattern", "exit_code"),
     [
@@ -397,6 +408,7 @@ def test_eval_bad_index_json(care, fx, world: Path, tmp_path: Path) -> None:
     fx.assert_fault(code, err, r"index\.json", clean=(tmp_path,))
 
 
+@pytest.mark.slow
 def test_eval_disk_full_keeps_previous_results(care, fx, copy_good, good: Path) -> None:
     out = copy_good("eval")
     before = fx.snapshot(out)
@@ -414,6 +426,7 @@ def test_eval_disk_full_keeps_previous_results(care, fx, copy_good, good: Path) 
     assert code == 0, err
 
 
+@pytest.mark.slow
 def test_eval_twice_same_bytes(care, fx, good: Path, tmp_path: Path) -> None:
     """Determinism: the same evaluation twice (and a re-run into its own output) gives
     byte-identical tables."""
@@ -433,6 +446,7 @@ def test_check_a_path_that_is_no_store(care, fx, tmp_path: Path) -> None:
     fx.assert_fault(code, err, r"not a complete feature store")
 
 
+@pytest.mark.slow
 def test_unexpected_error_is_one_line_and_a_traceback_file(
     care, fx, good: Path, monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:

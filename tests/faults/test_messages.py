@@ -11,6 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.slow
+
 
 def _empty_raw(T, t, header):
     return T["sensor_msgs/msg/Image"](

@@ -3,15 +3,17 @@ to keep torch and open3d out of every ``care`` call)."""
 
 from __future__ import annotations
 
+import pytest
+
 
 def test_choices_match_registries() -> None:
     from care.encoders import ENCODERS
-    from care.encoders.labels import PERCEPTION_PRESETS
     from care_cli import choices
     from fuse.instances import INSTANCE_FEATURES
     from fuse.proposals import PROPOSERS
     from query.map import MAP_TABLES
     from replan import CRITERIA, STRATEGIES
+    from world.perception.model import PERCEPTION_PRESETS
 
     pairs = [
         (choices.Strategy, STRATEGIES),
@@ -26,6 +28,7 @@ def test_choices_match_registries() -> None:
         assert [m.value for m in enum] == list(registry), enum
 
 
+@pytest.mark.slow
 def test_help_lists_the_choices(care) -> None:
     code, out, _ = care("replan", "--help")
     assert code == 0

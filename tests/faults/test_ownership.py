@@ -8,6 +8,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.slow
+
 COMMANDS = {
     "ingest --out": lambda rec, store, target: ("ingest", rec, "--out", target),
     "ingest --rrd": lambda rec, store, target: ("ingest", rec, "--out", target.parent / "s", "--rrd", target),

@@ -37,6 +37,7 @@ def ingest(care, bag: Path, out: Path, *flags: str) -> tuple[int, str, str]:
 # -- several messages at one stamp ---------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_twelve_colour_images_at_one_stamp_are_refused(care, fx, tmp_path: Path) -> None:
     bag = fx.write_bag(tmp_path / "bag", stamps=[T0] * 12)
     code, _, err = ingest(care, bag, tmp_path / "store")
@@ -49,6 +50,7 @@ def test_twelve_colour_images_at_one_stamp_are_refused(care, fx, tmp_path: Path)
     assert not (tmp_path / "store").exists()
 
 
+@pytest.mark.slow
 def test_twelve_colour_images_with_twelve_poses_at_one_stamp(care, fx, tmp_path: Path) -> None:
     """The images of frame 0 with the pose of frame 11 must never make a view."""
     poses = tuple((T0, "map", CAM, (0.1 * i, 0.0, 1.0), IDENTITY) for i in range(12))
@@ -63,6 +65,7 @@ def test_twelve_colour_images_with_twelve_poses_at_one_stamp(care, fx, tmp_path:
     assert not (tmp_path / "store").exists()
 
 
+@pytest.mark.slow
 def test_the_same_colour_image_again_is_dropped_and_counted(care, fx, tmp_path: Path) -> None:
     bag = fx.write_bag(tmp_path / "bag", stamps=[T0] * 12, shades=[7] * 12)
     code, out, err = ingest(care, bag, tmp_path / "store")
@@ -71,6 +74,7 @@ def test_the_same_colour_image_again_is_dropped_and_counted(care, fx, tmp_path: 
     assert fx.meta(tmp_path / "store")["counts"]["dropped"] == {"duplicate_stamp": 11}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("kwargs", "pattern"),
     [
@@ -98,6 +102,7 @@ def test_two_transforms_at_one_stamp_are_refused(
     assert not (tmp_path / "store").exists()
 
 
+@pytest.mark.slow
 def test_the_same_transform_again_is_accepted(care, fx, tmp_path: Path) -> None:
     """/tf_static republished and a /tf message recorded twice: nothing new, no word."""
     poses = track([0, 0.5, 1.0], parent="odom")
@@ -122,6 +127,7 @@ def test_the_same_transform_again_is_accepted(care, fx, tmp_path: Path) -> None:
 # -- impossible poses ------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_a_camera_a_million_kilometres_out_is_refused(care, fx, tmp_path: Path) -> None:
     bag = fx.write_bag(tmp_path / "bag", tf_edges=(), dynamic=track([0.0, 1e9, 0.2]))
     code, _, err = ingest(care, bag, tmp_path / "store")
@@ -141,6 +147,7 @@ def test_a_camera_a_million_kilometres_out_is_refused(care, fx, tmp_path: Path) 
     assert "3 views from 3 colour images" in out
 
 
+@pytest.mark.slow
 def test_a_jump_of_50_m_in_a_tenth_of_a_second_is_refused(care, fx, tmp_path: Path) -> None:
     bag = fx.write_bag(tmp_path / "bag", n=4, tf_edges=(), dynamic=track([0.0, 1.0, 51.0, 52.0]))
     code, _, err = ingest(care, bag, tmp_path / "store")
@@ -158,6 +165,7 @@ def test_a_jump_of_50_m_in_a_tenth_of_a_second_is_refused(care, fx, tmp_path: Pa
     assert "4 views from 4 colour images" in out
 
 
+@pytest.mark.slow
 def test_limits_are_not_part_of_the_store(care, fx, tmp_path: Path) -> None:
     """Limits only refuse: a store they let through is current whatever their values (so
     stores made before they existed stay current), and its meta.json does not record them."""
@@ -176,6 +184,7 @@ def test_limits_are_not_part_of_the_store(care, fx, tmp_path: Path) -> None:
 # -- the options -----------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_limits_are_ingest_options(care) -> None:
     code, out, _ = care("ingest", "--help")
     assert code == 0
@@ -183,6 +192,7 @@ def test_limits_are_ingest_options(care) -> None:
     assert "--max-speed" in out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("flags", "pattern"),
     [

@@ -42,6 +42,7 @@ def test_every_float_option_is_found() -> None:
     assert {"--cell-size", "--floor-z", "--iou-threshold", "--max-dt", "--voxel-size"} <= flags
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("value", ["nan", "inf", "-inf"])
 @pytest.mark.parametrize(("path", "flag"), NUMERIC, ids=[" ".join(p) + f" {f}" for p, f in NUMERIC])
 def test_non_finite_numbers_are_usage_errors(
@@ -54,6 +55,7 @@ def test_non_finite_numbers_are_usage_errors(
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("command", "floor", "expected"),
     [("grid", "nan", 2), ("instances", "nan", 2), ("grid", "5", 1)],
@@ -77,6 +79,7 @@ def test_a_rejected_floor_leaves_the_store_as_it_was(
     assert care("check", store)[0] == 0
 
 
+@pytest.mark.slow
 def test_a_damaged_map_frame_is_found_by_check(care, fx, copy_good) -> None:
     store = copy_good("store")
     path = store / "map_frame.json"

@@ -91,8 +91,9 @@ def test_view_samples_equal_a_plain_pixel_loop(pose, levels, stride, fmap, size)
     text = rng.normal(size=(5, 6)).astype(np.float32)
     band = (-0.1, 0.9)
     got = view_samples(
-        frame, feats, cell_size=0.1, stride=stride, z_min=band[0], z_max=band[1], text=text
-    )
+        frame, feats, cell_size=0.1, stride=stride, z_min=band[0], z_max=band[1], sigma_z=2.5,
+        text=text,
+    )  # fmt: skip
     ref = _plain(frame, feats, 0.1, stride, band, 2.5)
     assert got.size == len(ref) > 3
     ix, iy = unpack_cells(got.keys)
@@ -112,7 +113,7 @@ def test_view_samples_equal_a_plain_pixel_loop(pose, levels, stride, fmap, size)
 
 def test_view_with_no_pixel_in_the_band_has_no_samples() -> None:
     frame = _frame(np.random.default_rng(0), _looking_down(), True)
-    got = view_samples(frame, np.ones((2, 2, 3), np.float32), cell_size=0.1, z_min=5.0)
+    got = view_samples(frame, np.ones((2, 2, 3), np.float32), cell_size=0.1, z_min=5.0, sigma_z=2.5)
     assert got.size == 0
     assert got.feature.shape == (0, 3)
 
@@ -139,7 +140,7 @@ def test_an_open_band_keeps_every_finite_depth_only(band) -> None:
     rng = np.random.default_rng(11)
     frame = _frame(rng, _tilted_pose(rng), False)
     feats = rng.normal(size=(3, 4, 6)).astype(np.float32)
-    got = view_samples(frame, feats, cell_size=0.1, z_min=band[0], z_max=band[1])
+    got = view_samples(frame, feats, cell_size=0.1, z_min=band[0], z_max=band[1], sigma_z=2.5)
     ref = _plain(frame, feats, 0.1, 1, band, 2.5)
     ix, iy = unpack_cells(got.keys)
     assert list(zip(ix.tolist(), iy.tolist(), strict=True)) == sorted(ref)
@@ -148,12 +149,13 @@ def test_an_open_band_keeps_every_finite_depth_only(band) -> None:
         assert int(got.num_pixels.sum()) == int(np.isfinite(frame.depth_m).sum()) - 5
 
 
+@pytest.mark.slow
 def test_depth_in_any_layout_gives_the_same_samples() -> None:
     """Big-endian, integer-valued or strided depth images: the same samples, bit for bit."""
     rng = np.random.default_rng(5)
     frame = _frame(rng, _tilted_pose(rng), True)
     feats = rng.normal(size=(3, 4, 6)).astype(np.float32)
-    band = {"cell_size": 0.1, "z_min": -0.1, "z_max": 0.9}
+    band = {"cell_size": 0.1, "z_min": -0.1, "z_max": 0.9, "sigma_z": 2.5}
     ref = view_samples(frame, feats, **band)
     wide = np.zeros((H, 2 * W), np.float32)
     wide[:, ::2] = frame.depth_m

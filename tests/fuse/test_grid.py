@@ -27,6 +27,7 @@ from fuse.grid import GridConfig, GridLayout, build_grid, grid_image
 from fuse.recompute import recompute_grid
 from fuse.schemas import CELL_VIEWS_FIELDS
 from fuse.sidecar import read_sidecar
+from runtime.execution import Execution
 
 H, W, D = 12, 16, 8
 K = np.array([[20.0, 0, 7.3], [0, 20.0, 5.7], [0, 0, 1]])
@@ -276,8 +277,8 @@ def test_bounded_memory_passes_give_the_same_map(tmp_path: Path, cells_per_pass:
     whole = _store(tmp_path / "whole", n=5)
     one = pq.read_table(build_grid(whole, GridConfig(cell_size=0.1, stride=1)))
     part = _store(tmp_path / "part", n=5)
-    config = GridConfig(cell_size=0.1, stride=1, cells_per_pass=cells_per_pass)
-    passes = pq.read_table(build_grid(part, config))
+    config = GridConfig(cell_size=0.1, stride=1)
+    passes = pq.read_table(build_grid(part, config, run=Execution(cells_per_pass=cells_per_pass)))
     assert one.num_rows > 3 * cells_per_pass  # really several passes
     assert passes.schema.equals(one.schema)
     md_one, md_passes = dict(one.schema.metadata), dict(passes.schema.metadata)
@@ -305,11 +306,8 @@ def test_views_prepared_ahead_give_the_same_bytes(
     store = _store(tmp_path / "s", n=5)
     built = {}
     for ahead in (0, 1, 2):
-        config = GridConfig(
-            cell_size=0.1, stride=1, cells_per_pass=cells_per_pass, read_ahead=ahead,
-            overwrite=True,
-        )  # fmt: skip
-        cells = build_grid(store, config).read_bytes()
+        run = Execution(cells_per_pass=cells_per_pass, read_ahead=ahead, overwrite=True)
+        cells = build_grid(store, GridConfig(cell_size=0.1, stride=1), run=run).read_bytes()
         built[ahead] = cells, (store / "cell_views.parquet").read_bytes()
     assert built[1] == built[0]
     assert built[2] == built[0]
@@ -318,12 +316,12 @@ def test_views_prepared_ahead_give_the_same_bytes(
 def test_memory_budget_too_small_is_one_clear_error(tmp_path: Path) -> None:
     store = _store(tmp_path / "s")
     with pytest.raises(FuseError, match="memory-budget"):
-        build_grid(store, GridConfig(cell_size=0.1, memory_budget=1 << 20))
+        build_grid(store, GridConfig(cell_size=0.1), run=Execution(memory_budget=1 << 20))
     assert not (store / "cells.parquet").exists()
     # how memory is used is not what the map is: a budget does not force a rebuild
     path = build_grid(store, GridConfig(cell_size=0.1))
     mtime = path.stat().st_mtime_ns
-    build_grid(store, GridConfig(cell_size=0.1, memory_budget=4 << 30))
+    build_grid(store, GridConfig(cell_size=0.1), run=Execution(memory_budget=4 << 30))
     assert path.stat().st_mtime_ns == mtime
 
 
@@ -333,7 +331,7 @@ def test_rerun_is_skipped_and_overwrite_rebuilds(tmp_path: Path) -> None:
     stamp = path.stat().st_mtime_ns
     build_grid(store, GridConfig(cell_size=0.1))
     assert path.stat().st_mtime_ns == stamp
-    build_grid(store, GridConfig(cell_size=0.1, overwrite=True))
+    build_grid(store, GridConfig(cell_size=0.1), run=Execution(overwrite=True))
     assert path.stat().st_mtime_ns != stamp
     build_grid(store, GridConfig(cell_size=0.2))  # another config rebuilds
     assert GridLayout.from_table(read_table(path)).cell_size == 0.2
@@ -372,7 +370,7 @@ def test_recompute_equals_fresh_build(tmp_path: Path, cells_per_pass: int | None
     views = (store / "cell_views.parquet").read_bytes()
     vocab = ("lamp", "chair", "bed")
     recomputed = read_table(
-        recompute_grid(store, vocab, logit_scale=30.0, cells_per_pass=cells_per_pass)
+        recompute_grid(store, vocab, logit_scale=30.0, run=Execution(cells_per_pass=cells_per_pass))
     )
     fresh_store = _store(tmp_path / "t", n=5)
     fresh = read_table(build_grid(fresh_store, replace(config, vocabulary=vocab, logit_scale=30.0)))
@@ -468,8 +466,6 @@ def test_bad_inputs_raise_one_clear_error(tmp_path: Path) -> None:
         build_grid(store, GridConfig(z_min=5.0, z_max=6.0))
     with pytest.raises(FuseError, match="invalid grid config"):
         GridConfig(cell_size=0.0)
-    with pytest.raises(FuseError, match="read_ahead=-1; need 0 or more"):
-        GridConfig(read_ahead=-1)
     with pytest.raises(FuseError, match="cannot embed"):
         build_grid(store, GridConfig(vocabulary=("unicorn",)))
 
@@ -536,6 +532,7 @@ def test_rerun_layers_and_blueprint(tmp_path: Path) -> None:
     assert map_blueprint(views_3d=[]) is not None
 
 
+@pytest.mark.slow
 def test_cli_grid_and_recompute(tmp_path: Path) -> None:
     from typer.testing import CliRunner
 
@@ -573,7 +570,7 @@ def test_sample_world_recording(tmp_path: Path) -> None:
     from care.encoders import EncoderOptions, make_encoder
     from care.store import Store
     from ingest.pipeline import IngestConfig, run_ingest
-    from truth.model import GroundTruth
+    from truth.formats.native import read_native
     from world.record import make_recording
     from world.render import RenderConfig
     from world.scene import SceneConfig
@@ -583,7 +580,13 @@ def test_sample_world_recording(tmp_path: Path) -> None:
         recording, SceneConfig(seed=3, num_rooms=1), RenderConfig(width=96, height=72), frames=12
     )
     encoder = make_encoder("labels", EncoderOptions(perception="ideal"))
-    store_path = run_ingest(IngestConfig(recording, tmp_path / "store", progress=False), encoder)
+    store_path = run_ingest(
+        recording,
+        tmp_path / "store",
+        IngestConfig(),
+        run=Execution(progress=False),
+        encoder=encoder,
+    )
     cfg = GridConfig(stride=3, logit_scale=100.0)
     table = read_table(build_grid(store_path, cfg))
     store = Store(store_path)
@@ -609,7 +612,7 @@ def test_sample_world_recording(tmp_path: Path) -> None:
                 else got == math.inf
             )
     # the top class of a cell is the class of the ground-truth object at its highest point
-    gt = GroundTruth.load(recording)
+    gt = read_native(recording)
     xyz = np.stack([table.column(c).to_numpy() for c in ("x", "y", "z_max")], axis=1)
     inst = gt.label_points(xyz, max_dist=0.06)
     on_object = inst > 0

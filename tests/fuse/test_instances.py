@@ -29,6 +29,7 @@ from fuse.instances import InstanceConfig, build_instances, recompute_instances
 from fuse.measures import class_distribution, entropy, pwkl_pairwise
 from fuse.pointcloud import VoxelAccumulator, fuse_scene_points, read_scene_points
 from fuse.proposals import label_proposals
+from runtime.execution import Execution
 
 CLASSES = ["void", "wall", "floor", "chair", "table", "bed"]
 # (min corner, max corner, class id); instance id = index + 1
@@ -164,6 +165,9 @@ CONFIG = InstanceConfig(
 )
 
 
+QUIET = Execution(progress=False)
+REBUILD = Execution(overwrite=True)
+
 # ---------------------------------------------------------------- scene cloud
 
 
@@ -188,7 +192,7 @@ def test_voxel_accumulator_matches_open3d_and_streams() -> None:
 
 
 def test_scene_points_lie_on_the_rendered_surfaces(room: Path) -> None:
-    cloud = fuse_scene_points(Store(room), voxel_size=VOXEL, stride=1, progress=False)
+    cloud = fuse_scene_points(Store(room), voxel_size=VOXEL, stride=1, max_depth=8.0, run=QUIET)
     scene, _ = _scene()
     dist = scene.compute_distance(o3d.core.Tensor(cloud.points)).numpy()
     assert len(cloud) > 2000
@@ -200,8 +204,8 @@ def test_scene_points_lie_on_the_rendered_surfaces(room: Path) -> None:
 
 
 def test_label_proposals_recover_the_boxes(room: Path) -> None:
-    cloud = fuse_scene_points(Store(room), voxel_size=VOXEL, stride=1, progress=False)
-    props = label_proposals(cloud, Store(room), CONFIG, progress=False)
+    cloud = fuse_scene_points(Store(room), voxel_size=VOXEL, stride=1, max_depth=8.0, run=QUIET)
+    props = label_proposals(cloud, Store(room), CONFIG, run=QUIET)
     assert props.source_ids.tolist() == [1, 2, 3]
     ids, iou, _ = best_iou(props.masks, gt_labels(cloud.points))
     assert ids.tolist() == [1, 2, 3]
@@ -215,9 +219,11 @@ def test_labels_without_instance_images_is_one_clear_error(tmp_path: Path) -> No
     with StoreWriter(tmp_path / "s", None) as writer:
         writer.add(frame)
         writer.commit({})
-    cloud = fuse_scene_points(Store(tmp_path / "s"), voxel_size=0.1, progress=False)
+    cloud = fuse_scene_points(
+        Store(tmp_path / "s"), voxel_size=0.1, stride=2, max_depth=8.0, run=QUIET
+    )
     with pytest.raises(FuseError, match="instance_png"):
-        label_proposals(cloud, Store(tmp_path / "s"), CONFIG, progress=False)
+        label_proposals(cloud, Store(tmp_path / "s"), CONFIG, run=QUIET)
 
 
 # ---------------------------------------------------------------- the whole map
@@ -289,8 +295,8 @@ def test_build_is_skipped_when_current_and_recompute_changes_columns(room: Path)
     path = build_instances(room, config)
     stamp = path.stat().st_mtime_ns
     assert build_instances(room, config).stat().st_mtime_ns == stamp
-    faster = InstanceConfig(**{**config.__dict__, "batch_size": 3})  # how, not what
-    assert build_instances(room, faster).stat().st_mtime_ns == stamp
+    faster = Execution(batch_size=3, read_ahead=0)  # how, not what
+    assert build_instances(room, config, run=faster).stat().st_mtime_ns == stamp
     before = read_table(path)
     recompute_instances(room, ["bed", "chair", "table"], logit_scale=10.0)
     after = read_table(path)
@@ -299,8 +305,9 @@ def test_build_is_skipped_when_current_and_recompute_changes_columns(room: Path)
     assert after.column("point_indices").equals(before.column("point_indices"))
     assert after.column("entropy").to_pylist() != before.column("entropy").to_pylist()
     # the recompute equals a fresh build for that vocabulary and scale
-    fresh_config = {"vocabulary": ("bed", "chair", "table"), "logit_scale": 10.0, "overwrite": True}
-    fresh = read_table(build_instances(room, InstanceConfig(**{**config.__dict__, **fresh_config})))
+    fresh_config = {"vocabulary": ("bed", "chair", "table"), "logit_scale": 10.0}
+    fresh_map = InstanceConfig(**{**config.__dict__, **fresh_config})
+    fresh = read_table(build_instances(room, fresh_map, run=REBUILD))
     for name in ("entropy", "stderr", "pwkl", "log_norm", "num_views"):
         np.testing.assert_allclose(
             after.column(name).to_numpy(), fresh.column(name).to_numpy(), rtol=1e-6, err_msg=name
@@ -329,8 +336,8 @@ def test_views_read_ahead_give_the_same_map(room: Path, tmp_path: Path, proposal
     for ahead in (0, 2):
         store = tmp_path / f"ahead{ahead}"
         shutil.copytree(room, store, ignore=shutil.ignore_patterns("instance*", "scene_points*"))
-        config = InstanceConfig(**{**CONFIG.__dict__, "proposals": proposals, "read_ahead": ahead})
-        build_instances(store, config)
+        config = InstanceConfig(**{**CONFIG.__dict__, "proposals": proposals})
+        build_instances(store, config, run=Execution(read_ahead=ahead))
         names = ("scene_points.parquet", "instances.parquet", "instance_views.parquet")
         built.append([(store / name).read_bytes() for name in names])
     assert built[1] == built[0]
@@ -368,7 +375,8 @@ def test_build_instances_crops(room: Path) -> None:
     with pytest.raises(FuseError, match="cannot encode crops"):
         build_instances(
             room,
-            InstanceConfig(**{**config.__dict__, "overwrite": True}),
+            config,
+            run=REBUILD,
             encoder=type("NoCrops", (ColourCropEncoder,), {"supports_crops": False})(),
         )
 
@@ -401,9 +409,9 @@ def test_failed_build_leaves_the_previous_map_whole(room: Path) -> None:
     ],
 )
 def test_empty_map_is_one_clear_error(room: Path, setting: dict, message: str) -> None:
-    config = InstanceConfig(**{**CONFIG.__dict__, "overwrite": True, **setting})
+    config = InstanceConfig(**{**CONFIG.__dict__, **setting})
     with pytest.raises(FuseError, match=message):
-        build_instances(room, config)
+        build_instances(room, config, run=REBUILD)
 
 
 def test_bad_config_is_one_clear_error() -> None:
@@ -411,8 +419,6 @@ def test_bad_config_is_one_clear_error() -> None:
         InstanceConfig(proposals="magic")
     with pytest.raises(FuseError, match="voxel_size"):
         InstanceConfig(voxel_size=0)
-    with pytest.raises(FuseError, match="read_ahead=-1; need 0 or more"):
-        InstanceConfig(read_ahead=-1)
 
 
 # ---------------------------------------------------------------- the sample world
@@ -458,7 +464,7 @@ def sample_store(tmp_path_factory: pytest.TempPathFactory) -> Path:
     from ingest.pipeline import IngestConfig, run_ingest
 
     out = tmp_path_factory.mktemp("sample") / "store"
-    return run_ingest(IngestConfig(SAMPLE, out, progress=False), ClassOneHotEncoder())
+    return run_ingest(SAMPLE, out, IngestConfig(), run=QUIET, encoder=ClassOneHotEncoder())
 
 
 @pytest.mark.slow

@@ -261,7 +261,7 @@ def test_candidate_sums_reserved_or_grown_give_the_same_state(limit: int) -> Non
 
 
 def test_candidate_sums_state_size() -> None:
-    """At most ~6 KB of streaming state per cell at d = 512, n = 100 (issue 14)."""
+    """At most ~6 KB of streaming state per cell at d = 512, n = 100 (the memory target)."""
     assert CandidateSums.bytes_per_candidate(512, 100) <= 6 * 1024
     sums = CandidateSums(512, np.eye(100, 512), 100.0, capacity=1000)
     assert sums.nbytes == 1000 * CandidateSums.bytes_per_candidate(512, 100)

@@ -114,6 +114,7 @@ def test_trinary_levels_and_yaml_fields(tmp_path: Path) -> None:
     assert grid.tolist() == [[100, 0, -1], [-1, -1, 100]]  # row 0 is the bottom (y = 4.0)
 
 
+@pytest.mark.slow
 def test_cli_query_and_replan_return_goal_poses(tmp_path: Path) -> None:
     store = _store(tmp_path / "s")
     build_grid(store, GridConfig(cell_size=0.05))
@@ -142,6 +143,7 @@ def test_cli_query_and_replan_return_goal_poses(tmp_path: Path) -> None:
     assert "--visited" in bad.stderr
 
 
+@pytest.mark.slow
 def test_cli_batch_writes_one_table(tmp_path: Path) -> None:
     import polars as pl
 

@@ -23,6 +23,9 @@ import pytest
 from care.frames import Frame
 from care.store import EncoderInfo, Store, StoreWriter
 from fuse.views import select_views, visible_hits
+from runtime.execution import Execution
+
+QUIET = Execution(progress=False)
 
 K = np.array([[10.0, 0, 5], [0, 10.0, 5], [0, 0, 1]])
 u, v = np.meshgrid(np.arange(10), np.arange(10))
@@ -87,7 +90,13 @@ def test_select_views_ranks_and_pools(store: Path) -> None:
     wall_mask = np.arange(100)
     left = np.nonzero(u.ravel() < 5)[0]  # only visible where the board is absent
     sel = select_views(
-        Store(store), WALL, [wall_mask, left], top_k=3, depth_tolerance=0.05, progress=False
+        Store(store),
+        WALL,
+        [wall_mask, left],
+        top_k=3,
+        depth_tolerance=0.05,
+        min_visible_points=5,
+        run=QUIET,
     )
     assert sel.view_ids.tolist() == [[1, 3, 0], [1, 3, -1]]
     assert sel.visible.tolist() == [[100, 100, 50], [50, 50, 0]]
@@ -111,14 +120,15 @@ def test_min_visible_points_and_more_slots_than_views(store: Path) -> None:
         top_k=6,
         depth_tolerance=0.05,
         min_visible_points=60,
-        progress=False,
+        run=QUIET,
     )
     assert sel.view_ids.tolist() == [[1, 3, -1, -1, -1, -1]]
 
 
 def test_batches_do_not_change_the_result(store: Path) -> None:
-    args = {"top_k": 3, "depth_tolerance": 0.05, "progress": False}
-    a = select_views(Store(store), WALL, [np.arange(100)], batch_size=1, **args)
-    b = select_views(Store(store), WALL, [np.arange(100)], batch_size=8, **args)
+    args = {"top_k": 3, "depth_tolerance": 0.05, "min_visible_points": 5}
+    one = Execution(batch_size=1, progress=False)
+    a = select_views(Store(store), WALL, [np.arange(100)], run=one, **args)
+    b = select_views(Store(store), WALL, [np.arange(100)], run=QUIET, **args)
     np.testing.assert_array_equal(a.view_ids, b.view_ids)
     np.testing.assert_allclose(a.features, b.features)

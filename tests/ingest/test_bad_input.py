@@ -11,6 +11,8 @@ import pytest
 
 from ingest.write import write_recording
 
+pytestmark = pytest.mark.slow
+
 H, W = 24, 32
 
 

@@ -4,12 +4,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
 from rerun.chunk import RrdReader
 
 from care.store import Store
 from care.viz import rrd_entity_counts
 from ingest import viz
 from ingest.write import write_recording
+
+pytestmark = pytest.mark.slow
 
 
 def test_ingest_logs_rerun_entities(run_cli, tmp_path: Path, h) -> None:

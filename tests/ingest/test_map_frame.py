@@ -26,6 +26,9 @@ from fuse.instances import InstanceConfig, build_instances
 from geometry.mapframe import FloorNotFoundError, estimate_map_frame
 from ingest.pipeline import IngestConfig, run_ingest
 from ingest.write import write_recording
+from runtime.execution import Execution
+
+QUIET = Execution(progress=False)
 
 CELL = 0.05
 ZUP_FROM_YDOWN = np.eye(4)
@@ -63,10 +66,8 @@ def stores(frames, tmp_path_factory, h) -> dict[str, Path]:
     out = {}
     for name, (fr, fmt, file) in cases.items():
         rec = write_recording(root / file, fr, fmt=fmt, ros2_storage="mcap")
-        config = IngestConfig(
-            recording=rec, out=root / name, progress=False, vocabulary="red,green,blue"
-        )
-        out[name] = run_ingest(config, encoder=h.TinyEncoder())
+        config = IngestConfig(vocabulary="red,green,blue")
+        out[name] = run_ingest(rec, root / name, config, run=QUIET, encoder=h.TinyEncoder())
         build_grid(out[name], GridConfig(cell_size=CELL, stride=2))
     return out
 
@@ -75,6 +76,7 @@ def _frame(store: Path) -> MapFrame:
     return Store(store).map_frame
 
 
+@pytest.mark.slow
 def test_up_axis_and_floor_found_from_the_data(stores) -> None:
     ydown, zup = _frame(stores["mcap"]), _frame(stores["zup"])
     assert ydown.up == (0.0, -1.0, 0.0)  # snapped: the trajectory's y axis, exactly
@@ -156,6 +158,7 @@ def test_cli_up_axis_option_replaces_the_frame(stores) -> None:
     assert frame.method == "given"
 
 
+@pytest.mark.slow
 def test_cli_no_floor_is_one_line_and_no_map(tmp_path: Path, h) -> None:
     """A camera looking at a wall (the synthetic tilted plane, no floor in view): one line
     naming --up-axis, exit 1, no map; with the axis given the grid is built."""
@@ -164,8 +167,7 @@ def test_cli_no_floor_is_one_line_and_no_map(tmp_path: Path, h) -> None:
 
     rec = write_recording(tmp_path / "wall.mcap", h.synthetic_frames(6), fmt="mcap")
     store = run_ingest(
-        IngestConfig(recording=rec, out=tmp_path / "store", progress=False, vocabulary="a,b"),
-        encoder=h.TinyEncoder(),
+        rec, tmp_path / "store", IngestConfig(vocabulary="a,b"), run=QUIET, encoder=h.TinyEncoder()
     )
     care = [sys.executable, "-m", "care_cli.main", "fuse", "grid", str(store)]
     done = subprocess.run(care, capture_output=True, text=True)

@@ -100,9 +100,9 @@ def digests(folder: Path) -> dict[str, str]:
     }
 
 
-def _care(*args: object) -> None:
+def _care(*args: object, cwd: Path | None = None) -> None:
     cmd = [sys.executable, "-m", "care_cli.main", *map(str, args)]
-    done = subprocess.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=900)
+    done = subprocess.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=900, cwd=cwd)
     assert done.returncode == 0, done.stderr[-2000:]
 
 
@@ -140,10 +140,12 @@ def test_own_recording_outputs_unchanged(
         rgb, depth = f.rgb[::4, ::4].copy(), f.depth_m[::4, ::4].copy()
         frames.append(Frame(f.stamp_ns, rgb, depth, K, f.cam_to_world))
     write_recording(tmp_path / "kitchen.mcap", frames, fmt="mcap")
-    weights = save_tiny_clip(tmp_path / "weights", layers=2)
+    save_tiny_clip(tmp_path / "weights", layers=2)
+    # paths as given on the command line go into the store's fingerprint: relative ones, so
+    # that where the temporary folder lies is not output
     _care(
-        "run", tmp_path / "kitchen.mcap", "--out", tmp_path / "out", "--encoder", "clip",
-        "--weights", weights, "--vocabulary", "chair,sofa,table",
+        "run", "kitchen.mcap", "--out", "out", "--encoder", "clip", "--weights", "weights",
+        "--vocabulary", "chair,sofa,table", cwd=tmp_path,
     )  # fmt: skip
     _check("own", tmp_path / "out")
 

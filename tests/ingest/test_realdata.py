@@ -10,8 +10,9 @@ from scipy.spatial import cKDTree
 
 from care.store import Store
 from geometry.transforms import backproject, transform_points
-from ingest.pipeline import IngestConfig, run_ingest
+from ingest.pipeline import run_ingest
 from ingest.write import write_recording
+from runtime.execution import Execution
 
 FORMATS = [
     ("mcap", "rec.mcap", "sqlite3"),
@@ -29,7 +30,7 @@ def livingroom(livingroom_root: Path, h) -> list:
 
 def _ingest(tmp_path: Path, frames: list, fmt: str, name: str, storage: str) -> Store:
     rec = write_recording(tmp_path / name, frames, fmt=fmt, ros2_storage=storage)
-    return Store(run_ingest(IngestConfig(recording=rec, out=tmp_path / "store", progress=False)))
+    return Store(run_ingest(rec, tmp_path / "store", run=Execution(progress=False)))
 
 
 def _world_points(frame_depth: np.ndarray, K: np.ndarray, pose: np.ndarray) -> np.ndarray:

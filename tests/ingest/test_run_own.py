@@ -14,6 +14,8 @@ import pytest
 from care.frames import Frame
 from ingest.write import write_recording
 
+pytestmark = pytest.mark.slow
+
 OFFLINE = {**os.environ, "HF_HUB_OFFLINE": "1", "TRANSFORMERS_OFFLINE": "1"}
 
 

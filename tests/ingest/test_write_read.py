@@ -15,6 +15,9 @@ from ingest.pipeline import IngestConfig, run_ingest
 from ingest.readers import open_reader
 from ingest.source import ReadOptions, RecordingFrames
 from ingest.write import BASE_FRAME, CAMERA_FRAME, TOPICS, WORLD_FRAME, write_recording
+from runtime.execution import Execution
+
+QUIET = Execution(progress=False)
 
 FORMATS = [
     ("mcap", "rec.mcap", "sqlite3"),
@@ -114,8 +117,7 @@ def test_pipeline_store_meta_and_idempotence(tmp_path: Path, h) -> None:
     frames = h.synthetic_frames(4, extras=True)
     rec = write_recording(tmp_path / "r.bag", frames, fmt="ros1", label_names=["void", "a", "b"])
     enc = h.TinyEncoder()
-    config = IngestConfig(recording=rec, out=tmp_path / "store", progress=False)
-    out = run_ingest(config, encoder=enc)
+    out = run_ingest(rec, tmp_path / "store", run=QUIET, encoder=enc)
     store = Store(out)
     assert enc.prepared_with == ("void", "a", "b")
     meta = store.meta
@@ -133,9 +135,9 @@ def test_pipeline_store_meta_and_idempotence(tmp_path: Path, h) -> None:
     np.testing.assert_allclose(store.poses(), np.stack([f.cam_to_world for f in frames]), atol=1e-9)
     # Same inputs: skipped (meta.json untouched); changed options: rebuilt.
     stamp = (out / "meta.json").stat().st_mtime_ns
-    run_ingest(config, encoder=enc)
+    run_ingest(rec, out, run=QUIET, encoder=enc)
     assert (out / "meta.json").stat().st_mtime_ns == stamp
-    run_ingest(IngestConfig(recording=rec, out=out, read=ReadOptions(max_dt=0.03), progress=False))
+    run_ingest(rec, out, IngestConfig(read=ReadOptions(max_dt=0.03)), run=QUIET)
     assert json.loads((out / "meta.json").read_text())["encoder"] is None
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
@@ -178,8 +180,7 @@ def test_vocabulary_file_text_embeddings_cached(tmp_path: Path, h) -> None:
     vocab.write_text("# classes\nchair\nsofa table\n\nchair\n")
     enc = h.TinyEncoder()
     out = run_ingest(
-        IngestConfig(recording=rec, out=tmp_path / "store", vocabulary=str(vocab), progress=False),
-        encoder=enc,
+        rec, tmp_path / "store", IngestConfig(vocabulary=str(vocab)), run=QUIET, encoder=enc
     )
     names, emb = Store(out).text_embeddings()
     assert names == ["chair", "sofa table"]

@@ -9,7 +9,8 @@ from scipy.special import softmax
 
 from care.errors import QueryError
 from query.map import NOT_IN_TOP, CandidateMap
-from query.openvocab import NoTextSideError, QueryTarget, open_query
+from query.openvocab import QueryTarget, open_query
+from query.store_text import NoTextSideError
 from query.text import TextMatch
 
 N, D, NCLS = 300, 12, 7

@@ -22,6 +22,8 @@ from care.frames import Frame
 from ingest.write import write_recording
 from query.map import list_column
 
+pytestmark = pytest.mark.slow
+
 H, W = 48, 64
 K = np.array([[50.0, 0, 31.5], [0, 50.0, 23.5], [0, 0, 1]])
 OFFLINE = {**os.environ, "HF_HUB_OFFLINE": "1", "TRANSFORMERS_OFFLINE": "1"}

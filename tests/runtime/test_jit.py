@@ -49,6 +49,7 @@ def triple_all(values):
 CALL = "import numpy as np, kern; print(kern.triple_all(np.arange(3.0)).tolist())"
 
 
+@pytest.mark.slow
 def test_a_damaged_cache_is_one_warning_and_the_kernel_still_runs(tmp_path) -> None:
     """A truncated cache index (a disk fault) is read by pickle and fails; the kernel says so
     once and compiles in memory. Each call is a fresh process, as a user's next command."""

@@ -48,6 +48,7 @@ def _run(kind: Work, env: dict[str, str] | None = None) -> tuple:
     return out
 
 
+@pytest.mark.slow
 def test_worker_pools_follow_the_kind_of_work() -> None:
     set_to, torch_threads, blas, arrow, (encode_n, encode_torch, encode_arrow), after = _run(
         Work.FUSE
@@ -61,6 +62,7 @@ def test_worker_pools_follow_the_kind_of_work() -> None:
     assert after == (1, 1)  # ...and gives them back
 
 
+@pytest.mark.slow
 def test_environment_overrides_every_count_but_the_pinned(monkeypatch: pytest.MonkeyPatch) -> None:
     set_to, torch_threads, blas, arrow, _, _ = _run(Work.DEFAULT, {"CARE_THREADS": "2"})
     assert set_to == torch_threads == arrow == 2
@@ -107,7 +109,7 @@ def test_stage_functions_run_on_their_own_pools(monkeypatch: pytest.MonkeyPatch,
         with threadpool_limits(2):
             fuse.api.fuse_grid(tmp_path, GridConfig())
             fuse.api.fuse_instances(tmp_path, InstanceConfig())
-            ingest.api.ingest(tmp_path / "rec", IngestConfig(recording=tmp_path, out=tmp_path))
+            ingest.api.ingest(tmp_path / "rec", tmp_path, IngestConfig())
             assert torch.get_num_threads() == 2  # given back
     finally:
         torch.set_num_threads(before)

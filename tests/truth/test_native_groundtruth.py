@@ -9,7 +9,7 @@ import pytest
 from matplotlib.path import Path as MplPath
 
 from care.errors import WorldError
-from truth.formats.native import gt_paths
+from truth.formats.native import gt_paths, read_native, write_native
 from truth.model import GroundTruth, Room, instances_table
 
 
@@ -40,9 +40,9 @@ def _gt() -> GroundTruth:
 def test_save_load_round_trip_beside_recording(tmp_path: Path) -> None:
     gt = _gt()
     rec = tmp_path / "scene_000.mcap"
-    gt.save(rec)
+    write_native(gt, rec)
     assert [p.name for p in gt_paths(rec)] == ["scene_000.gt.parquet", "scene_000.gt.json"]
-    back = GroundTruth.load(rec)
+    back = read_native(rec)
     assert back.class_names == gt.class_names
     assert back.instances.equals(gt.instances.cast(back.instances.schema))
     np.testing.assert_array_equal(back.points, gt.points)
@@ -55,7 +55,7 @@ def test_save_load_round_trip_beside_recording(tmp_path: Path) -> None:
 
 def test_load_missing_is_one_clear_error(tmp_path: Path) -> None:
     with pytest.raises(WorldError, match=r"no ground truth beside it"):
-        GroundTruth.load(tmp_path / "nothing.mcap")
+        read_native(tmp_path / "nothing.mcap")
 
 
 def test_label_points_matches_brute_force_nearest_neighbour() -> None:

@@ -297,6 +297,7 @@ def test_annotation_csv_without_header_yaml_with_rooms(tmp_path: Path) -> None:
     assert gt.instances.column("room_id").to_pylist() == [0]
 
 
+@pytest.mark.slow
 def test_box_membership_and_floor_distance_against_brute_force() -> None:
     """A box turned by 30 degrees: membership by its own axes, and the floor distance to its
     footprint against the distance to a dense sampling of the footprint."""

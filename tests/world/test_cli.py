@@ -5,11 +5,14 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from care.viz import rrd_entity_counts
 from care_cli.main import _register, app
-from truth.model import GroundTruth
+from truth.formats.native import read_native
+
+pytestmark = pytest.mark.slow
 
 
 def _make(out: Path, *extra: str):
@@ -30,7 +33,7 @@ def test_make_dataset_index_resume_and_rrd(tmp_path: Path) -> None:
     assert recs[0]["seed"] != recs[1]["seed"]
     for r in recs:
         assert (out / r["recording"] / "metadata.yaml").is_file()  # a rosbag2 directory
-        gt = GroundTruth.load(out / r["recording"])
+        gt = read_native(out / r["recording"])
         assert gt.instances.num_rows == r["num_instances"]
         assert not r["skipped"]
     counts = rrd_entity_counts(rrd)
@@ -89,7 +92,7 @@ def test_make_exports_the_ground_truth_in_every_format(tmp_path: Path) -> None:
     out = tmp_path / "ds"
     result = _make(out, "--gt-formats", "all")
     assert result.exit_code == 0, result.output
-    native = GroundTruth.load(out / "scene_000.mcap")
+    native = read_native(out / "scene_000.mcap")
     unseen = set(native.info.get("unseen_instances") or [])
     seen = {i: n for i, n in native.instance_class_names().items() if i not in unseen}
     order = np.lexsort(native.points.T)

@@ -73,6 +73,7 @@ def test_set_changes_one_knob_and_refuses_unknown_keys_and_bad_values() -> None:
         with_sets(base, ["catalogue=ikea"])
 
 
+@pytest.mark.slow
 def test_cli_bad_set_is_one_line_and_exit_2(run_cli, tmp_path: Path) -> None:
     code, _, err = run_cli("sample", "make", "--out", str(tmp_path / "d"), "--set", "nope=1")
     assert code == 2
@@ -81,6 +82,7 @@ def test_cli_bad_set_is_one_line_and_exit_2(run_cli, tmp_path: Path) -> None:
     assert not (tmp_path / "d").exists()
 
 
+@pytest.mark.slow
 def test_dataset_records_preset_statistics_and_perception(run_cli, tmp_path: Path) -> None:
     out = tmp_path / "mp"
     code, stdout, err = run_cli(
@@ -100,7 +102,7 @@ def test_dataset_records_preset_statistics_and_perception(run_cli, tmp_path: Pat
     assert f"{stats['instances']} instances" in stdout
     assert gt["info"]["perception"]["bias_noise_scale"] == 0.7
 
-    from care.encoders.labels import perception_model, recorded_perception
+    from world.perception.model import perception_model, recorded_perception
 
     record = recorded_perception(out / "scene_000.mcap")
     model, from_record = perception_model("default", record["perception"])

@@ -12,7 +12,7 @@ import pytest
 
 from geometry.transforms import backproject, transform_points
 from ingest.source import RecordingFrames
-from truth.model import GroundTruth
+from truth.formats.native import read_native
 from world.scene import NAV_CELL
 from world.trajectory import plan_trajectory
 
@@ -44,6 +44,7 @@ def test_trajectory_visits_every_room_inside_the_navigation_zone(tiny_scene) -> 
     assert len(np.unique(np.floor((yaw + np.pi) / (np.pi / 4)))) == 8
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fmt", ["mcap", "ros2", "ros1"])
 def test_every_format_ingests_alike(tiny_recordings: dict[str, Path], tiny_scene, fmt: str) -> None:
     _, poses = tiny_scene
@@ -57,12 +58,13 @@ def test_every_format_ingests_alike(tiny_recordings: dict[str, Path], tiny_scene
         np.testing.assert_array_equal(f.extras["instance"], ref.extras["instance"])
         np.testing.assert_array_equal(f.extras["class"], ref.extras["class"])
     with RecordingFrames(tiny_recordings[fmt]) as rf:
-        assert rf.label_names == GroundTruth.load(tiny_recordings[fmt]).class_names
+        assert rf.label_names == read_native(tiny_recordings[fmt]).class_names
 
 
+@pytest.mark.slow
 def test_depth_lands_on_ground_truth_surfaces(tiny_recordings: dict[str, Path], tiny_scene) -> None:
     scene, _ = tiny_scene
-    gt = GroundTruth.load(tiny_recordings["mcap"])
+    gt = read_native(tiny_recordings["mcap"])
     mesh = scene.mesh
     rc = o3d.t.geometry.RaycastingScene()
     rc.add_triangles(
@@ -84,7 +86,7 @@ def test_depth_lands_on_ground_truth_surfaces(tiny_recordings: dict[str, Path], 
 
 
 def test_labels_and_unseen_report(tiny_recordings: dict[str, Path]) -> None:
-    gt = GroundTruth.load(tiny_recordings["mcap"])
+    gt = read_native(tiny_recordings["mcap"])
     frames = _read(tiny_recordings["mcap"])
     seen: Counter[int] = Counter()
     for f in frames:

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from truth.model import GroundTruth
+from truth.formats.native import read_native
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLE = ROOT / "data" / "sample" / "scene_000.mcap"
@@ -18,7 +18,7 @@ SAMPLE = ROOT / "data" / "sample" / "scene_000.mcap"
 def test_sample_is_small_and_has_ground_truth() -> None:
     total = sum(p.stat().st_size for p in SAMPLE.parent.iterdir())
     assert total <= 15 * 2**20
-    gt = GroundTruth.load(SAMPLE)
+    gt = read_native(SAMPLE)
     names = set(gt.instances.column("class_name").to_pylist())
     assert 15 <= len(names) <= 30
     assert len(gt.rooms) >= 2
@@ -59,7 +59,7 @@ def test_sample_ingests_and_lands_on_ground_truth() -> None:
     from geometry.transforms import backproject, transform_points
     from ingest.source import RecordingFrames
 
-    gt = GroundTruth.load(SAMPLE)
+    gt = read_native(SAMPLE)
     with RecordingFrames(SAMPLE) as frames:
         assert frames.label_names == gt.class_names
         for i, f in enumerate(frames):

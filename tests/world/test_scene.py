@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from care.errors import WorldError
+from truth.formats.native import write_native
 from world.catalogue import CATALOGUE, CLASS_NAMES, ROOM_TYPES
 from world.meshes import part_mesh
 from world.scene import SceneConfig, generate_scene
@@ -36,10 +37,12 @@ def _interpenetrating(a: np.ndarray, b: np.ndarray, tol: float = 1e-6) -> np.nda
 def test_same_seed_same_bytes_of_ground_truth(tmp_path: Path) -> None:
     config = SceneConfig(seed=5, num_rooms=2)
     for name in ("a", "b"):
-        generate_scene(config).ground_truth().save(tmp_path / f"{name}.mcap")
+        write_native(generate_scene(config).ground_truth(), tmp_path / f"{name}.mcap")
     for suffix in (".gt.parquet", ".gt.json"):
         assert (tmp_path / f"a{suffix}").read_bytes() == (tmp_path / f"b{suffix}").read_bytes()
-    generate_scene(SceneConfig(seed=6, num_rooms=2)).ground_truth().save(tmp_path / "c.mcap")
+    write_native(
+        generate_scene(SceneConfig(seed=6, num_rooms=2)).ground_truth(), tmp_path / "c.mcap"
+    )
     assert (tmp_path / "a.gt.json").read_bytes() != (tmp_path / "c.gt.json").read_bytes()
 
 

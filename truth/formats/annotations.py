@@ -18,7 +18,7 @@ that header line (with a header, columns may come in any order and ``id`` may be
 Rooms for a CSV come from ``<name>.rooms.json`` / ``.yaml`` beside it (``rooms:`` as above).
 
 Objects are boxes only: evaluation judges a retrieved mask by its IoU with the map's points
-inside the box (see the README).
+inside the box (docs/evaluation.md, *Success criteria*).
 """
 
 from __future__ import annotations

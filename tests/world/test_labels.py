@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 
 from care.encoders import EncoderOptions, RecordingContext, make_encoder
-from care.encoders.labels import LabelsEncoder, PerceptionModel
 from care.encoders.sentence import SentenceModel, hashed_embedding
 from care.errors import EncoderError
 from care.frames import Frame
+from world.perception.encoder import LabelsEncoder
+from world.perception.model import PerceptionModel
 
 NAMES = (
     "void", "wall", "floor", "table", "chair", "sofa", "bed", "tv", "lamp", "plant", "toilet",
@@ -196,17 +197,18 @@ def test_ingest_of_a_real_mcap_with_the_labels_encoder(
     from care.store import Store
     from ingest.pipeline import IngestConfig, run_ingest
     from ingest.write import write_recording
+    from runtime.execution import Execution
 
     frames = _views(3)
     rec = write_recording(tmp_path / "s.mcap", frames, fmt="mcap", label_names=NAMES)
     out = run_ingest(
+        rec,
+        tmp_path / "store",
         IngestConfig(
-            recording=rec,
-            out=tmp_path / "store",
             encoder="labels",
             encoder_options=EncoderOptions(perception="ideal", weights="hashed"),
-            progress=False,
-        )
+        ),
+        run=Execution(progress=False),
     )
     store = Store(out)
     assert store.num_views == 3
@@ -228,14 +230,14 @@ SAMPLE = Path(__file__).resolve().parents[2] / "data" / "sample" / "scene_000.mc
 @pytest.mark.slow
 @pytest.mark.skipif(not SAMPLE.exists(), reason="bundled sample not generated")
 def test_on_the_bundled_sample_ideal_is_perfect_and_default_errs_both_ways() -> None:
-    """The issue's criterion on the real sample: under ``ideal`` the top-1 class of every
-    visible instance (pooled over its mask) is its true class in every view; under
+    """The perception model's contract on the real sample: under ``ideal`` the top-1 class
+    of every visible instance (pooled over its mask) is its true class in every view; under
     ``default`` some instances are wrong after fusing all their views, some through the
     persistent bias and some (unbiased) through view-dependent noise."""
     from ingest.source import RecordingFrames
-    from truth.model import GroundTruth
+    from truth.formats.native import read_native
 
-    truth = GroundTruth.load(SAMPLE).instance_class_names()
+    truth = read_native(SAMPLE).instance_class_names()
     with RecordingFrames(SAMPLE) as rec:
         frames = list(rec)
         names = rec.label_names

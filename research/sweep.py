@@ -6,33 +6,49 @@ looks *certain* to every consistency measure, while a mistake that changes with 
 viewpoint (view-dependent bias, view noise) is what the per-view spread can see. This
 module re-encodes the same recordings under each setting of a grid over (bias rate, bias
 noise scale, view-dependent bias, view noise), builds both maps, plays the pre-registered
-rules (:data:`evaluate.preregistered.PAPER_SETTINGS`) and max confidence, and reports each
-measure's paired gain over max confidence with its scene-clustered 95% interval
-(``sweep.parquet``) and a figure of it (``sweep.png``): the figure the paper lacks.
+rules (:data:`evaluate.report.preregistered.PAPER_SETTINGS`) and max confidence, and
+reports each measure's paired gain over max confidence with its scene-clustered 95%
+interval (``sweep.parquet``) and a figure of it (``sweep.png``): the figure the paper lacks.
 
 Every setting is a perception override of the dataset's recorded model
 (``EncoderOptions.perception = "default:key=value,..."``), so the scenes and the
-trajectory stay fixed and only the perception changes.
+trajectory stay fixed and only the perception changes. A re-run resumes: the stores of
+finished settings are kept.
+
+    python -m research.sweep DATASET OUT [--design oat|grid] [--values bias_rate=0.1,0,0.3 ...]
 """
 
 from __future__ import annotations
 
+import argparse
 import itertools
+import sys
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from care.maps import MapKind
 from care.store import write_table_atomic
-from evaluate.dataset_stats import MeasureConfig, map_dataset
+from evaluate.config import DEFAULT_BOOTSTRAP
 from evaluate.job import EvalConfig, run_eval
-from evaluate.preregistered import PAPER_SETTINGS, headline_table
+from evaluate.report.preregistered import PAPER_SETTINGS, headline_table
 from replan.strategies import StrategyName
+from research.dataset_stats import MeasureConfig, map_dataset
+from runtime.execution import Execution
 
-__all__ = ["SWEEP_KNOBS", "SweepConfig", "plot_sweep", "run_sweep", "sweep_settings"]
+__all__ = [
+    "SWEEP_KNOBS",
+    "SweepConfig",
+    "main",
+    "plot_sweep",
+    "run_sweep",
+    "settings_of",
+    "sweep_settings",
+]
 
 SWEEP_KNOBS = ("bias_rate", "bias_noise_scale", "view_bias_rate", "base_noise")
 """The axes: ``bias_rate`` sets both the instance and the class bias rate; ``base_noise``
@@ -50,7 +66,7 @@ class SweepConfig:
     base_noise: tuple[float, ...] = (0.6, 0.3)
     design: str = "oat"
     """``oat`` (one at a time) or ``grid`` (full product)."""
-    bootstrap: int = 1000
+    bootstrap: int = DEFAULT_BOOTSTRAP
     """Scene-clustered bootstrap resamples of each interval."""
     workers: int = 1
     """Evaluation processes."""
@@ -93,8 +109,6 @@ def run_sweep(
 ) -> pa.Table:
     """Run every setting on ``dataset`` under ``out`` (stores per setting are kept, so a
     re-run resumes) and write ``out/sweep.parquet`` and ``out/sweep.png``."""
-    from dataclasses import replace
-
     from tqdm import tqdm
 
     config = config or SweepConfig()
@@ -107,8 +121,8 @@ def run_sweep(
             StrategyName.MIN_STDERR,
             StrategyName.MIN_PWKL,
         ),
-        k_instances=tuple(sorted({k for _, _, k in PAPER_SETTINGS["instances"]})),
-        k_grid=tuple(sorted({k for _, _, k in PAPER_SETTINGS["grid"]})),
+        k_instances=tuple(sorted({k for _, _, k in PAPER_SETTINGS[MapKind.INSTANCES]})),
+        k_grid=tuple(sorted({k for _, _, k in PAPER_SETTINGS[MapKind.GRID]})),
         protocols=("instance",),
         seeds=1,
         bootstrap=0,
@@ -122,7 +136,8 @@ def run_sweep(
             encoder_options=replace(config.measure.encoder_options, perception=_spec(setting)),
         )
         scenes = map_dataset(dataset, here, measure)
-        report = run_eval(scenes, evaluation, here / "eval", workers=config.workers, progress=False)
+        run = Execution(workers=config.workers, progress=False)
+        report = run_eval(scenes, evaluation, here / "eval", run=run)
         import pyarrow.parquet as pq
 
         attempts = pq.read_table(here / "eval" / "attempts.parquet")
@@ -168,7 +183,7 @@ def plot_sweep(table: pa.Table, path: Path, config: SweepConfig | None = None) -
 
     config = config or SweepConfig()
     rows = table.to_pylist()
-    maps = [m for m in ("instances", "grid") if any(r["map"] == m for r in rows)]
+    maps = [m for m in (MapKind.INSTANCES, MapKind.GRID) if any(r["map"] == m for r in rows)]
     centre = {k: getattr(config, k)[0] for k in SWEEP_KNOBS}
     colours = {
         StrategyName.MAX_ENTROPY: "tab:orange",
@@ -228,3 +243,29 @@ def settings_of(values: Sequence[str]) -> dict[str, tuple[float, ...]]:
             raise ValueError(msg)
         out[key] = tuple(float(v) for v in text.split(","))
     return out
+
+
+def main() -> None:
+    """The command line: ``python -m research.sweep`` or ``scripts/sweep.py``."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("dataset", type=Path, help="A `care sample make` dataset directory.")
+    parser.add_argument("out", type=Path, help="Directory of the sweep's stores and results.")
+    parser.add_argument("--design", choices=("oat", "grid"), default="oat")
+    parser.add_argument("--values", nargs="*", default=[], help="KNOB=v1,v2,... (centre first)")
+    parser.add_argument("--workers", type=int, default=1)
+    parser.add_argument("--bootstrap", type=int, default=1000)
+    args = parser.parse_args()
+    try:
+        values = settings_of(args.values)
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        sys.exit(2)
+    config = replace(
+        SweepConfig(), design=args.design, workers=args.workers, bootstrap=args.bootstrap, **values
+    )
+    table = run_sweep(args.dataset, args.out, config)
+    print(f"{table.num_rows} rows: {args.out / 'sweep.parquet'}, {args.out / 'sweep.png'}")
+
+
+if __name__ == "__main__":
+    main()

@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from care.encoders.base import EncoderOptions
-from care.encoders.labels import LabelsEncoder, PerceptionModel, perception_model
 from care.errors import EncoderError
+from world.perception.encoder import LabelsEncoder
+from world.perception.model import PerceptionModel, perception_model
 
 NAMES = ("void", "wall", "floor", "ceiling", "bed", "pillow", "table", "cup", "chair", "sofa")
 

@@ -1,249 +1,35 @@
-"""The ``labels`` encoder: a perception model with known, named failure modes.
+"""The ``labels`` encoder: the perception model (:mod:`world.perception.model`) applied to a
+recording's class and instance images (:mod:`world.perception` explains the mechanisms).
 
-Sample-world recordings carry a per-pixel class image and instance image. This encoder
-turns them into dense feature maps in the same form as the ``clip`` encoder, as a
-vision-language model would perceive the view, so that everything downstream (fuse,
-query, replan, evaluate) runs unchanged while the mistakes are under control.
-
-Text side: sentence embeddings of the class names (:mod:`care.encoders.sentence`,
-all-MiniLM-L6-v2 where installed). Similar names have similar embeddings, so every
-confusion below follows meaning: a table is mistaken for a coffee table or a desk, not
-for a toilet.
-
-Image side, per view (a (fh, fw, d) map, one cell per ``stride`` x ``stride`` pixels):
-
-1. Every *segment* (a visible instance, or a structure class where the instance id is 0)
-   gets one feature vector for this view: the embedding of its *perceived* class, mixed
-   with a confusable class by a view-dependent amount, plus a little isotropic noise.
-2. A cell's feature is the mixture of the vectors of the segments whose pixels it holds,
-   each weighted by ``pixels in cell / segment area ** area_exponent`` (a small object
-   owns the cells it appears in, as a VLM's attention would), optionally *bled* with its
-   neighbours' mixtures (a spatial blur), then L2-normalised.
-
-The mechanisms the paper argues about (``PerceptionModel``), each switched on and off by
-its own knob:
-
-- **persistent bias**: a fraction of instances, and a fraction of classes scene-wide (all
-  their instances), are perceived as their nearest other class by text embedding, in every
-  view and with little noise: a confident, consistent mistake ("query table, grounding
-  chair"). Multi-view fusion cannot undo it; it is what uncertainty measures must see
-  through by other means. ``class_bias_per_scene`` draws the biased classes per scene (from
-  the scene's seed, among the classes it holds) instead of once per encoder seed;
-  ``bias_noise_scale`` sets how confident the biased mistake is (1 = as noisy as any other).
-- **view-dependent bias** (``view_bias_rate``): an instance misread in some of its views,
-  as the class of the largest other object in the same view (its context: a pillow read as
-  the bed it lies on, a cup as the table). Fusion mixes the two readings; the per-view
-  spread is large, which is the inconsistency CARe's measures look for.
-- **view-dependent noise**: a level in [0, 1] per segment and view that grows with the
-  segment's mean distance, with how grazing the surfaces are seen (normals from depth),
-  with truncation at the image border and for small segments; the segment's feature is
-  pulled towards a confuser drawn (per view) from the classes similar to it by that level
-  times a per-view uniform draw. Plus bleeding of neighbouring segments near mask
-  boundaries. These mistakes change from view to view, so fusion averages them out and
-  the per-view spread (standard error, pairwise KL) is large.
-
-Everything random is a hash of ``options.seed`` with instance ids, class names and view
-stamps, so a recording encodes to the same features on every run, and a biased instance
-is biased in every view.
-
-Sample-world datasets record their perception model (``care sample make --preset``) in the
-ground truth beside each recording; with ``--perception default`` the encoder uses the
-recorded one (:func:`recorded_perception`). ``perception`` may also carry overrides,
-``"NAME:key=value,key=value"`` (:func:`perception_model`), as sweeps use it.
+Registered as the ``care.encoders`` entry point ``labels`` (``pyproject.toml``), so the
+core finds it by name without importing the sample world.
 """
 
 from __future__ import annotations
 
-import json
 import zlib
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, fields, replace
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
 from care.encoders.base import Encoder, EncoderOptions, RecordingContext, l2_normalise
-from care.encoders.sentence import DIM, SentenceModel, sentence_model
+from care.encoders.sentence import DIM, SentenceBackend, SentenceModel, sentence_model
 from care.errors import EncoderError
 from care.frames import Frame
+from care.vocab import STRUCTURE_NAMES
+from world.perception.counters import gaussian, uniform
+from world.perception.model import PerceptionModel, perception_model, recorded_perception
 
-__all__ = [
-    "PERCEPTION_PRESETS",
-    "STRUCTURE_NAMES",
-    "LabelsEncoder",
-    "PerceptionModel",
-    "perception_model",
-    "recorded_perception",
-]
-
-STRUCTURE_NAMES = frozenset({"void", "unlabeled", "wall", "floor", "ceiling"})
-"""Classes that are never biased nor used as confusers (the room's shell and no-label)."""
-
-
-@dataclass(frozen=True)
-class PerceptionModel:
-    """How wrong the simulated VLM is, and why. ``ideal()`` switches everything off."""
-
-    instance_bias_rate: float = 0.10
-    """Chance of each instance to be perceived as its nearest other class in every view."""
-    class_bias_rate: float = 0.10
-    """Fraction of the object classes of a recording (rounded; scene-wide: every instance of
-    them) perceived as their nearest other class in every view."""
-    bias_noise_scale: float = 0.3
-    """Multiplies the view-dependent noise of a biased instance (its mistake is confident)."""
-    class_bias_per_scene: bool = False
-    """Draw the biased classes per scene (hash of the scene's seed, among the classes the
-    scene holds) rather than once per encoder seed for the whole vocabulary."""
-    view_bias_rate: float = 0.0
-    """Chance of each instance to be misread from some viewpoints (view-dependent bias)."""
-    view_bias_views: float = 0.5
-    """Fraction of a view-biased instance's views in which it is misread."""
-    view_bias_context: bool = True
-    """A misread view reads the class of the largest other object in that view (its
-    context); False: the instance's nearest class by text embedding."""
-    base_noise: float = 0.15
-    """Noise level of a large, near, frontal, fully visible segment."""
-    distance_gain: float = 0.12
-    """Noise level added per metre of mean segment depth beyond ``distance_free``."""
-    distance_free: float = 1.5
-    """Mean depth (metres) up to which distance adds no noise."""
-    grazing_gain: float = 0.35
-    """Noise added times ``1 - mean |cos|`` of the angle between view rays and normals."""
-    truncation_gain: float = 0.4
-    """Noise added times the segment's truncation (its pixels on the image border
-    relative to the square root of its area, capped at 1)."""
-    small_gain: float = 0.3
-    """Noise added times ``1 - area / (small_fraction * image area)`` for small segments."""
-    small_fraction: float = 0.004
-    """Segment area (fraction of the image) below which it counts as small."""
-    confusion_gain: float = 1.6
-    """A segment's feature moves towards its view's confuser by ``min(1, confusion_gain *
-    level * u)``, ``u`` uniform per view: past one half the view reads as the confuser, so
-    segments whose level stays high in most views (small, far) are misread after fusion too."""
-    confusion_temperature: float = 0.05
-    """Softmax temperature over text similarities that draws a view's confuser: lower
-    keeps confusions among the nearest classes."""
-    segment_noise: float = 0.15
-    """Scale of isotropic noise added to a segment's vector per view (times its level)."""
-    cell_noise: float = 0.03
-    """Scale of isotropic noise per cell and view (texture of the feature map)."""
-    bleed: float = 0.35
-    """Weight of the blurred neighbourhood in a cell's mixture (features bleed across
-    mask boundaries); 0 = sharp masks."""
-    bleed_sigma: float = 1.0
-    """Gaussian sigma of that blur, in cells."""
-    area_exponent: float = 1.0
-    """A segment's weight in a cell is its pixel count there over its area to this power."""
-    stride: int = 8
-    """Pixels per feature-map cell side."""
-
-    @classmethod
-    def ideal(cls) -> PerceptionModel:
-        """No bias, no noise, no bleeding: every visible instance reads as its true class."""
-        zero = {
-            f.name: 0.0
-            for f in fields(cls)
-            if f.name.endswith(("_rate", "_gain", "_noise")) or f.name == "bleed"
-        }
-        return replace(cls(), **zero)
-
-    def with_values(self, values: Mapping[str, Any]) -> PerceptionModel:
-        """This model with ``values`` (field name -> value, strings parsed by the field's
-        type); an unknown name or a bad value is one :class:`EncoderError` naming it."""
-        types = {f.name: type(f.default) for f in fields(self)}
-        out = {}
-        for key, value in values.items():
-            if key not in types:
-                msg = f"perception knob {key!r}: unknown; choose from {', '.join(types)}"
-                raise EncoderError(msg)
-            out[key] = _parse(key, value, types[key])
-        return replace(self, **out)
-
-
-def _parse(key: str, value: Any, kind: type) -> Any:
-    """``value`` as a ``kind`` (bool, int or float), from a string or a number."""
-    try:
-        if kind is bool:
-            if isinstance(value, bool):
-                return value
-            text = str(value).strip().lower()
-            if text not in ("true", "false", "1", "0", "on", "off"):
-                raise ValueError(text)
-            return text in ("true", "1", "on")
-        number = kind(value) if kind is float else int(str(value))
-    except (TypeError, ValueError) as err:
-        msg = f"perception knob {key}={value!r}: not a {kind.__name__}"
-        raise EncoderError(msg) from err
-    if isinstance(number, float) and not np.isfinite(number):
-        msg = f"perception knob {key}={value!r}: not a finite number"
-        raise EncoderError(msg)
-    if number < 0:
-        msg = f"perception knob {key}={value!r}: must not be negative"
-        raise EncoderError(msg)
-    return number
-
-
-PERCEPTION_PRESETS: dict[str, PerceptionModel] = {
-    "default": PerceptionModel(),
-    "ideal": PerceptionModel.ideal(),
-}
-"""Presets selectable by ``EncoderOptions.perception``."""
-
-
-def perception_model(
-    spec: str, recorded: Mapping[str, Any] | None = None
-) -> tuple[PerceptionModel, bool]:
-    """The model of ``spec`` (``"NAME"`` or ``"NAME:key=value,..."``) and whether it came
-    from ``recorded`` (a dataset's recorded model, used when NAME is ``default``)."""
-    name, _, overrides = str(spec).partition(":")
-    if name not in PERCEPTION_PRESETS:
-        msg = f"perception preset {name!r}: choose one of {', '.join(PERCEPTION_PRESETS)}"
-        raise EncoderError(msg)
-    model, from_record = PERCEPTION_PRESETS[name], False
-    if name == "default" and recorded:
-        model, from_record = PerceptionModel().with_values(recorded), True
-    values = {}
-    for item in filter(None, (p.strip() for p in overrides.split(","))):
-        key, eq, value = item.partition("=")
-        if not eq:
-            msg = f"perception override {item!r}: write key=value"
-            raise EncoderError(msg)
-        values[key.strip()] = value.strip()
-    return model.with_values(values), from_record
-
-
-def recorded_perception(source: Path) -> dict[str, Any]:
-    """What the sample world recorded beside ``source`` for the perception model: the
-    ground-truth JSON's ``info.perception`` (field -> value) and ``info.scene`` (its seed and
-    classes); empty where there is none (any other recording).
-
-    The file name follows :func:`truth.formats.native.gt_paths` (the core cannot import it).
-    """
-    source = Path(source)
-    stem = source.stem if source.suffix else source.name
-    path = source.with_name(f"{stem}.gt.json")
-    try:
-        doc = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return {}
-    info = doc.get("info") if isinstance(doc, dict) else None
-    if not isinstance(info, dict):
-        return {}
-    scene = info.get("scene") or {}
-    classes = sorted({str(r.get("class_name")) for r in doc.get("instances") or []})
-    return {
-        "perception": info.get("perception") or {},
-        "scene_seed": scene.get("seed"),
-        "scene_classes": classes,
-    }
+__all__ = ["LabelsEncoder"]
 
 
 class LabelsEncoder(Encoder):
     """Simulated VLM features from a recording's class and instance images.
 
-    Reads ``options.perception`` (a preset of :data:`PERCEPTION_PRESETS`), ``options.seed``
+    Reads ``options.perception`` (a :class:`~world.perception.model.PerceptionPreset`,
+    optionally with overrides), ``options.seed``
     (the biases and noise), and ``options.weights``: ``"hashed"`` for the dependency-free
     text embeddings, a sentence-transformers BERT model directory, or None for the bundled
     all-MiniLM-L6-v2 (falling back to hashed vectors if it is not installed).
@@ -263,14 +49,14 @@ class LabelsEncoder(Encoder):
         self.scene_classes: tuple[str, ...] = ()
         self.seed = int(options.seed)
         if options.weights == "hashed":
-            self.text_model: SentenceModel = sentence_model("hashed")
+            self.text_model: SentenceModel = sentence_model(SentenceBackend.HASHED)
         elif options.weights:
             if not Path(options.weights).is_dir():
                 msg = f"labels encoder: --weights {options.weights}: not a model directory (or 'hashed')"
                 raise EncoderError(msg)
-            self.text_model = sentence_model("minilm", str(options.weights))
+            self.text_model = sentence_model(SentenceBackend.MINILM, str(options.weights))
         else:
-            self.text_model = sentence_model("auto")
+            self.text_model = sentence_model(SentenceBackend.AUTO)
         self.version = f"1+{self.text_model.backend}"
         self.label_names: tuple[str, ...] = ()
 
@@ -317,10 +103,10 @@ class LabelsEncoder(Encoder):
         # exactly round(rate * object classes) classes, the first by a seeded hash order
         crc = np.array([zlib.crc32(nm.encode()) for nm in names], np.uint64)
         pool = self.is_object
-        draw = _uniform(self.seed, crc, 11)
+        draw = uniform(self.seed, crc, 11)
         if self.model.class_bias_per_scene:
             scene = self.scene_seed if self.scene_seed is not None else zlib.crc32(source.encode())
-            draw = _uniform(self.seed, crc, 12, np.uint64(scene & 0xFFFFFFFFFFFFFFFF))
+            draw = uniform(self.seed, crc, 12, np.uint64(scene & 0xFFFFFFFFFFFFFFFF))
             present = set(self.scene_classes)
             if present:
                 pool = pool & np.array([nm in present for nm in names])
@@ -336,7 +122,7 @@ class LabelsEncoder(Encoder):
         self._need_names()
         inst = np.asarray(instance_ids, np.int64)
         cls = np.asarray(class_ids, np.int64)
-        own = _uniform(self.seed, inst.astype(np.uint64), 7) < self.model.instance_bias_rate
+        own = uniform(self.seed, inst.astype(np.uint64), 7) < self.model.instance_bias_rate
         return (inst > 0) & self.is_object[cls] & (own | self.class_biased[cls])
 
     def perceived_class(self, instance_ids: np.ndarray, class_ids: np.ndarray) -> np.ndarray:
@@ -500,8 +286,8 @@ class LabelsEncoder(Encoder):
         if m.view_bias_rate > 0:
             perceived = self._view_bias(seg_view, seg_inst, seg_cls, stamp, area, perceived)
         ids = seg_inst.astype(np.uint64) * np.uint64(1 << 17) + seg_cls.astype(np.uint64)
-        u_conf = _uniform(self.seed, stamp, ids, 21)
-        u_mix = _uniform(self.seed, stamp, ids, 22)
+        u_conf = uniform(self.seed, stamp, ids, 21)
+        u_mix = uniform(self.seed, stamp, ids, 22)
         confuser = np.minimum(
             (self.confusion_cdf[perceived] < u_conf[:, None]).sum(1), len(self.label_names) - 1
         )
@@ -510,7 +296,7 @@ class LabelsEncoder(Encoder):
         mix = np.where(self.is_object[seg_cls] & (seg_inst > 0), mix, 0.0)
         vec = (1 - mix)[:, None] * self.text[perceived] + mix[:, None] * self.text[confuser]
         if m.segment_noise > 0:
-            gauss = _gaussian(self.seed, stamp, ids, 23, DIM)
+            gauss = gaussian(self.seed, stamp, ids, 23, DIM)
             vec = vec + (m.segment_noise * level)[:, None] * gauss / np.sqrt(DIM)
         return l2_normalise(vec)
 
@@ -528,8 +314,8 @@ class LabelsEncoder(Encoder):
         m = self.model
         inst = seg_inst.astype(np.uint64)
         obj = (seg_inst > 0) & self.is_object[seg_cls]
-        chosen = _uniform(self.seed, inst, 31) < m.view_bias_rate
-        misread = obj & chosen & (_uniform(self.seed, inst, stamp, 32) < m.view_bias_views)
+        chosen = uniform(self.seed, inst, 31) < m.view_bias_rate
+        misread = obj & chosen & (uniform(self.seed, inst, stamp, 32) < m.view_bias_views)
         if not misread.any():
             return perceived
         other = self.nearest[seg_cls]
@@ -588,35 +374,3 @@ def _view_cosines(frames: Sequence[Frame], depth: np.ndarray, step: int = 1) -> 
 
 _INSTANCE_SPAN = 1 << 16
 """Segment keys below this are instance ids; above, ``span + class id`` of structure."""
-
-_M1 = np.uint64(0xBF58476D1CE4E5B9)
-_M2 = np.uint64(0x94D049BB133111EB)
-_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
-
-
-def _splitmix(x: np.ndarray) -> np.ndarray:
-    with np.errstate(over="ignore"):
-        z = x + _GOLDEN
-        z = (z ^ (z >> np.uint64(30))) * _M1
-        z = (z ^ (z >> np.uint64(27))) * _M2
-        return z ^ (z >> np.uint64(31))
-
-
-def _hash(seed: int, *parts: np.ndarray | int) -> np.ndarray:
-    h = _splitmix(np.asarray(np.uint64(seed & 0xFFFFFFFFFFFFFFFF)))
-    for p in parts:
-        h = _splitmix(h ^ np.asarray(p).astype(np.uint64))
-    return h
-
-
-def _uniform(seed: int, *parts: np.ndarray | int) -> np.ndarray:
-    """Uniform [0, 1) numbers that depend only on ``seed`` and ``parts`` (counter-based)."""
-    return (_hash(seed, *parts) >> np.uint64(11)).astype(np.float64) * 2.0**-53
-
-
-def _gaussian(seed: int, a: np.ndarray, b: np.ndarray, salt: int, dim: int) -> np.ndarray:
-    """(N, dim) standard normal numbers from counters (Box-Muller)."""
-    k = np.arange(dim, dtype=np.uint64)[None, :]
-    u1 = _uniform(seed, a[:, None], b[:, None], salt, k)
-    u2 = _uniform(seed, a[:, None], b[:, None], salt + 1000, k)
-    return np.sqrt(-2.0 * np.log1p(-u1)) * np.cos(2.0 * np.pi * u2)

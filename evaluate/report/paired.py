@@ -1,5 +1,6 @@
 """The paired table of ``results.md``: each CARe entry against max confidence and against the
-best random top-k, over the same queries (statistics in :mod:`evaluate.paired`)."""
+best random top-k, over the same queries (statistics in :mod:`evaluate.paired`), and the
+per-query outcomes that it and the pre-registered tables read."""
 
 from __future__ import annotations
 
@@ -11,11 +12,10 @@ import pyarrow.compute as pc
 
 from evaluate.config import NO_CRITERION
 from evaluate.paired import compare, comparison_rng
+from evaluate.report.rates import QUERY_KEYS, RULE_KEYS, per_query
 from replan.strategies import STRATEGIES, Criterion, StrategyName
 
 __all__ = ["CARE_STRATEGIES", "Outcomes", "outcomes", "paired_markdown", "paired_table"]
-
-QUERY_KEYS = ("scene", "map", "protocol", "unit", "query")
 
 CARE_STRATEGIES = tuple(
     name for name, s in STRATEGIES.items() if s.uses_set and not s.random and not s.needs_truth
@@ -29,19 +29,16 @@ Outcomes = tuple[dict, dict]
 
 def outcomes(attempts: pa.Table) -> Outcomes:
     """``solved[(map, protocol)][(strategy, criterion, k)][query key]`` (mean over seeds of
-    "some attempt succeeded", as :func:`evaluate.report.per_query`) and ``first[...]`` (the
+    "some attempt succeeded", as :func:`evaluate.report.rates.per_query`) and ``first[...]`` (the
     first attempt succeeded), grouped by Arrow rather than row by row.
 
     Plain dicts, not the defaultdicts they are built in: the report hands one result to its
-    five tables (:func:`evaluate.report.write_report`; half a second a table at 8 scenes),
+    five tables (:func:`evaluate.report.write.write_report`; half a second a table at 8 scenes),
     and a read of a missing key must not add it for the next table.
     """
-    from evaluate.report import per_query
-
-    rule_keys = ["strategy", "criterion", "k"]
     first_rows = (
         attempts.filter(pc.equal(attempts.column("attempt"), 1))
-        .group_by([*QUERY_KEYS, *rule_keys], use_threads=False)
+        .group_by([*QUERY_KEYS, *RULE_KEYS], use_threads=False)
         .aggregate([("success", "max")])
         .to_pylist()
     )

@@ -9,34 +9,31 @@ query counts once, as in the paper); 95% confidence intervals resample queries.
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from care.outputs import atomic_write_text, write_atomic
-from care.store import write_table_atomic
-from evaluate.config import NO_CRITERION
-from evaluate.paired_report import outcomes, paired_markdown, paired_table
+from care.maps import MapKind
+from care.outputs import write_atomic
+from evaluate.config import DEFAULT_BOOTSTRAP, NO_CRITERION
+from fuse.measures import MEASURE_COLUMNS
 from replan.strategies import CRITERIA, STRATEGIES, StrategyName
-from runtime.parallel import Runner, start_task
 
 __all__ = [
     "AUROC_MEASURES",
     "PER_SCENE",
-    "Report",
     "auroc",
     "auroc_table",
     "markdown_tables",
     "per_query",
+    "per_scene_markdown",
     "plot_success",
     "summarise",
-    "write_report",
 ]
 
-AUROC_MEASURES = ("confidence", "entropy", "stderr", "pwkl", "num_views")
+AUROC_MEASURES = MEASURE_COLUMNS
 """Columns of the first attempt whose power to predict its failure is reported."""
 
 QUERY_KEYS = ["scene", "map", "protocol", "unit", "query"]
@@ -44,8 +41,8 @@ RULE_KEYS = ["strategy", "criterion", "k"]
 """What a replan rule is in the attempt rows: its strategy, criterion and k (criterion
 ``evaluate.config.NO_CRITERION`` and k 0 for the strategies without a candidate set)."""
 MAP_TITLES = {
-    "instances": "Instance map (OpenMask3D-like): retrieval success (%)",
-    "grid": "Grid map (VLMaps-like): subgoal success (%)",
+    MapKind.INSTANCES: "Instance map (OpenMask3D-like): retrieval success (%)",
+    MapKind.GRID: "Grid map (VLMaps-like): subgoal success (%)",
 }
 
 
@@ -108,7 +105,7 @@ def _groups(table: pa.Table, keys: Sequence[str]) -> Iterator[tuple[dict, np.nda
 
 
 def summarise(
-    queries: pa.Table, *, bootstrap: int = 1000, seed: int = 0, by_scene: bool = False
+    queries: pa.Table, *, bootstrap: int = DEFAULT_BOOTSTRAP, seed: int = 0, by_scene: bool = False
 ) -> pa.Table:
     """Success rate (%) with a 95% bootstrap CI per (map, protocol, strategy, criterion, k)
     (and scene with ``by_scene``). ``closed_form`` tells the random strategies' expected
@@ -265,7 +262,7 @@ def markdown_tables(summary: pa.Table, ks: dict[str, Sequence[int]], *, ci: bool
             default=0,
         )
         title = MAP_TITLES.get(kind, kind) + (
-            f", protocol `{protocol}`" if kind == "instances" else ""
+            f", protocol `{protocol}`" if kind == MapKind.INSTANCES else ""
         )
         out.append(f"### {title}{' — 95% bootstrap CI' if ci else ''} ({n_q} queries)\n")
         out.append(
@@ -426,90 +423,3 @@ def plot_success(summary: pa.Table, ks: dict[str, Sequence[int]], out_dir: Path)
         plt.close(fig)
         paths.append(path)
     return paths
-
-
-@dataclass(frozen=True)
-class Report:
-    """What :func:`write_report` wrote."""
-
-    markdown: str
-    """The whole ``results.md``."""
-    tables: str
-    """Its success-rate tables (what ``care run`` prints)."""
-    summary: pa.Table
-    auroc: pa.Table
-    paths: tuple[Path, ...]
-
-
-def _auroc_markdown(table: pa.Table) -> str:
-    out = [
-        "### How well each measure of the first attempt predicts its failure (AUROC)\n",
-        "| map | protocol | first attempts | failed | " + " | ".join(AUROC_MEASURES) + " |",
-        "|---|---|---:|---:|" + "---:|" * len(AUROC_MEASURES),
-    ]
-    for r in table.to_pylist():
-        cells = " | ".join("" if np.isnan(r[m]) else f"{r[m]:.3f}" for m in AUROC_MEASURES)
-        out.append(f"| {r['map']} | {r['protocol']} | {r['n_first']} | {r['n_failed']} | {cells} |")
-    out.append("\n> 0.5: a higher value goes with failure; < 0.5: with success.\n")
-    return "\n".join(out)
-
-
-def write_report(
-    attempts: pa.Table,
-    out: Path,
-    ks: dict[str, Sequence[int]],
-    *,
-    bootstrap: int = 1000,
-    header: str = "",
-    runner: Runner | None = None,
-) -> Report:
-    """Write ``attempts.parquet``, ``summary.parquet``, ``per_scene.parquet``,
-    ``auroc.parquet``, ``paired.parquet``, ``results.md`` and ``plots/*.png`` under ``out``;
-    the plots on ``runner`` (its open pool or Ray) while the tables are made here."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    queries = per_query(attempts)
-    summary = summarise(queries, bootstrap=bootstrap)
-    # the plots (matplotlib: about 4 s at 8 scenes) on another worker while the tables are
-    # made here; without a pool or Ray they are drawn now, in this process
-    plotting = start_task(plot_success, summary, ks, out / "plots", runner=runner or Runner())
-    try:
-        scenes = summarise(queries, by_scene=True)
-        aucs = auroc_table(attempts)
-        known = outcomes(attempts)  # once for the paired and the four pre-registered tables
-        paired = paired_table(attempts, bootstrap=bootstrap, known=known)
-        paths = [
-            out / "attempts.parquet",
-            out / "summary.parquet",
-            out / "per_scene.parquet",
-            out / "auroc.parquet",
-            out / "paired.parquet",
-        ]
-        for table, path in zip((attempts, summary, scenes, aucs, paired), paths, strict=True):
-            write_table_atomic(table, path)
-        tables = markdown_tables(summary, ks)
-        from evaluate.preregistered import write_preregistered
-
-        prereg = write_preregistered(attempts, out, bootstrap=min(bootstrap, 2000), known=known)
-    except Exception:
-        plotting.exception()  # a failed report writes nothing after its error
-        raise
-    plots = plotting.result()
-    md = "\n".join(
-        [
-            header,
-            "## Success rates\n",
-            "**Bold**: best of the column (oracle and closed-form rows excluded). *Italic*: best of the row over k.\n",
-            tables,
-            "## 95% bootstrap confidence intervals (queries resampled)\n",
-            markdown_tables(summary, ks, ci=True),
-            paired_markdown(paired),
-            prereg.markdown,
-            _auroc_markdown(aucs),
-            per_scene_markdown(summary, scenes),
-            "Plots: " + ", ".join(f"`plots/{p.name}`" for p in plots) + "\n",
-        ]
-    )
-    md_path = out / "results.md"
-    atomic_write_text(md_path, md)
-    return Report(md, tables, summary, aucs, (*paths, *prereg.paths, md_path, *plots))

@@ -18,12 +18,14 @@ from pathlib import Path
 import pyarrow.compute as pc
 
 from care.encoders import EncoderOptions
+from care.maps import MapKind
 from care.outputs import atomic_write_text
 from evaluate.job import EvalConfig, Scene, run_eval
 from fuse.grid import GridConfig, build_grid
 from fuse.instances import InstanceConfig, build_instances
 from ingest.pipeline import IngestConfig, run_ingest
 from replan.strategies import StrategyName
+from runtime.execution import Execution
 from truth.dataset_index import INDEX_NAME, read_index
 
 __all__ = ["MeasureConfig", "first_attempt_rates", "map_dataset", "measure_first_attempts"]
@@ -53,17 +55,15 @@ def map_dataset(
     scenes = []
     for entry in read_index(dataset):
         store = Path(out) / "stores" / entry.name
+        run = Execution(progress=progress)
         run_ingest(
-            IngestConfig(
-                recording=entry.recording,
-                out=store,
-                encoder="labels",
-                encoder_options=config.encoder_options,
-                progress=progress,
-            )
+            entry.recording,
+            store,
+            IngestConfig(encoder="labels", encoder_options=config.encoder_options),
+            run=run,
         )
-        build_grid(store, config.grid)
-        build_instances(store, config.instances)
+        build_grid(store, config.grid, run=run)
+        build_instances(store, config.instances, run=run)
         scenes.append(Scene(entry.name, store, entry.recording.resolve()))
     return scenes
 
@@ -75,9 +75,9 @@ def first_attempt_rates(summary_rows: Sequence[dict]) -> dict[str, float]:
     for r in summary_rows:
         if r["strategy"] != StrategyName.NO_REPLAN:
             continue
-        key = "grid" if r["map"] == "grid" else f"{r['map']}/{r['protocol']}"
+        key = "grid" if r["map"] == MapKind.GRID else f"{r['map']}/{r['protocol']}"
         out[key] = round(float(r["rate"]), 2)
-    return dict(sorted(out.items(), key=lambda kv: (kv[0] == "grid", kv[0])))
+    return dict(sorted(out.items(), key=lambda kv: (kv[0] == MapKind.GRID, kv[0])))
 
 
 def measure_first_attempts(
@@ -96,7 +96,8 @@ def measure_first_attempts(
     out = dataset / MEASURE_DIR if out is None else Path(out)
     scenes = map_dataset(dataset, out, config, progress=progress)
     evaluation = EvalConfig(strategies=(StrategyName.NO_REPLAN,), attempts=1, seeds=1, bootstrap=0)
-    report = run_eval(scenes, evaluation, out / "eval", workers=workers, progress=progress)
+    run = Execution(workers=workers, progress=progress)
+    report = run_eval(scenes, evaluation, out / "eval", run=run)
     rows = report.summary.filter(
         pc.equal(report.summary.column("strategy"), StrategyName.NO_REPLAN)
     )

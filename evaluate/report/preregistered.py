@@ -28,14 +28,18 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
+from care.maps import MapKind
 from care.store import write_table_atomic
 from evaluate.config import NO_CRITERION
 from evaluate.paired import compare, comparison_rng, holm, mcnemar_exact
-from evaluate.paired_report import CARE_STRATEGIES, Outcomes, outcomes
+from evaluate.report.paired import CARE_STRATEGIES, Outcomes, outcomes
+from evaluate.report.rates import QUERY_KEYS
 from replan.strategies import STRATEGIES, Criterion, StrategyName
 
 __all__ = [
     "PAPER_SETTINGS",
+    "PREREGISTERED_BOOTSTRAP",
+    "TABLE_NAMES",
     "PreregisteredResult",
     "Rule",
     "best_of_k_table",
@@ -46,16 +50,21 @@ __all__ = [
     "write_preregistered",
 ]
 
+PREREGISTERED_BOOTSTRAP = 2000
+"""Scene-clustered bootstrap resamples of each pre-registered interval."""
+TABLE_NAMES = ("preregistered", "best_of_k", "by_class", "query_breakdown")
+"""The tables :func:`write_preregistered` writes, each as ``<name>.parquet``, in order."""
+
 Rule = tuple[str, str, int]
 """(strategy, criterion, k); criterion ``-`` and k 0 for rules without a candidate set."""
 
-PAPER_SETTINGS: dict[str, tuple[Rule, ...]] = {
-    "instances": (
+PAPER_SETTINGS: dict[MapKind, tuple[Rule, ...]] = {
+    MapKind.INSTANCES: (
         (StrategyName.MAX_ENTROPY, Criterion.CONFIDENCE, 8),
         (StrategyName.MIN_STDERR, Criterion.CATEGORY, 2),
         (StrategyName.MIN_PWKL, Criterion.CATEGORY, 40),
     ),
-    "grid": (
+    MapKind.GRID: (
         (StrategyName.MAX_ENTROPY, Criterion.CONFIDENCE, 4),
         (StrategyName.MIN_STDERR, Criterion.CONFIDENCE, 4),
         (StrategyName.MIN_PWKL, Criterion.CONFIDENCE, 16),
@@ -142,13 +151,13 @@ def headline_table(
     attempts: pa.Table,
     settings: dict[str, tuple[Rule, ...]] | None = None,
     *,
-    bootstrap: int = 2000,
+    bootstrap: int = PREREGISTERED_BOOTSTRAP,
     seed: int = 0,
     known: Outcomes | None = None,
 ) -> pa.Table:
     """The pre-registered rules and the non-CARe baselines against max confidence and the
     best random top-k, per map and protocol; Holm over each (map, protocol, baseline).
-    ``known``, here and below: the :func:`~evaluate.paired_report.outcomes` of
+    ``known``, here and below: the :func:`~evaluate.report.paired.outcomes` of
     ``attempts``, when the caller has them."""
     settings = PAPER_SETTINGS if settings is None else settings
     solved, first = known or outcomes(attempts)
@@ -167,7 +176,11 @@ def headline_table(
 
 
 def best_of_k_table(
-    attempts: pa.Table, *, bootstrap: int = 2000, seed: int = 0, known: Outcomes | None = None
+    attempts: pa.Table,
+    *,
+    bootstrap: int = PREREGISTERED_BOOTSTRAP,
+    seed: int = 0,
+    known: Outcomes | None = None,
 ) -> pa.Table:
     """Every CARe setting tried against max confidence, Holm-corrected over all of them
     (per map and protocol); ``best`` marks each strategy's best setting."""
@@ -232,8 +245,7 @@ def by_class_table(
 
 
 def _targets(attempts: pa.Table) -> dict[tuple, str]:
-    keys = ("scene", "map", "protocol", "unit", "query")
-    cols = [attempts.column(k).to_pylist() for k in (*keys, "target")]
+    cols = [attempts.column(k).to_pylist() for k in (*QUERY_KEYS, "target")]
     return {tuple(row[:-1]): row[-1] for row in zip(*cols, strict=True)}
 
 
@@ -383,7 +395,7 @@ def write_preregistered(
     attempts: pa.Table,
     out: Path,
     *,
-    bootstrap: int = 2000,
+    bootstrap: int = PREREGISTERED_BOOTSTRAP,
     seed: int = 0,
     known: Outcomes | None = None,
 ) -> PreregisteredResult:
@@ -398,8 +410,7 @@ def write_preregistered(
         by_class_table(attempts, known=known),
         query_breakdown(attempts, known=known),
     )
-    names = ("preregistered", "best_of_k", "by_class", "query_breakdown")
-    paths = tuple(out / f"{n}.parquet" for n in names)
+    paths = tuple(out / f"{n}.parquet" for n in TABLE_NAMES)
     for table, path in zip(tables, paths, strict=True):
         write_table_atomic(table, path)
     return PreregisteredResult(preregistered_markdown(*tables), *tables, paths)

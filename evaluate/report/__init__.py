@@ -1,0 +1,34 @@
+"""The evaluation's report: ``results.md``, its parquet tables and plots, from attempt rows.
+
+Its modules import one way: :mod:`~evaluate.report.rates` (success rates, AUROC, plots), then
+:mod:`~evaluate.report.paired` (paired comparisons and the per-query outcomes), then
+:mod:`~evaluate.report.preregistered` (the paper's settings fixed in advance), then
+:mod:`~evaluate.report.write`, which writes them all as one report.
+"""
+
+from __future__ import annotations
+
+from evaluate.report.rates import (
+    AUROC_MEASURES,
+    PER_SCENE,
+    auroc,
+    auroc_table,
+    markdown_tables,
+    per_query,
+    plot_success,
+    summarise,
+)
+from evaluate.report.write import Report, write_report
+
+__all__ = [
+    "AUROC_MEASURES",
+    "PER_SCENE",
+    "Report",
+    "auroc",
+    "auroc_table",
+    "markdown_tables",
+    "per_query",
+    "plot_success",
+    "summarise",
+    "write_report",
+]
