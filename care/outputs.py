@@ -37,6 +37,7 @@ import re
 import shutil
 import sys
 from collections.abc import Callable, Iterable, Iterator
+from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
@@ -45,6 +46,7 @@ from care.errors import CareError, OutputError
 __all__ = [
     "MARKER",
     "REBUILD",
+    "OutputKind",
     "atomic_write_text",
     "check_file_output",
     "check_output",
@@ -72,6 +74,20 @@ __all__ = [
 
 MARKER = "care-output.json"
 """File whose presence marks a directory as written by ``care`` (and of which kind)."""
+
+
+class OutputKind(StrEnum):
+    """What a directory ``care`` wrote holds (its marker's ``kind``)."""
+
+    STORE = "store"
+    """A feature store and the maps built in it (``care ingest``, ``care fuse``)."""
+    DATASET = "dataset"
+    """A sample-world dataset (``care sample make``)."""
+    EVAL = "eval"
+    """An evaluation's tables and report (``care eval``)."""
+    RUN = "run"
+    """``care run``'s stores, Rerun files and evaluation."""
+
 
 _STALE = re.compile(r"^\..+\.(?:tmp|old|building)-(\d+)(?:\.[A-Za-z0-9]+)?$")
 """Names of staged temporaries: ``.<name>.tmp-<pid>`` (optionally with a suffix)."""
@@ -381,14 +397,17 @@ def read_marker(directory: Path) -> dict[str, Any] | None:
     return data if isinstance(data, dict) else None
 
 
-def is_ours(directory: Path, kind: str | None = None) -> bool:
+def is_ours(directory: Path, kind: OutputKind | None = None) -> bool:
     """Whether ``directory`` carries our marker (of ``kind`` when given)."""
     marker = read_marker(directory)
     return marker is not None and (kind is None or marker.get("kind") == kind)
 
 
 def write_marker(
-    directory: Path, kind: str, tables: dict[str, Any] | None = None, source: str | None = None
+    directory: Path,
+    kind: OutputKind,
+    tables: dict[str, Any] | None = None,
+    source: str | None = None,
 ) -> None:
     """Mark ``directory`` as a ``kind`` output of ours (keeping recorded tables); ``source``:
     the input it was made from (so the rebuild command is known even without meta.json)."""
@@ -406,10 +425,10 @@ def record_table(path: Path) -> None:
     marker = read_marker(path.parent)
     if marker is None or path.name.startswith("."):  # not ours, or a staged temporary
         return
-    write_marker(path.parent, marker.get("kind", "store"), {path.name: file_digest(path)})
+    write_marker(path.parent, marker.get("kind", OutputKind.STORE), {path.name: file_digest(path)})
 
 
-def seal(directory: Path, kind: str) -> None:
+def seal(directory: Path, kind: OutputKind) -> None:
     """Record every file of ``directory`` (subdirectories too, by relative path; not the
     marker, temporaries or locks) in its marker, replacing what it listed: the whole
     version, so :func:`damaged` (``care check``) finds any file missing or changed."""
@@ -507,7 +526,9 @@ def refuse_link(path: Path, flag: str) -> None:
     raise OutputError(msg)
 
 
-def check_output(out: Path, *, kind: str, inputs: Iterable[Path] = (), flag: str = "--out") -> None:
+def check_output(
+    out: Path, *, kind: OutputKind, inputs: Iterable[Path] = (), flag: str = "--out"
+) -> None:
     """Refuse, in one line, an output directory this command must not replace or fill.
 
     Refused: a symbolic link (:func:`refuse_link`), a regular file (or a path under one),
@@ -636,7 +657,7 @@ def output_lock(out: Path, *, wait: bool = True) -> Iterator[None]:
 
 
 @contextlib.contextmanager
-def owned_output(out: Path, kind: str, inputs: Iterable[Path] = ()) -> Iterator[Path]:
+def owned_output(out: Path, kind: OutputKind, inputs: Iterable[Path] = ()) -> Iterator[Path]:
     """Check ``out`` (:func:`check_output`), lock it, create and mark it; yield it. A
     directory this call created is removed again if the work inside fails."""
     out = Path(out)
@@ -656,7 +677,7 @@ def owned_output(out: Path, kind: str, inputs: Iterable[Path] = ()) -> Iterator[
 
 
 @contextlib.contextmanager
-def whole_output(out: Path, kind: str, inputs: Iterable[Path] = ()) -> Iterator[Path]:
+def whole_output(out: Path, kind: OutputKind, inputs: Iterable[Path] = ()) -> Iterator[Path]:
     """Check ``out`` (:func:`check_output`) and lock it; yield a staged directory to write
     the new version into, which replaces ``out`` as one unit when the block succeeds.
 
@@ -709,4 +730,4 @@ def evaluation_output(
 ) -> contextlib.AbstractContextManager[Path]:
     """An evaluation directory of ours at ``out`` (never one of the ``stores`` or inside one),
     replaced as one unit: write into the yielded staged directory (:func:`whole_output`)."""
-    return whole_output(out, "eval", stores)
+    return whole_output(out, OutputKind.EVAL, stores)

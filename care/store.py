@@ -44,6 +44,7 @@ from care.keys import (
 )
 from care.mapframe import MapFrame
 from care.outputs import (
+    OutputKind,
     damaged,
     disk_full,
     file_digest,
@@ -614,7 +615,7 @@ class StoreWriter:
             full["encoder"] = {"name": info.name, "version": info.version, "dim": info.dim}
         record = StoreMeta.from_json(full, self.tmp / META_FILE)
         (self.tmp / META_FILE).write_text(record.to_json())
-        write_marker(self.tmp, "store", source=record.source.path)
+        write_marker(self.tmp, OutputKind.STORE, source=record.source.path)
         # in one step: a kill leaves the previous store or this one (swap_in)
         swap_in(self.tmp, self.path)
 

@@ -37,13 +37,13 @@ def _eval_problems(path: Path, command: str) -> list[str]:
 
 def _verify(path: Path) -> tuple[list[str], str]:
     """The problems of ``path`` (a store, evaluation or run output) and its ok line."""
-    from care.outputs import read_marker
+    from care.outputs import OutputKind, read_marker
 
     kind = (read_marker(path) or {}).get("kind")
-    if kind == "eval":
+    if kind == OutputKind.EVAL:
         files = len((read_marker(path) or {}).get("tables") or {})
         return _eval_problems(path, "care eval"), f"{path}: ok ({files} files verified)"
-    if kind == "run":
+    if kind == OutputKind.RUN:
         stores = sorted(p.parent for p in path.glob("stores/*/meta.json"))
         problems = [line for store in stores for line in _store_problems(store)]
         if (path / "eval").is_dir():

@@ -27,7 +27,7 @@ import pyarrow.parquet as pq
 from tqdm import tqdm
 
 from care.errors import CareError, EvalError
-from care.outputs import owned_output
+from care.outputs import OutputKind, owned_output
 from evaluate.api import evaluate
 from evaluate.config import RunConfig
 from evaluate.groundtruth import GtSource
@@ -333,7 +333,7 @@ def run_all(
     recordings = recordings_of(source or SAMPLE)
     planned = _scenes_with_gt(recordings, gt_sources_of(source or SAMPLE), config, out)
     runner = Runner.of(run)
-    with owned_output(out, "run", [rec for _, rec in recordings]):
+    with owned_output(out, OutputKind.RUN, [rec for _, rec in recordings]):
         serial = not runner.uses_ray and (runner.workers <= 1 or len(recordings) <= 1)
         # stage progress bars in serial runs only: parallel ones show the dataset's
         task_run = replace(

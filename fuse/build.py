@@ -126,7 +126,7 @@ class MapSpec:
         if damaged(store.path, [p.name for p in paths]):  # a damaged map is rebuilt
             return False
         schema = read_schema(paths[-1])
-        if schema_problems(schema, self.kind, paths[-1]) is not None:  # an older layout
+        if schema_problems(schema, self.kind, paths[-1]) is not None:  # another layout: rebuilt
             return False
         for name, path in zip(self.tables, paths, strict=True):
             if name in VIEW_TABLE_SCHEMAS and view_table_problems(read_schema(path), name, path):

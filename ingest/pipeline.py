@@ -30,7 +30,7 @@ from care.errors import IngestError, StoreError
 from care.fingerprint import config_fields, content_digest
 from care.fingerprint import fingerprint as content_fingerprint
 from care.frames import DEFAULT_WORLD_FRAME, Frame
-from care.outputs import check_file_output, check_output, damaged, output_lock
+from care.outputs import OutputKind, check_file_output, check_output, damaged, output_lock
 from care.store import META_FILE, SCHEMA_VERSION, StoreMeta, StoreWriter
 from ingest.select import FrameSelection, FrameSelector
 from ingest.source import ReadOptions, RecordingFrames, first_distortion
@@ -232,7 +232,7 @@ def _run_ingest(job: _Job, encoder: Encoder | None) -> Path:
         msg = f"{recording}: no such file or directory; check the recording path."
         raise IngestError(msg)
     # refused before any work: a path we did not create, the recording itself, ...
-    check_output(out, kind="store", inputs=[recording])
+    check_output(out, kind=OutputKind.STORE, inputs=[recording])
     if config.rrd is not None:
         check_file_output(config.rrd, inputs=[recording])
     source = _source_identity(recording)
@@ -242,7 +242,7 @@ def _run_ingest(job: _Job, encoder: Encoder | None) -> Path:
     if encoder is None and config.encoder is not None:
         encoder = make_encoder(config.encoder, config.encoder_options)
     with output_lock(out):
-        check_output(out, kind="store", inputs=[recording])  # as the lock found it
+        check_output(out, kind=OutputKind.STORE, inputs=[recording])  # as the lock found it
         fp = fingerprint(config, encoder, source)
         if _up_to_date(job, fp):
             return out

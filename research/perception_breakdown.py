@@ -34,12 +34,18 @@ from ingest.source import RecordingFrames
 from query import confidence, load_map
 from runtime.execution import Execution
 from truth.formats.native import read_native
+from world.perception.model import PerceptionPreset
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("recording", nargs="?", type=Path, default=SAMPLE / "scene_000.mcap")
-    parser.add_argument("--perception", default="default")
+    parser.add_argument(
+        "--perception",
+        type=PerceptionPreset,
+        choices=list(PerceptionPreset),
+        default=PerceptionPreset(EncoderOptions.perception),
+    )
     args = parser.parse_args()
 
     gt = read_native(args.recording)

@@ -25,6 +25,7 @@ import itertools
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from enum import StrEnum
 from pathlib import Path
 
 import numpy as np
@@ -43,6 +44,7 @@ from runtime.execution import Execution
 __all__ = [
     "SWEEP_KNOBS",
     "SweepConfig",
+    "SweepDesign",
     "main",
     "plot_sweep",
     "run_sweep",
@@ -55,6 +57,15 @@ SWEEP_KNOBS = ("bias_rate", "bias_noise_scale", "view_bias_rate", "base_noise")
 is the view noise of a near, frontal, fully visible segment (the rest grows from it)."""
 
 
+class SweepDesign(StrEnum):
+    """Which settings a sweep runs."""
+
+    OAT = "oat"
+    """One knob at a time around the first value of each (cheap)."""
+    GRID = "grid"
+    """Every combination (the full product)."""
+
+
 @dataclass(frozen=True)
 class SweepConfig:
     """The grid: values per knob; ``design`` ``oat`` varies one knob at a time around the
@@ -64,8 +75,8 @@ class SweepConfig:
     bias_noise_scale: tuple[float, ...] = (1.0, 0.3)
     view_bias_rate: tuple[float, ...] = (0.5, 0.0)
     base_noise: tuple[float, ...] = (0.6, 0.3)
-    design: str = "oat"
-    """``oat`` (one at a time) or ``grid`` (full product)."""
+    design: SweepDesign = SweepDesign.OAT
+    """Which settings are run (:class:`SweepDesign`)."""
     bootstrap: int = DEFAULT_BOOTSTRAP
     """Scene-clustered bootstrap resamples of each interval."""
     workers: int = 1
@@ -77,7 +88,7 @@ class SweepConfig:
 def sweep_settings(config: SweepConfig) -> list[dict[str, float]]:
     """The settings of the sweep, each ``{knob: value}``, the centre first."""
     values = {k: tuple(getattr(config, k)) for k in SWEEP_KNOBS}
-    if config.design == "grid":
+    if SweepDesign(config.design) is SweepDesign.GRID:
         return [
             dict(zip(SWEEP_KNOBS, combo, strict=True))
             for combo in itertools.product(*values.values())
@@ -250,10 +261,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("dataset", type=Path, help="A `care sample make` dataset directory.")
     parser.add_argument("out", type=Path, help="Directory of the sweep's stores and results.")
-    parser.add_argument("--design", choices=("oat", "grid"), default="oat")
+    defaults = SweepConfig()
+    parser.add_argument(
+        "--design", type=SweepDesign, choices=list(SweepDesign), default=defaults.design
+    )
     parser.add_argument("--values", nargs="*", default=[], help="KNOB=v1,v2,... (centre first)")
-    parser.add_argument("--workers", type=int, default=1)
-    parser.add_argument("--bootstrap", type=int, default=1000)
+    parser.add_argument("--workers", type=int, default=defaults.workers)
+    parser.add_argument("--bootstrap", type=int, default=defaults.bootstrap)
     args = parser.parse_args()
     try:
         values = settings_of(args.values)

@@ -22,6 +22,7 @@ from tqdm import tqdm
 from care.errors import WorldError
 from care.frames import Frame
 from care.outputs import (
+    OutputKind,
     atomic_write_text,
     check_file_output,
     check_output,
@@ -295,16 +296,18 @@ def make_dataset(config: DatasetConfig) -> Path:
         msg = f"--rooms {config.num_rooms}: the sample world makes 1 to 6 rooms"
         raise WorldError(msg)
     out = Path(config.out)
-    legacy = (out / INDEX_NAME).is_file() and b"care_sample_dataset" in (
+    # a dataset of ours is known by its index (the bundled sample is committed without the
+    # marker) and may be completed; a directory of the user's is never filled
+    ours = (out / INDEX_NAME).is_file() and b"care_sample_dataset" in (
         out / INDEX_NAME
     ).read_bytes()
-    if not legacy:  # never fill a directory of the user's (a dataset of ours may be completed)
-        check_output(out, kind="dataset")
+    if not ours:
+        check_output(out, kind=OutputKind.DATASET)
     if config.rrd is not None:  # before rendering: a file that is not ours is never replaced
         check_file_output(config.rrd)
     out.mkdir(parents=True, exist_ok=True)
-    if not is_ours(out, "dataset"):
-        write_marker(out, "dataset")
+    if not is_ours(out, OutputKind.DATASET):
+        write_marker(out, OutputKind.DATASET)
     summaries: dict[int, RecordingSummary] = {}
     workers = max(1, min(config.workers, config.scenes))
     bar = tqdm(total=config.scenes, desc="sample scenes", unit="scene", disable=not config.progress)
