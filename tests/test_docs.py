@@ -165,15 +165,18 @@ def test_link_checker_catches_what_it_should(tmp_path: Path) -> None:
     assert _links(fenced) == ["#x"]
 
 
-def _cli_reference():
-    spec = importlib.util.spec_from_file_location(
-        "cli_reference", ROOT / "scripts" / "cli_reference.py"
-    )
+def _load(path: Path):
+    """A script of the checkout (not an installed package) as a module."""
+    spec = importlib.util.spec_from_file_location(path.stem, path)
     assert spec is not None
     assert spec.loader is not None
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def _cli_reference():
+    return _load(ROOT / "scripts" / "cli_reference.py")
 
 
 def test_cli_reference_is_current() -> None:
@@ -190,14 +193,7 @@ BENCH_SECTIONS = ("ingest", "world", "fuse", "scale", "query", "batch", "dataset
 
 
 def _docs_section():
-    spec = importlib.util.spec_from_file_location(
-        "docs_section", ROOT / "bench" / "docs_section.py"
-    )
-    assert spec is not None
-    assert spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return _load(ROOT / "bench" / "docs_section.py")
 
 
 def test_benchmark_sections(tmp_path: Path) -> None:
