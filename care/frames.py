@@ -13,10 +13,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["DEFAULT_WORLD_FRAME", "Frame"]
+__all__ = ["DEFAULT_CAMERA_FRAME", "DEFAULT_WORLD_FRAME", "Frame"]
 
 DEFAULT_WORLD_FRAME = "map"
 """The world frame of a recording whose transforms name none (REP 105's fixed frame)."""
+DEFAULT_CAMERA_FRAME = "camera_optical_frame"
+"""The camera frame of a recording whose images name none (REP 103's optical convention)."""
 
 
 @dataclass(frozen=True, eq=False)

@@ -29,11 +29,11 @@ from care.encoders.record import RECORD_KEY, EncoderRecord
 from care.errors import IngestError, StoreError
 from care.fingerprint import config_fields, content_digest
 from care.fingerprint import fingerprint as content_fingerprint
-from care.frames import DEFAULT_WORLD_FRAME, Frame
+from care.frames import DEFAULT_CAMERA_FRAME, DEFAULT_WORLD_FRAME, Frame
 from care.outputs import OutputKind, check_file_output, check_output, damaged, output_lock
-from care.store import META_FILE, SCHEMA_VERSION, StoreMeta, StoreWriter
+from care.store import META_FILE, SCHEMA_VERSION, Store, StoreMeta, StoreWriter
 from ingest.select import FrameSelection, FrameSelector
-from ingest.source import ReadOptions, RecordingFrames, first_distortion
+from ingest.source import ReadOptions, RecordingFrames
 from runtime.execution import DEFAULT_EXECUTION, Execution
 from runtime.threads import Work, threads_for
 
@@ -146,10 +146,8 @@ def request_fingerprint(config: IngestConfig, source: dict[str, Any]) -> str:
 
 
 def _up_to_date(job: _Job, fp: str, key: str = "fingerprint") -> bool:
-    config, out = job.config, job.out
+    out = job.out
     if job.run.overwrite or not (out / META_FILE).is_file():
-        return False
-    if config.rrd is not None and not config.rrd.is_file():
         return False
     try:
         meta = StoreMeta.read(out)
@@ -157,18 +155,7 @@ def _up_to_date(job: _Job, fp: str, key: str = "fingerprint") -> bool:
         return False
     # same inputs, and every table as it was committed (size and checksum): a damaged
     # store is rebuilt, not trusted
-    current = getattr(meta, key) == fp and bool(meta.tables) and not damaged(out)
-    return current and not _distortion_kept(job, meta)
-
-
-def _distortion_kept(job: _Job, meta: StoreMeta) -> bool:
-    """True for a store made before ingest removed lens distortion from a recording whose
-    camera info has non-zero D: its fingerprint matches (D is in the recording's checksum,
-    the code is what changed) but its images are still distorted. Zero-D recordings keep
-    their stores and fingerprints; a store that records its distortion needs no look."""
-    if meta.distortion is not None:
-        return False
-    return not first_distortion(job.recording, job.config.read).is_zero
+    return getattr(meta, key) == fp and bool(meta.tables) and not damaged(out)
 
 
 def _vocabulary(config: IngestConfig, label_names: tuple[str, ...]) -> list[str]:
@@ -190,7 +177,7 @@ def _open_logger(job: _Job, frames: RecordingFrames) -> Any:
         config.rrd,
         every=config.rrd_every,
         world_frame=frames.world_frame or DEFAULT_WORLD_FRAME,
-        camera_frame=frames.camera_frame or "camera_optical_frame",
+        camera_frame=frames.camera_frame or DEFAULT_CAMERA_FRAME,
         scene=job.out.name,
     )
 
@@ -238,16 +225,44 @@ def _run_ingest(job: _Job, encoder: Encoder | None) -> Path:
     source = _source_identity(recording)
     request = request_fingerprint(config, source) if encoder is None else None
     if request is not None and _up_to_date(job, request, "request_fingerprint"):
-        return out  # before building the encoder: no model is loaded
+        return _log_missing_rrd(job)  # before building the encoder: no model is loaded
     if encoder is None and config.encoder is not None:
         encoder = make_encoder(config.encoder, config.encoder_options)
     with output_lock(out):
         check_output(out, kind=OutputKind.STORE, inputs=[recording])  # as the lock found it
         fp = fingerprint(config, encoder, source)
         if _up_to_date(job, fp):
-            return out
+            return _log_missing_rrd(job)
         _build(job, encoder, source, fp, request)
     return out
+
+
+def _log_missing_rrd(job: _Job) -> Path:
+    """An up-to-date store asked for a Rerun file it lacks: the file is written from the
+    store's views, so nothing is ingested again and the maps built in the store stay."""
+    rrd = job.config.rrd
+    if rrd is None or rrd.is_file():
+        return job.out
+    from ingest.viz import IngestLogger
+
+    store = Store(job.out)
+    logger = IngestLogger(
+        rrd,
+        every=job.config.rrd_every,
+        world_frame=store.meta.world_frame or DEFAULT_WORLD_FRAME,
+        camera_frame=store.meta.camera_frame or DEFAULT_CAMERA_FRAME,
+        scene=job.out.name,
+    )
+    try:
+        for view_id, frame in store.iter_frames(extras=False, in_map=False):
+            logger.log(view_id, frame)
+    except BaseException:
+        logger.close()
+        logger.discard()
+        raise
+    logger.close()
+    logger.keep()
+    return job.out
 
 
 def _build(

@@ -42,9 +42,9 @@ from ingest.readers import RecordingReader, TopicInfo, open_reader
 from ingest.sync import Match, StampSync
 from ingest.tf import TFBuffer, check_transform
 from ingest.topics import TopicSelection, select_topics
-from ingest.undistort import NO_DISTORTION, Distortion, undistort
+from ingest.undistort import Distortion, undistort
 
-__all__ = ["ReadOptions", "ReadStats", "RecordingFrames", "first_distortion"]
+__all__ = ["ReadOptions", "ReadStats", "RecordingFrames"]
 
 _WORLD_FRAME_NAMES = ("map", "world", "odom")
 
@@ -465,29 +465,3 @@ class RecordingFrames:
             self.world_frame, self.camera_frame, np.array([t]), round(self.options.max_dt * 1e9)
         )
         return T[0] if valid[0] else None
-
-
-def first_distortion(path: Path, options: ReadOptions | None = None) -> Distortion:
-    """The lens distortion of the recording's first camera info (zero when it has none).
-
-    Reads the topic list and one message: cheap enough for an up-to-date check, which uses
-    it to tell whether a store made before distortion was removed at ingest is stale."""
-    o = options or ReadOptions()
-    with open_reader(Path(path)) as reader:
-        sel = select_topics(
-            reader.topics(),
-            path=str(path),
-            rgb=o.rgb,
-            depth=o.depth,
-            camera_info=o.camera_info,
-            pose_source=o.pose_source,
-        )
-        try:
-            for _, _, msg in reader.messages([sel.camera_info]):
-                return decode.distortion(msg, sel.camera_info)
-        except IngestError as err:
-            if str(err).startswith(str(path)):
-                raise
-            msg_ = f"{path}: {err}"
-            raise IngestError(msg_) from err
-    return NO_DISTORTION

@@ -22,7 +22,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from care.frames import DEFAULT_WORLD_FRAME, Frame
+from care.frames import DEFAULT_CAMERA_FRAME, DEFAULT_WORLD_FRAME, Frame
 from care.viz import depth_png, jpeg, open_scene_recording, panels, set_stamp
 from geometry.transforms import backproject, transform_points
 from ingest.write import CAMERA_FRAME, WORLD_FRAME
@@ -103,7 +103,7 @@ class IngestLogger:
         self.rec = open_scene_recording(self.tmp, self.scene)
         self.every = max(1, int(every))
         self.world_frame = world_frame or DEFAULT_WORLD_FRAME
-        self.camera_frame = camera_frame or "camera_optical_frame"
+        self.camera_frame = camera_frame or DEFAULT_CAMERA_FRAME
         self._positions: list[np.ndarray] = []
         self._static_done = False
 

@@ -33,7 +33,7 @@ import numpy as np
 from PIL import Image
 
 from care.errors import IngestError
-from care.frames import DEFAULT_WORLD_FRAME, Frame
+from care.frames import DEFAULT_CAMERA_FRAME, DEFAULT_WORLD_FRAME, Frame
 from ingest.formats import RecordingFormat
 from ingest.typestores import ros1_typestore, ros2_typestore
 
@@ -48,7 +48,7 @@ __all__ = [
 
 WORLD_FRAME = DEFAULT_WORLD_FRAME
 BASE_FRAME = "base_link"
-CAMERA_FRAME = "camera_optical_frame"
+CAMERA_FRAME = DEFAULT_CAMERA_FRAME
 
 TOPICS = {
     "rgb": "/camera/color/image_raw",

@@ -11,7 +11,6 @@ through ``care ingest``; the distorted one must give the twin's views and the tw
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import cv2
@@ -309,27 +308,6 @@ def test_unknown_model_with_nonzero_d_is_refused(care, fx, twin: list, tmp_path:
         clean=(tmp_path,),
     )
     assert not (tmp_path / "store").exists()
-
-
-@pytest.mark.slow
-def test_store_that_kept_the_distortion_is_rebuilt(care, fx, twin: list, tmp_path: Path) -> None:
-    """A store made before ingest removed distortion (its meta has no ``distortion``) matches
-    its recording's fingerprint, yet a distorted recording's store is rebuilt; a zero-D one
-    is left as it is."""
-    for name, lens in {"zero": ZERO, "distorted": ("plumb_bob", LENSES["plumb_bob"])}.items():
-        bag = _write_bag(tmp_path / f"bag {name}", twin[:1], lens)
-        store = tmp_path / name
-        assert care("ingest", bag, "--out", store)[0] == 0
-        meta = fx.meta(store)
-        del meta["distortion"]
-        (store / "meta.json").write_text(json.dumps(meta, indent=2))
-        before = fx.snapshot(store)
-        code, _, err = care("ingest", bag, "--out", store)
-        assert code == 0, err
-        if name == "zero":
-            assert fx.snapshot(store) == before
-        else:
-            assert fx.meta(store)["distortion"] == [{"model": "plumb_bob", "D": list(lens[1])}]
 
 
 # -- the map -------------------------------------------------------------------------------

@@ -60,3 +60,63 @@ def test_topics_on_talker_bag(run_cli, shared_data: Path) -> None:
     assert "/topic" in out
     assert "std_msgs/msg/String" in out
     assert "no image topic" in out
+
+
+def test_rrd_of_an_up_to_date_store_is_written_from_it(
+    run_cli, tmp_path: Path, h, livingroom_root: Path, save_tiny_clip
+) -> None:
+    """``--rrd`` on a store that is up to date writes the file from the store's views: the
+    store is not ingested again and the maps built in it stay, byte for byte. The file
+    holds what an ingest that logged would have (the same entities, counts and poses)."""
+    import hashlib
+
+    import numpy as np
+
+    from care.frames import Frame
+
+    frames = []  # third-party frames at a quarter of their size
+    for f in h.load_livingroom(livingroom_root, 12)[::2]:
+        K = f.K.copy()
+        K[:2] /= 4
+        K[:2, 2] = (f.K[:2, 2] - 1.5) / 4
+        frames.append(
+            Frame(f.stamp_ns, f.rgb[::4, ::4].copy(), f.depth_m[::4, ::4].copy(), K, f.cam_to_world)
+        )
+    rec = write_recording(tmp_path / "r.bag", frames, fmt="ros1")
+    store, logged = tmp_path / "store", tmp_path / "logged"
+    weights = save_tiny_clip(tmp_path / "weights", layers=2)
+    model = ("--encoder", "clip", "--weights", weights, "--vocabulary", "chair,sofa,table")
+    code, _, err = run_cli("ingest", rec, "--out", logged, "--rrd", tmp_path / "ref.rrd", *model)
+    assert code == 0, err
+    assert run_cli("ingest", rec, "--out", store, *model)[0] == 0
+    code, _, err = run_cli("fuse", "grid", store)
+    assert code == 0, err
+
+    def snapshot() -> dict[str, str]:
+        return {
+            p.name: hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(store.iterdir())
+            if p.is_file()
+        }
+
+    before = snapshot()
+    rrd = tmp_path / "later.rrd"
+    code, _, err = run_cli("ingest", rec, "--out", store, "--rrd", rrd, *model)
+    assert code == 0, err
+    assert snapshot() == before  # nothing ingested again, the grid kept
+    got, ref = rrd_entity_counts(rrd), rrd_entity_counts(tmp_path / "ref.rrd")
+    assert got == ref
+
+    def poses(path: Path) -> np.ndarray:
+        rows = []
+        for chunk in RrdReader(path).stream():
+            if chunk.entity_path != "/" + viz.CAMERA_ENTITY:
+                continue
+            batch = chunk.to_record_batch()
+            for name in batch.schema.names:
+                if name.endswith("Transform3D:translation"):
+                    rows += [v for v in batch.column(name).to_pylist() if v is not None]
+        return np.asarray(rows, dtype=np.float64).reshape(-1, 3)
+
+    np.testing.assert_allclose(poses(rrd), poses(tmp_path / "ref.rrd"), atol=1e-6)
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
