@@ -5,15 +5,15 @@ thread for torch and BLAS alike (:mod:`runtime.threads`). Prints four tables:
 
 0. ``care fuse grid`` end to end (:func:`fuse.grid.build_grid` on a store written with the
    project's store writer: read, fuse, write cell_views and cells): views/s at 640x480,
-   stride 1, d = 512, 100 classes (issue 14's target: >= 30) all in one thread and the
+   stride 1, d = 512, 100 classes (target: >= 30) all in one thread and the
    default way (views decoded and sampled ahead on two background threads, while the main
    thread merges), maps compared byte for byte, and peak memory per occupied cell, as the
    slope between a small and a large floor (target <= 15 KB);
 
 1. pixels fused per second with d = 512 features at pixel strides 8, 2 and 1, the
    vectorised grid fusion (``fuse.cells.view_samples`` + ``fuse.accumulate.CandidateSums``)
-   against a naive per-pixel Python loop on the same frames, their ratio (issue 14's
-   target: >= 100x at stride 1), and the bound the samples' class logits put on it;
+   against a naive per-pixel Python loop on the same frames, their ratio (target:
+   >= 100x at stride 1), and the bound the samples' class logits put on it;
 2. mean pairwise symmetric KL, linear identity (streamed view by view) against the pairwise
    form, time and peak memory for m = 5, 50 and 500 views per candidate;
 3. peak memory of grid fusion against the number of frames: bounded by occupied cells.
@@ -40,6 +40,7 @@ from bench.rss import peak_rss_mb
 from care.frames import Frame
 from fuse.accumulate import CandidateSums
 from fuse.cells import CellIndex, view_samples
+from fuse.config import GridConfig
 from fuse.measures import pwkl_linear, pwkl_pairwise, pwkl_terms
 from runtime.malloc import keep_freed_memory
 
@@ -48,9 +49,10 @@ FH, FW = 24, 32
 STORES = "v2"
 """Tag of the synthetic stores under ``--workdir`` (v2: camera-like colours, not noise)."""
 TARGETS: dict[str, tuple[str, str, bool]] = {}
-"""Issue 14's figures as each table measures them: name -> (value, target, met)."""
+"""The performance targets as each table measures them: name -> (value, target, met)."""
 K = np.array([[525.0, 0, 319.5], [0, 525.0, 239.5], [0, 0, 1]])
 CELL = 0.05
+SIGMA_Z = GridConfig().sigma_z
 
 
 def _frame(rng: np.random.Generator, room: float = 5.0) -> Frame:
@@ -121,9 +123,10 @@ def _features(rng: np.random.Generator, d: int) -> np.ndarray:
 def _grid_sums(text: np.ndarray) -> CandidateSums:
     """The state as ``build_grid``'s first pass makes it: limited to the cells the default
     memory budget holds (and so reserved at once, see :class:`CandidateSums`)."""
-    from fuse.grid import GridConfig, cells_per_pass
+    from fuse.grid import cells_per_pass
+    from runtime.execution import Execution
 
-    limit = cells_per_pass(GridConfig(), text.shape[1], len(text))
+    limit = cells_per_pass(Execution(), text.shape[1], len(text))
     return CandidateSums(text.shape[1], text, 100.0, limit=limit)
 
 
@@ -137,8 +140,9 @@ def _fuse_vectorised(frames, feats, text, stride: int) -> tuple[CandidateSums, f
     for frame, feat in zip(frames, feats, strict=True):
         t0 = time.process_time()
         s = view_samples(
-            frame, feat, cell_size=CELL, stride=stride, z_min=-0.2, z_max=2.0, text=text
-        )
+            frame, feat, cell_size=CELL, stride=stride, z_min=-0.2, z_max=2.0, sigma_z=SIGMA_Z,
+            text=text,
+        )  # fmt: skip
         t1 = time.process_time()
         sums.add(index.lookup(s.keys), s.weight, s.feature, s.dots)
         samples_s += t1 - t0
@@ -200,7 +204,9 @@ def _logits_floor(frames, feats, text, stride: int) -> float:
     over this one.
     """
     sizes = [
-        view_samples(f, x, cell_size=CELL, stride=stride, z_min=-0.2, z_max=2.0).size
+        view_samples(
+            f, x, cell_size=CELL, stride=stride, z_min=-0.2, z_max=2.0, sigma_z=SIGMA_Z
+        ).size
         for f, x in zip(frames, feats, strict=True)
     ]
     text32 = text.astype(np.float32)
@@ -339,6 +345,7 @@ def _peak_child(num_frames: int, d: int, stride: int, queue) -> None:
             stride=stride,
             z_min=-0.2,
             z_max=2.0,
+            sigma_z=SIGMA_Z,
             text=text,
         )
         sums.add(index.lookup(s.keys), s.weight, s.feature, s.dots)
@@ -380,6 +387,7 @@ def _write_store(path: Path, num_frames: int, room: float, d: int, seed: int) ->
 def _build_child(store: str, read_ahead: int, queue) -> None:
     from bench.rss import current_rss_mb
     from fuse.grid import GridConfig, build_grid
+    from runtime.execution import Execution
     from runtime.threads import Work, use_threads
 
     use_threads(Work.FUSE)
@@ -392,8 +400,8 @@ def _build_child(store: str, read_ahead: int, queue) -> None:
     pa.array([0.0]).to_numpy()
     base = current_rss_mb()
     t0, c0 = time.perf_counter(), time.process_time()
-    config = GridConfig(stride=1, overwrite=True, read_ahead=read_ahead)
-    path = build_grid(Path(store), config)
+    run = Execution(overwrite=True, read_ahead=read_ahead)
+    path = build_grid(Path(store), GridConfig(stride=1), run=run)
     seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
     cells = pq.read_metadata(path).num_rows
     views = Path(store, "cell_views.parquet")
@@ -422,9 +430,9 @@ def bench_end_to_end(sizes: tuple[tuple[int, float], ...], workdir: Path, d: int
     fixed cost of the program cancels)."""
     import shutil
 
-    from fuse.config import GridConfig
+    from runtime.execution import Execution
 
-    ahead = GridConfig().read_ahead
+    ahead = Execution().read_ahead
     print(f"\n## care fuse grid end to end (640x480, stride 1, d={d}, 100 classes)")
     print(
         "| store | views | occupied cells | samples/view | way | s (CPU s) | views/s "
@@ -496,7 +504,7 @@ def main() -> None:
         if args.only in (None, name):
             run()
     if TARGETS:
-        print("\n## Issue 14's targets, side by side (1-minute load average at each figure)")
+        print("\n## Targets, side by side (1-minute load average at each figure)")
         print("| figure | measured | target | met |")
         print("| --- | --- | --- | --- |")
         for name, (value, target, met) in TARGETS.items():

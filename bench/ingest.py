@@ -31,6 +31,7 @@ keep_freed_memory()  # as the care program does
 import numpy as np
 from ingest.pipeline import IngestConfig, run_ingest
 from ingest.readers import open_reader
+from runtime.execution import Execution
 base = current_rss_mb()
 t0 = time.perf_counter()
 if case["naive"]:
@@ -38,8 +39,8 @@ if case["naive"]:
         held = list(r.messages())
     frames = sum(1 for m in held if m[0] == "/camera/color/image_raw" or m[0].endswith("compressed"))
 else:
-    cfg = IngestConfig(recording=Path(case["rec"]), out=Path(case["out"]), encoder=case["encoder"], progress=False, force=True)
-    store = run_ingest(cfg)
+    run = Execution(overwrite=True, progress=False)
+    store = run_ingest(Path(case["rec"]), Path(case["out"]), IngestConfig(encoder=case["encoder"]), run=run)
     frames = json.loads((store / "meta.json").read_text())["num_views"]
 dt = time.perf_counter() - t0
 print(json.dumps({"frames": frames, "seconds": dt, "base_mb": base, "peak_mb": peak_rss_mb()}))
@@ -97,7 +98,7 @@ def _run(case: dict) -> dict:
 def _labels_available() -> bool:
     import importlib.util
 
-    return importlib.util.find_spec("care.encoders.labels") is not None
+    return importlib.util.find_spec("world.perception.encoder") is not None
 
 
 def main() -> None:
@@ -140,7 +141,7 @@ def main() -> None:
     rows = []
     for name, rec, encoder, naive in cases:
         if encoder == "labels" and not _labels_available():
-            rows.append((name, "care.encoders.labels not available yet"))
+            rows.append((name, "world.perception.encoder not available yet"))
             continue
         res = _run(
             {"rec": str(rec), "out": str(work / "store"), "encoder": encoder, "naive": naive}

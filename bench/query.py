@@ -11,18 +11,17 @@ fresh process (so memory figures are its own) and prints:
   first attempt, replan after 1 failure, replan after 10 failures; for a vocabulary class
   and for free text (``query.resolve_text`` with the offline sentence model, then the same
   calls; the text embedding is included);
-- side by side, the way before this bench's issue (``--legacy-max`` cells at most): the
-  whole Parquet table decoded, confidence by an (N, d) product, and each failed attempt's
-  exclusion a pass over every cell (``replan.attempts.available_after``).
+- side by side, the plain way (``--legacy-max`` cells at most): the whole Parquet table
+  decoded, confidence by an (N, d) product, and each failed attempt's exclusion a pass over
+  every cell (``replan.attempts.available_after``).
 
-Targets (issue 14): < 15 ms per attempt at 1M cells for a vocabulary class, < 50 ms for
-free text. Run: ``python bench/query.py`` (``--sizes 5000 50000`` for a quick look).
+Targets: < 15 ms per attempt at 1M cells for a vocabulary class, < 50 ms for free text. Run: ``python bench/query.py`` (``--sizes 5000 50000`` for a quick look).
 
 A second table times the goal a navigation stack gets for an attempt
 (``query.goals.FreeSpace.approach``: the free cell nearest the object that keeps 0.3 m from
 every obstacle) on floors of rooms with walls and clutter, at the same sizes and at 4M cells
 (100 m x 100 m): the clearance computed around the goal against a distance transform of the
-whole floor (the way before), the two goals compared.
+whole floor (the plain way), the two goals compared.
 """
 
 from __future__ import annotations
@@ -212,7 +211,7 @@ def bench_goals(sizes) -> None:
 
     @dataclass(frozen=True)
     class WholeFloor(FreeSpace):
-        """The way before: every cell's clearance from one transform of the whole floor."""
+        """The plain way: every cell's clearance from one transform of the whole floor."""
 
         whole: np.ndarray | None = None
 
@@ -220,9 +219,7 @@ def bench_goals(sizes) -> None:
             return self.whole[xs, ys], np.inf
 
     print("\n## goal pose for an attempt (0.3 m clearance, 1 m reach), 20 objects")
-    print(
-        "| cells | around the goal ms | whole floor ms (the way before) | speed-up | same goals |"
-    )
+    print("| cells | around the goal ms | whole floor ms (plain) | speed-up | same goals |")
     print("| --- | --- | --- | --- | --- |")
     config = GoalConfig()
     for n in sizes:
@@ -249,7 +246,7 @@ def main() -> None:
     parser.add_argument("--sizes", type=int, nargs="+", default=list(SIZES))
     parser.add_argument("--workdir", type=Path, default=Path("/tmp/care-bench-query"))
     parser.add_argument(
-        "--legacy-max", type=int, default=500_000, help="largest map also run the old way"
+        "--legacy-max", type=int, default=500_000, help="largest map also run the plain way"
     )
     args = parser.parse_args()
     print(f"grid maps: d={D}, {N_CLASSES} classes, {CELL} m cells; replan: min stderr, k={K}, 1 m")

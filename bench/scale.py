@@ -82,17 +82,16 @@ def _fuse_child(store: str, budget: int | None, cells_per_pass: int | None, queu
     from bench.rss import peak_rss_mb
     from fuse.grid import GridConfig, build_grid
     from fuse.grid import cells_per_pass as capacity_of
+    from runtime.execution import Execution
     from runtime.malloc import keep_freed_memory
     from runtime.threads import Work, use_threads
 
     use_threads(Work.FUSE)
     keep_freed_memory()
-    config = GridConfig(
-        stride=1, overwrite=True, memory_budget=budget, cells_per_pass=cells_per_pass
-    )
-    capacity = capacity_of(config, D, 100)
+    run = Execution(overwrite=True, memory_budget=budget, cells_per_pass=cells_per_pass)
+    capacity = capacity_of(run, D, 100)
     t0 = time.perf_counter()
-    path = build_grid(Path(store), config)
+    path = build_grid(Path(store), GridConfig(stride=1), run=run)
     seconds = time.perf_counter() - t0
     cells = pq.read_metadata(path).num_rows
     queue.put((seconds, cells, capacity, peak_rss_mb()))

@@ -21,6 +21,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from ingest.write import write_recording
+from truth.formats.native import write_native
 from world.record import DatasetConfig, make_dataset, scene_config_of
 from world.render import RenderConfig, Renderer
 from world.scene import generate_scene
@@ -54,7 +55,7 @@ def _breakdown(config: DatasetConfig, tmp: Path) -> dict[str, float]:
     write_recording(tmp / "one.mcap", frames, fmt="mcap", label_names=scene.class_names)
     times["write mcap"] = time.perf_counter() - t
     t = time.perf_counter()
-    scene.ground_truth().save(tmp / "one.mcap")
+    write_native(scene.ground_truth(), tmp / "one.mcap")
     times["ground truth"] = time.perf_counter() - t
     return times
 
