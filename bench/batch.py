@@ -26,6 +26,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's 
 import numpy as np  # noqa: E402
 from threadpoolctl import threadpool_limits  # noqa: E402
 
+from bench.docs_section import add_docs_flag, recorded  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 FREE = (
     "a red mug on the table", "somewhere to sit", "something to sleep on", "a place to wash "
@@ -40,7 +42,16 @@ def _store(path: Path | None) -> Path:
     store = ROOT / ".bench-cache" / "sample-store"
     care = [sys.executable, "-m", "care_cli.main"]
     subprocess.run(
-        [*care, "ingest", ROOT / "data/sample/scene_000.mcap", "--out", store], check=True
+        [
+            *care,
+            "ingest",
+            ROOT / "data/sample/scene_000.mcap",
+            "--out",
+            store,
+            "--encoder",
+            "labels",
+        ],
+        check=True,
     )
     subprocess.run([*care, "fuse", "grid", store, "--stride", "2"], check=True)
     return store
@@ -51,62 +62,64 @@ def main() -> None:
     parser.add_argument("--store", type=Path)
     parser.add_argument("--queries", type=int, default=1000)
     parser.add_argument("--loop-sample", type=int, default=40)
+    add_docs_flag(parser)
     args = parser.parse_args()
-    import torch
+    with recorded("batch", write=not args.no_docs):
+        import torch
 
-    torch.set_num_threads(1)
-    from query import load_map
-    from replan import STRATEGIES
-    from replan.attempts import next_goal
-    from replan.batch import BatchConfig, BatchQuery, plan_batch
+        torch.set_num_threads(1)
+        from query import load_map
+        from replan import STRATEGIES
+        from replan.attempts import next_goal
+        from replan.batch import BatchConfig, BatchQuery, plan_batch
 
-    store = _store(args.store)
-    cmap = load_map(store, "grid")
-    rng = np.random.default_rng(0)
-    classes = [c for c in cmap.vocabulary if c not in {"void", "wall", "floor", "ceiling"}]
-    queries = [
-        BatchQuery(str(rng.choice(classes)) if i % 2 else f"{rng.choice(FREE)} {i % 50}")
-        for i in range(args.queries)
-    ]
-    config = BatchConfig(
-        strategies=tuple(s for s in STRATEGIES if not STRATEGIES[s].needs_truth
-                         and not STRATEGIES[s].random)
-    )  # fmt: skip
-    with threadpool_limits(1):
-        cmap.text_encoder(["warm up the text model"])
-        start = time.perf_counter()
-        table = plan_batch(cmap, queries, config)
-        batch_s = time.perf_counter() - start
-        sample = queries[:: max(1, len(queries) // args.loop_sample)]
-        start = time.perf_counter()
-        loop_rows = 0
-        for q in sample:
-            next_goal(cmap, q.text, [])  # the ranking's first
-            for name in config.strategies:
-                for criterion in config.criteria if STRATEGIES[name].uses_set else (None,):
-                    visited: list[int] = []
-                    for _ in range(config.attempts if name != "no_replan" else 1):
-                        c = next_goal(
-                            cmap,
-                            q.text,
-                            visited,
-                            strategy=name,
-                            criterion=criterion or "confidence",
-                            k=config.k,
-                        ).candidate
-                        loop_rows += 1
-                        if c < 0:
-                            break
-                        visited.append(c)  # fmt: skip
-        loop_s = time.perf_counter() - start
-    per_batch = 1000 * batch_s / len(queries)
-    per_loop = 1000 * loop_s / len(sample)
-    print(f"map: {cmap.num_candidates} grid cells, {len(cmap.vocabulary)} classes, d = "
-          f"{cmap.features.shape[1]}; {len(queries)} queries (half free text)")  # fmt: skip
-    print(f"batch: {per_batch:.2f} ms a query ({table.num_rows} rows in {batch_s:.1f} s)")
-    print(f"loop of next_goal calls: {per_loop:.2f} ms a query ({loop_rows // len(sample)} calls "
-          f"each, over {len(sample)} queries)")  # fmt: skip
-    print(f"batch is x{per_loop / per_batch:.1f} faster per query")
+        store = _store(args.store)
+        cmap = load_map(store, "grid")
+        rng = np.random.default_rng(0)
+        classes = [c for c in cmap.vocabulary if c not in {"void", "wall", "floor", "ceiling"}]
+        queries = [
+            BatchQuery(str(rng.choice(classes)) if i % 2 else f"{rng.choice(FREE)} {i % 50}")
+            for i in range(args.queries)
+        ]
+        config = BatchConfig(
+            strategies=tuple(s for s in STRATEGIES if not STRATEGIES[s].needs_truth
+                             and not STRATEGIES[s].random)
+        )  # fmt: skip
+        with threadpool_limits(1):
+            cmap.text_encoder(["warm up the text model"])
+            start = time.perf_counter()
+            table = plan_batch(cmap, queries, config)
+            batch_s = time.perf_counter() - start
+            sample = queries[:: max(1, len(queries) // args.loop_sample)]
+            start = time.perf_counter()
+            loop_rows = 0
+            for q in sample:
+                next_goal(cmap, q.text, [])  # the ranking's first
+                for name in config.strategies:
+                    for criterion in config.criteria if STRATEGIES[name].uses_set else (None,):
+                        visited: list[int] = []
+                        for _ in range(config.attempts if name != "no_replan" else 1):
+                            c = next_goal(
+                                cmap,
+                                q.text,
+                                visited,
+                                strategy=name,
+                                criterion=criterion or "confidence",
+                                k=config.k,
+                            ).candidate
+                            loop_rows += 1
+                            if c < 0:
+                                break
+                            visited.append(c)  # fmt: skip
+            loop_s = time.perf_counter() - start
+        per_batch = 1000 * batch_s / len(queries)
+        per_loop = 1000 * loop_s / len(sample)
+        print(f"map: {cmap.num_candidates} grid cells, {len(cmap.vocabulary)} classes, d = "
+              f"{cmap.features.shape[1]}; {len(queries)} queries (half free text)")  # fmt: skip
+        print(f"batch: {per_batch:.2f} ms a query ({table.num_rows} rows in {batch_s:.1f} s)")
+        print(f"loop of next_goal calls: {per_loop:.2f} ms a query ({loop_rows // len(sample)} calls "
+              f"each, over {len(sample)} queries)")  # fmt: skip
+        print(f"batch is x{per_loop / per_batch:.1f} faster per query")
 
 
 if __name__ == "__main__":

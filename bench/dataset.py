@@ -37,6 +37,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from bench.docs_section import add_docs_flag, recorded  # noqa: E402
 from world.record import DatasetConfig, make_dataset  # noqa: E402
 
 
@@ -110,67 +111,69 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=2)
     parser.add_argument("--quick", action="store_true", help="160x120, 1 room, 12 frames")
     parser.add_argument("--keep", type=Path, default=None, help="keep the outputs here")
+    add_docs_flag(parser)
     args = parser.parse_args()
-    if args.quick:
-        args.width, args.height, args.rooms, args.frames = 160, 120, 1, 12
-    tmp = args.keep or Path(tempfile.mkdtemp(prefix="care-bench-dataset-"))
-    try:
-        dataset = tmp / "data"
-        make_dataset(
-            DatasetConfig(
-                out=dataset, scenes=args.scenes, width=args.width, height=args.height,
-                frames=args.frames, num_rooms=args.rooms, workers=args.workers, progress=False,
+    with recorded("dataset", write=not (args.no_docs or args.quick)):
+        if args.quick:
+            args.width, args.height, args.rooms, args.frames = 160, 120, 1, 12
+        tmp = args.keep or Path(tempfile.mkdtemp(prefix="care-bench-dataset-"))
+        try:
+            dataset = tmp / "data"
+            make_dataset(
+                DatasetConfig(
+                    out=dataset, scenes=args.scenes, width=args.width, height=args.height,
+                    frames=args.frames, num_rooms=args.rooms, workers=args.workers, progress=False,
+                )
+            )  # fmt: skip
+            print(
+                f"dataset: {args.scenes} sample-world recordings, {args.width}x{args.height}, "
+                f"{args.rooms} room(s), {args.frames or 25 * args.rooms} frames each; "
+                f"care run --seeds {args.seeds}"
             )
-        )  # fmt: skip
-        print(
-            f"dataset: {args.scenes} sample-world recordings, {args.width}x{args.height}, "
-            f"{args.rooms} room(s), {args.frames or 25 * args.rooms} frames each; "
-            f"care run --seeds {args.seeds}"
-        )
-        ways = {
-            "serial": ["--workers", "1"],
-            f"process pool ({args.workers})": ["--workers", str(args.workers)],
-            "local Ray": ["--ray"],
-        }
-        load_before = os.getloadavg()
-        times = {name: _run(dataset, tmp / name.split()[0], args.seeds, how)
-                 for name, how in ways.items()}  # fmt: skip
-        ceilings = {name: _ceiling(kernel, args.workers) for name, kernel in _KERNELS.items()}
-        load_after = os.getloadavg()
-        serial, serial_cpu = times["serial"]
-        for name, (wall, cpu) in times.items():
-            # Ray's workers are children of its raylet, reaped after `care run` has exited
-            busy = (
-                "CPU: Ray's workers are not counted"
-                if name == "local Ray"
-                else f"CPU {cpu:6.1f} s ({cpu / wall:.2f} cores busy)"
+            ways = {
+                "serial": ["--workers", "1"],
+                f"process pool ({args.workers})": ["--workers", str(args.workers)],
+                "local Ray": ["--ray"],
+            }
+            load_before = os.getloadavg()
+            times = {name: _run(dataset, tmp / name.split()[0], args.seeds, how)
+                     for name, how in ways.items()}  # fmt: skip
+            ceilings = {name: _ceiling(kernel, args.workers) for name, kernel in _KERNELS.items()}
+            load_after = os.getloadavg()
+            serial, serial_cpu = times["serial"]
+            for name, (wall, cpu) in times.items():
+                # Ray's workers are children of its raylet, reaped after `care run` has exited
+                busy = (
+                    "CPU: Ray's workers are not counted"
+                    if name == "local Ray"
+                    else f"CPU {cpu:6.1f} s ({cpu / wall:.2f} cores busy)"
+                )
+                print(f"  {name:<20} {wall:7.1f} s   x{serial / wall:.2f} vs serial   {busy}")
+            cores = min(args.workers, os.cpu_count() or 1)
+            print(
+                f"  this machine's ceiling for {args.workers} processes: "
+                + ", ".join(f"x{v:.2f} {k}" for k, v in ceilings.items())
+                + f"; serial keeps {serial_cpu / serial:.2f} cores busy by itself, so {cores} "
+                f"cores can do at most x{cores * serial / serial_cpu:.2f} its work at the same "
+                "CPU cost per recording"
             )
-            print(f"  {name:<20} {wall:7.1f} s   x{serial / wall:.2f} vs serial   {busy}")
-        cores = min(args.workers, os.cpu_count() or 1)
-        print(
-            f"  this machine's ceiling for {args.workers} processes: "
-            + ", ".join(f"x{v:.2f} {k}" for k, v in ceilings.items())
-            + f"; serial keeps {serial_cpu / serial:.2f} cores busy by itself, so {cores} "
-            f"cores can do at most x{cores * serial / serial_cpu:.2f} its work at the same "
-            "CPU cost per recording"
-        )
-        print(
-            f"  load average (1 min) {load_before[0]:.2f} before, {load_after[0]:.2f} after "
-            f"({os.cpu_count()} CPUs)"
-        )
-        expected = _outputs(tmp / "serial")
-        for name in list(ways)[1:]:
-            got = _outputs(tmp / name.split()[0])
-            bad = sorted(set(got) ^ set(expected)) + [
-                k for k in expected if got.get(k) != expected[k]
-            ]
-            state = "byte-identical" if not bad else f"DIFFERENT: {bad[:5]}"
-            print(f"  {name}: {len(expected)} files (stores + eval/) {state}")
-            if bad:
-                sys.exit(1)
-    finally:
-        if args.keep is None:
-            shutil.rmtree(tmp, ignore_errors=True)
+            print(
+                f"  load average (1 min) {load_before[0]:.2f} before, {load_after[0]:.2f} after "
+                f"({os.cpu_count()} CPUs)"
+            )
+            expected = _outputs(tmp / "serial")
+            for name in list(ways)[1:]:
+                got = _outputs(tmp / name.split()[0])
+                bad = sorted(set(got) ^ set(expected)) + [
+                    k for k in expected if got.get(k) != expected[k]
+                ]
+                state = "byte-identical" if not bad else f"DIFFERENT: {bad[:5]}"
+                print(f"  {name}: {len(expected)} files (stores + eval/) {state}")
+                if bad:
+                    sys.exit(1)
+        finally:
+            if args.keep is None:
+                shutil.rmtree(tmp, ignore_errors=True)
 
 
 if __name__ == "__main__":

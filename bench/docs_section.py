@@ -8,20 +8,37 @@ Each script's table lies between two markers on the page::
 
 :func:`write_section` replaces what lies between a section's markers, and nothing else, so
 the page always shows the latest run of every script and the prose around the tables stays
-as written. A script calls it at the end of its run::
+as written. A script adds ``--no-docs`` to its command line and runs its work inside
+:func:`recorded`, which keeps what the run prints and, when the run ends without an error,
+writes it (with the command line that made it) into the script's section::
 
-    from bench.docs_section import write_section
-
-    write_section("fuse", table_markdown)
+    add_docs_flag(parser)
+    args = parser.parse_args()
+    with recorded("fuse", write=not args.no_docs):
+        run(args)
 """
 
 from __future__ import annotations
 
+import argparse
+import contextlib
+import io
 import os
 import re
+import shlex
+import sys
+from collections.abc import Iterator
 from pathlib import Path
 
-__all__ = ["PAGE", "markers", "read_section", "write_section"]
+__all__ = [
+    "PAGE",
+    "add_docs_flag",
+    "as_markdown",
+    "markers",
+    "read_section",
+    "recorded",
+    "write_section",
+]
 
 PAGE = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
 """The page holding every benchmark's section."""
@@ -79,3 +96,71 @@ def write_section(name: str, markdown: str, page: Path = PAGE) -> None:
         staged.replace(page)
     finally:
         staged.unlink(missing_ok=True)
+
+
+def add_docs_flag(parser: argparse.ArgumentParser) -> None:
+    """Add ``--no-docs`` (a trial run that must not replace the page's figures)."""
+    parser.add_argument(
+        "--no-docs",
+        action="store_true",
+        help=f"Do not write this run's figures into {PAGE.relative_to(PAGE.parents[1])}.",
+    )
+
+
+class _Tee(io.TextIOBase):
+    """Writes to the terminal and keeps a copy."""
+
+    def __init__(self, stream: io.TextIOBase) -> None:
+        self.stream, self.kept = stream, io.StringIO()
+
+    def write(self, text: str) -> int:
+        self.kept.write(text)
+        return self.stream.write(text)
+
+    def flush(self) -> None:
+        self.stream.flush()
+
+
+@contextlib.contextmanager
+def recorded(name: str, *, write: bool = True, page: Path = PAGE) -> Iterator[None]:
+    """Print as usual; after a run that ends without an error, put what it printed into
+    section ``name`` of ``page``, under the command line that made it (a run that fails
+    leaves the page as it was)."""
+    tee = _Tee(sys.stdout)
+    with contextlib.redirect_stdout(tee):
+        yield
+    if write:
+        command = shlex.join(["python3", f"bench/{Path(sys.argv[0]).name}", *sys.argv[1:]])
+        cores = os.cpu_count()
+        body = f"`{command}` ({cores} cores):\n\n{as_markdown(tee.kept.getvalue())}"
+        write_section(name, body, page)
+
+
+def as_markdown(printed: str) -> str:
+    """A run's printed text as markdown: its markdown tables stay tables, a ``#`` heading
+    line becomes a bold line (the page's own headings stay the outline), and every other
+    run of lines is a ``text`` block, as the terminal showed it."""
+    out: list[str] = []
+    plain: list[str] = []
+
+    def close_plain() -> None:
+        while plain and not plain[-1].strip():
+            plain.pop()
+        if plain:
+            out.append("```text\n" + "\n".join(plain) + "\n```")
+        plain.clear()
+
+    for line in printed.strip("\n").splitlines():
+        if line.startswith("|"):
+            close_plain()
+            if out and out[-1].startswith("|"):
+                out[-1] += "\n" + line
+            else:
+                out.append(line)
+        elif line.startswith("#"):
+            close_plain()
+            out.append(f"**{line.lstrip('#').strip()}**")
+        elif line.strip() or plain:
+            plain.append(line)
+    close_plain()
+    return "\n\n".join(out)

@@ -36,6 +36,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench.docs_section import add_docs_flag, recorded
 from bench.rss import peak_rss_mb
 from care.frames import Frame
 from fuse.accumulate import CandidateSums
@@ -481,34 +482,36 @@ def main() -> None:
     parser.add_argument(
         "--only", choices=("end-to-end", "throughput", "pwkl", "memory"), help="one table"
     )
+    add_docs_flag(parser)
     args = parser.parse_args()
-    from runtime.threads import Work, use_threads
+    with recorded("fuse", write=not (args.no_docs or args.quick)):
+        from runtime.threads import Work, use_threads
 
-    # like the naive loop: one core, torch and BLAS alike (and fair on a shared machine)
-    use_threads(Work.FUSE)
-    keep_freed_memory()  # as the care program does, for both methods
-    args.workdir.mkdir(parents=True, exist_ok=True)
-    quick = args.quick
-    runs = {
-        "end-to-end": lambda: bench_end_to_end(
-            ((40, 5.0), (60, 14.0)) if quick else ((40, 5.0), (200, 5.0), (200, 14.0)), args.workdir
-        ),
-        "throughput": lambda: bench_throughput(num_frames=10, strides=(8, 1))
-        if quick
-        else bench_throughput(num_frames=40, strides=(8, 2, 1), naive_pixels=200_000),
-        "pwkl": lambda: bench_pwkl(n_cand=50 if quick else 200, n=100 if quick else 200,
-                                   sizes=(5, 50, 500)),
-        "memory": lambda: bench_memory((10, 40) if quick else (10, 40, 160)),
-    }  # fmt: skip
-    for name, run in runs.items():
-        if args.only in (None, name):
-            run()
-    if TARGETS:
-        print("\n## Targets, side by side (1-minute load average at each figure)")
-        print("| figure | measured | target | met |")
-        print("| --- | --- | --- | --- |")
-        for name, (value, target, met) in TARGETS.items():
-            print(f"| {name} | {value} | {target} | {'yes' if met else '**no**'} |")
+        # like the naive loop: one core, torch and BLAS alike (and fair on a shared machine)
+        use_threads(Work.FUSE)
+        keep_freed_memory()  # as the care program does, for both methods
+        args.workdir.mkdir(parents=True, exist_ok=True)
+        quick = args.quick
+        runs = {
+            "end-to-end": lambda: bench_end_to_end(
+                ((40, 5.0), (60, 14.0)) if quick else ((40, 5.0), (200, 5.0), (200, 14.0)), args.workdir
+            ),
+            "throughput": lambda: bench_throughput(num_frames=10, strides=(8, 1))
+            if quick
+            else bench_throughput(num_frames=40, strides=(8, 2, 1), naive_pixels=200_000),
+            "pwkl": lambda: bench_pwkl(n_cand=50 if quick else 200, n=100 if quick else 200,
+                                       sizes=(5, 50, 500)),
+            "memory": lambda: bench_memory((10, 40) if quick else (10, 40, 160)),
+        }  # fmt: skip
+        for name, run in runs.items():
+            if args.only in (None, name):
+                run()
+        if TARGETS:
+            print("\n## Targets, side by side (1-minute load average at each figure)")
+            print("| figure | measured | target | met |")
+            print("| --- | --- | --- | --- |")
+            for name, (value, target, met) in TARGETS.items():
+                print(f"| {name} | {value} | {target} | {'yes' if met else '**no**'} |")
 
 
 if __name__ == "__main__":

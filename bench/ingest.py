@@ -20,6 +20,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data" / "rgbd" / "livingroom1_clean_micro"
+sys.path.insert(0, str(ROOT))
+
+from bench.docs_section import add_docs_flag, recorded  # noqa: E402
 
 _CHILD = r"""
 import json, sys, time
@@ -106,72 +109,74 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=211)
     parser.add_argument("--repeat", type=int, default=5)
     parser.add_argument("--workdir", type=Path, default=None)
+    add_docs_flag(parser)
     args = parser.parse_args()
-    sys.path.insert(0, str(ROOT))
-    from ingest.write import write_recording
+    with recorded("ingest", write=not args.no_docs):
+        sys.path.insert(0, str(ROOT))
+        from ingest.write import write_recording
 
-    work = Path(args.workdir or tempfile.mkdtemp(prefix="care-bench-"))
-    work.mkdir(parents=True, exist_ok=True)
-    t = time.perf_counter()
-    raw = write_recording(work / "living_raw.mcap", _frames(args.frames), fmt="mcap")
-    labelled = write_recording(
-        work / "living_labelled.mcap",
-        _frames(args.frames, labelled=True),
-        fmt="mcap",
-        label_names=LABEL_NAMES,
-    )
-    jpeg1 = write_recording(
-        work / "living_x1.mcap", _frames(args.frames), fmt="mcap", compressed_rgb=True
-    )
-    jpegn = write_recording(
-        work / f"living_x{args.repeat}.mcap",
-        _frames(args.frames, args.repeat),
-        fmt="mcap",
-        compressed_rgb=True,
-    )
-    print(f"recordings written in {time.perf_counter() - t:.1f} s under {work}")
-
-    cases = [
-        ("streamed, no encoder (raw rgb8)", raw, None, False),
-        ("streamed, labels encoder (raw rgb8, depth-band labels)", labelled, "labels", False),
-        ("naive: all messages in RAM (raw rgb8)", raw, None, True),
-        ("streamed, no encoder (jpeg) x1", jpeg1, None, False),
-        (f"streamed, no encoder (jpeg) x{args.repeat}", jpegn, None, False),
-    ]
-    rows = []
-    for name, rec, encoder, naive in cases:
-        if encoder == "labels" and not _labels_available():
-            rows.append((name, "world.perception.encoder not available yet"))
-            continue
-        res = _run(
-            {"rec": str(rec), "out": str(work / "store"), "encoder": encoder, "naive": naive}
+        work = Path(args.workdir or tempfile.mkdtemp(prefix="care-bench-"))
+        work.mkdir(parents=True, exist_ok=True)
+        t = time.perf_counter()
+        raw = write_recording(work / "living_raw.mcap", _frames(args.frames), fmt="mcap")
+        labelled = write_recording(
+            work / "living_labelled.mcap",
+            _frames(args.frames, labelled=True),
+            fmt="mcap",
+            label_names=LABEL_NAMES,
         )
-        rows.append((name, res))
+        jpeg1 = write_recording(
+            work / "living_x1.mcap", _frames(args.frames), fmt="mcap", compressed_rgb=True
+        )
+        jpegn = write_recording(
+            work / f"living_x{args.repeat}.mcap",
+            _frames(args.frames, args.repeat),
+            fmt="mcap",
+            compressed_rgb=True,
+        )
+        print(f"recordings written in {time.perf_counter() - t:.1f} s under {work}")
 
-    size = {p: p.stat().st_size / 2**20 for p in (raw, jpeg1, jpegn)}
-    print(
-        f"recording sizes: raw {size[raw]:.0f} MiB, jpeg x1 {size[jpeg1]:.0f} MiB, jpeg x{args.repeat} {size[jpegn]:.0f} MiB"
-    )
-    print(
-        f"{'case':<42} {'frames':>7} {'frames/s':>9} {'base MB':>8} {'peak MB':>8} {'peak-base':>9}"
-    )
-    peaks = {}
-    for name, res in rows:
-        if isinstance(res, str) or "error" in res:
-            print(f"{name:<42} {res if isinstance(res, str) else res['error']}")
-            continue
-        grow = res["peak_mb"] - res["base_mb"]
-        peaks[name] = grow
+        cases = [
+            ("streamed, no encoder (raw rgb8)", raw, None, False),
+            ("streamed, labels encoder (raw rgb8, depth-band labels)", labelled, "labels", False),
+            ("naive: all messages in RAM (raw rgb8)", raw, None, True),
+            ("streamed, no encoder (jpeg) x1", jpeg1, None, False),
+            (f"streamed, no encoder (jpeg) x{args.repeat}", jpegn, None, False),
+        ]
+        rows = []
+        for name, rec, encoder, naive in cases:
+            if encoder == "labels" and not _labels_available():
+                rows.append((name, "world.perception.encoder not available yet"))
+                continue
+            res = _run(
+                {"rec": str(rec), "out": str(work / "store"), "encoder": encoder, "naive": naive}
+            )
+            rows.append((name, res))
+
+        size = {p: p.stat().st_size / 2**20 for p in (raw, jpeg1, jpegn)}
         print(
-            f"{name:<42} {res['frames']:>7} {res['frames'] / res['seconds']:>9.1f} "
-            f"{res['base_mb']:>8.0f} {res['peak_mb']:>8.0f} {grow:>9.0f}"
+            f"recording sizes: raw {size[raw]:.0f} MiB, jpeg x1 {size[jpeg1]:.0f} MiB, jpeg x{args.repeat} {size[jpegn]:.0f} MiB"
         )
-    streamed, naive = peaks.get(cases[0][0]), peaks.get(cases[2][0])
-    if streamed and naive:
-        print(f"naive / streamed memory above baseline: {naive / streamed:.1f}x")
-    x1, xn = peaks.get(cases[3][0]), peaks.get(cases[4][0])
-    if x1 and xn:
-        print(f"x{args.repeat} / x1 memory above baseline: {xn / x1:.2f} (bounded if about 1)")
+        print(
+            f"{'case':<42} {'frames':>7} {'frames/s':>9} {'base MB':>8} {'peak MB':>8} {'peak-base':>9}"
+        )
+        peaks = {}
+        for name, res in rows:
+            if isinstance(res, str) or "error" in res:
+                print(f"{name:<42} {res if isinstance(res, str) else res['error']}")
+                continue
+            grow = res["peak_mb"] - res["base_mb"]
+            peaks[name] = grow
+            print(
+                f"{name:<42} {res['frames']:>7} {res['frames'] / res['seconds']:>9.1f} "
+                f"{res['base_mb']:>8.0f} {res['peak_mb']:>8.0f} {grow:>9.0f}"
+            )
+        streamed, naive = peaks.get(cases[0][0]), peaks.get(cases[2][0])
+        if streamed and naive:
+            print(f"naive / streamed memory above baseline: {naive / streamed:.1f}x")
+        x1, xn = peaks.get(cases[3][0]), peaks.get(cases[4][0])
+        if x1 and xn:
+            print(f"x{args.repeat} / x1 memory above baseline: {xn / x1:.2f} (bounded if about 1)")
 
 
 if __name__ == "__main__":

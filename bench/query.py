@@ -38,6 +38,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
+from bench.docs_section import add_docs_flag, recorded  # noqa: E402
+
 D, N_CLASSES, K, CELL, BLOCK = 512, 100, 8, 0.05, 20
 SIZES = (5_000, 50_000, 500_000, 1_000_000)
 FREE_TEXT = "somewhere to sit down"
@@ -248,39 +250,43 @@ def main() -> None:
     parser.add_argument(
         "--legacy-max", type=int, default=500_000, help="largest map also run the plain way"
     )
+    add_docs_flag(parser)
     args = parser.parse_args()
-    print(f"grid maps: d={D}, {N_CLASSES} classes, {CELL} m cells; replan: min stderr, k={K}, 1 m")
-    print(
-        "| cells | load_map ms | load MiB | query | first ms | replan ms | replan after 10 ms |"
-        " old way: load ms / MiB | old first / replan / after 10 ms | speed-up after 10 |"
-    )
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
-    ctx = mp.get_context("spawn")
-    for n in args.sizes:
-        folder = write_map(args.workdir / f"grid-{n}", n)
-        queue = ctx.Queue()
-        legacy = n <= args.legacy_max
-        proc = ctx.Process(target=_run_size, args=(str(folder), n, legacy, queue))
-        proc.start()
-        r = queue.get()
-        proc.join()
-        for label in ("vocabulary", "free text"):
-            first, replan, after10 = r[label]
-            old = ""
-            if legacy and label == "vocabulary":
-                lf, lr, l10 = r["legacy"]
-                old = (
-                    f"{r['legacy_load_ms']:,.0f} / {r['legacy_load_mb']:,.0f} | "
-                    f"{lf:.1f} / {lr:.1f} / {l10:.1f} (same picks {r['legacy_agrees']}/10) | "
-                    f"x{l10 / after10:.0f}"
+    with recorded("query", write=not args.no_docs):
+        print(
+            f"grid maps: d={D}, {N_CLASSES} classes, {CELL} m cells; replan: min stderr, k={K}, 1 m"
+        )
+        print(
+            "| cells | load_map ms | load MiB | query | first ms | replan ms | replan after 10 ms |"
+            " old way: load ms / MiB | old first / replan / after 10 ms | speed-up after 10 |"
+        )
+        print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+        ctx = mp.get_context("spawn")
+        for n in args.sizes:
+            folder = write_map(args.workdir / f"grid-{n}", n)
+            queue = ctx.Queue()
+            legacy = n <= args.legacy_max
+            proc = ctx.Process(target=_run_size, args=(str(folder), n, legacy, queue))
+            proc.start()
+            r = queue.get()
+            proc.join()
+            for label in ("vocabulary", "free text"):
+                first, replan, after10 = r[label]
+                old = ""
+                if legacy and label == "vocabulary":
+                    lf, lr, l10 = r["legacy"]
+                    old = (
+                        f"{r['legacy_load_ms']:,.0f} / {r['legacy_load_mb']:,.0f} | "
+                        f"{lf:.1f} / {lr:.1f} / {l10:.1f} (same picks {r['legacy_agrees']}/10) | "
+                        f"x{l10 / after10:.0f}"
+                    )
+                else:
+                    old = " | | "
+                print(
+                    f"| {n:,} | {r['load_ms']:.0f} | {r['load_mb']:.0f} | {label} | {first:.2f} | "
+                    f"{replan:.2f} | {after10:.2f} | {old} |"
                 )
-            else:
-                old = " | | "
-            print(
-                f"| {n:,} | {r['load_ms']:.0f} | {r['load_mb']:.0f} | {label} | {first:.2f} | "
-                f"{replan:.2f} | {after10:.2f} | {old} |"
-            )
-    bench_goals([*args.sizes, 4_000_000])
+        bench_goals([*args.sizes, 4_000_000])
 
 
 if __name__ == "__main__":

@@ -28,6 +28,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np
 
+from bench.docs_section import add_docs_flag, recorded
+
 H, W, FH, FW, D = 480, 640, 24, 32, 512
 K = np.array([[525.0, 0, 319.5], [0, 525.0, 239.5], [0, 0, 1]])
 HEIGHT = 3.0
@@ -128,43 +130,45 @@ def main() -> None:
     parser.add_argument("--memory-budget", type=float, default=8.0, help="GiB")
     parser.add_argument("--workdir", type=Path, default=Path("/tmp/care-bench-scale"))
     parser.add_argument("--compare", action=argparse.BooleanOptionalAction, default=None)
+    add_docs_flag(parser)
     args = parser.parse_args()
-    import pyarrow.parquet as pq
+    with recorded("scale", write=not args.no_docs):
+        import pyarrow.parquet as pq
 
-    store = args.workdir / f"floor-{args.size:g}m"
-    t0 = time.perf_counter()
-    views = write_floor(store, args.size)
-    print(
-        f"floor {args.size:g} m x {args.size:g} m: {views} views ({time.perf_counter() - t0:.0f} s to write)"
-    )
-    budget = int(args.memory_budget * 2**30)
-    print("| run | budget | cells | cells per pass | passes | s | views/s | peak RSS MiB |")
-    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
-
-    def row(label: str, budget_text: str, result: tuple) -> None:
-        seconds, cells, capacity, peak = result
-        passes = -(-cells // capacity)
+        store = args.workdir / f"floor-{args.size:g}m"
+        t0 = time.perf_counter()
+        views = write_floor(store, args.size)
         print(
-            f"| {label} | {budget_text} | {cells:,} | {capacity:,} | {passes} | {seconds:.0f} | "
-            f"{views / seconds:.1f} | {peak:,.0f} |"
+            f"floor {args.size:g} m x {args.size:g} m: {views} views ({time.perf_counter() - t0:.0f} s to write)"
         )
+        budget = int(args.memory_budget * 2**30)
+        print("| run | budget | cells | cells per pass | passes | s | views/s | peak RSS MiB |")
+        print("| --- | --- | --- | --- | --- | --- | --- | --- |")
 
-    bounded = fuse(store, budget)
-    row("bounded", f"{args.memory_budget:g} GiB", bounded)
-    compare = args.compare if args.compare is not None else args.size < 20
-    if compare:
-        one = pq.read_table(store / "cells.parquet")
-        views_bytes = (store / "cell_views.parquet").read_bytes()
-        several = fuse(store, None, cells_per_pass=max(1, bounded[1] // 5))
-        row("5 passes", "cells_per_pass", several)
-        five = pq.read_table(store / "cells.parquet")
-        unbounded = fuse(store, 1 << 50)
-        row("unbounded", "none", unbounded)
-        whole = pq.read_table(store / "cells.parquet")
-        print(f"\nbounded (5 passes) vs unbounded map: {_compare(whole, five)}")
-        print(f"budget run vs unbounded map: {_compare(whole, one)}")
-        same = (store / "cell_views.parquet").read_bytes() == views_bytes
-        print(f"cell_views.parquet byte-identical across runs: {same}")
+        def row(label: str, budget_text: str, result: tuple) -> None:
+            seconds, cells, capacity, peak = result
+            passes = -(-cells // capacity)
+            print(
+                f"| {label} | {budget_text} | {cells:,} | {capacity:,} | {passes} | {seconds:.0f} | "
+                f"{views / seconds:.1f} | {peak:,.0f} |"
+            )
+
+        bounded = fuse(store, budget)
+        row("bounded", f"{args.memory_budget:g} GiB", bounded)
+        compare = args.compare if args.compare is not None else args.size < 20
+        if compare:
+            one = pq.read_table(store / "cells.parquet")
+            views_bytes = (store / "cell_views.parquet").read_bytes()
+            several = fuse(store, None, cells_per_pass=max(1, bounded[1] // 5))
+            row("5 passes", "cells_per_pass", several)
+            five = pq.read_table(store / "cells.parquet")
+            unbounded = fuse(store, 1 << 50)
+            row("unbounded", "none", unbounded)
+            whole = pq.read_table(store / "cells.parquet")
+            print(f"\nbounded (5 passes) vs unbounded map: {_compare(whole, five)}")
+            print(f"budget run vs unbounded map: {_compare(whole, one)}")
+            same = (store / "cell_views.parquet").read_bytes() == views_bytes
+            print(f"cell_views.parquet byte-identical across runs: {same}")
 
 
 if __name__ == "__main__":

@@ -20,6 +20,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench.docs_section import add_docs_flag, recorded
 from ingest.write import write_recording
 from truth.formats.native import write_native
 from world.record import DatasetConfig, make_dataset, scene_config_of
@@ -70,29 +71,31 @@ def main() -> None:
     parser.add_argument("--width", type=int, default=640)
     parser.add_argument("--height", type=int, default=480)
     parser.add_argument("--quick", action="store_true", help="3 scenes of 320x240")
+    add_docs_flag(parser)
     args = parser.parse_args()
-    if args.quick:
-        args.scenes, args.width, args.height, args.naive_scenes = 3, 320, 240, 1
-    tmp = Path(tempfile.mkdtemp(prefix="care-bench-world-"))
-    try:
-        pooled = _dataset(tmp / "pool", args.scenes, args.workers, args.width, args.height)
-        print(
-            f"dataset of {args.scenes} scenes at {args.width}x{args.height}, {args.workers} workers: "
-            f"{pooled:.1f} s ({pooled / args.scenes:.1f} s/scene; target < 300 s for 10 scenes)"
-        )
-        config = DatasetConfig(out=tmp, width=args.width, height=args.height)
-        print("one scene, by step:")
-        for step, secs in _breakdown(config, tmp).items():
-            print(f"  {step:<24} {secs:6.2f} s")
-        naive = _dataset(tmp / "naive", args.naive_scenes, 1, args.width, args.height)
-        per_scene = naive / args.naive_scenes
-        print(
-            f"naive (one process, {args.naive_scenes} scenes): {per_scene:.1f} s/scene -> "
-            f"{per_scene * args.scenes:.1f} s for {args.scenes} scenes; "
-            f"pool speed-up x{per_scene * args.scenes / pooled:.2f}"
-        )
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+    with recorded("world", write=not (args.no_docs or args.quick)):
+        if args.quick:
+            args.scenes, args.width, args.height, args.naive_scenes = 3, 320, 240, 1
+        tmp = Path(tempfile.mkdtemp(prefix="care-bench-world-"))
+        try:
+            pooled = _dataset(tmp / "pool", args.scenes, args.workers, args.width, args.height)
+            print(
+                f"dataset of {args.scenes} scenes at {args.width}x{args.height}, {args.workers} workers: "
+                f"{pooled:.1f} s ({pooled / args.scenes:.1f} s/scene; target < 300 s for 10 scenes)"
+            )
+            config = DatasetConfig(out=tmp, width=args.width, height=args.height)
+            print("one scene, by step:")
+            for step, secs in _breakdown(config, tmp).items():
+                print(f"  {step:<24} {secs:6.2f} s")
+            naive = _dataset(tmp / "naive", args.naive_scenes, 1, args.width, args.height)
+            per_scene = naive / args.naive_scenes
+            print(
+                f"naive (one process, {args.naive_scenes} scenes): {per_scene:.1f} s/scene -> "
+                f"{per_scene * args.scenes:.1f} s for {args.scenes} scenes; "
+                f"pool speed-up x{per_scene * args.scenes / pooled:.2f}"
+            )
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
 
 
 if __name__ == "__main__":

@@ -7,6 +7,7 @@ from __future__ import annotations
 import importlib.util
 import re
 import subprocess
+import sys
 import unicodedata
 from pathlib import Path
 from urllib.parse import unquote, urlparse
@@ -202,7 +203,10 @@ def test_benchmark_sections(tmp_path: Path) -> None:
     page.write_text((DOCS / "benchmarks.md").read_text())
     for name in BENCH_SECTIONS:
         assert (ROOT / "bench" / f"{name}.py").is_file(), name
-        assert docs_section.read_section(name, page).startswith("|"), name
+        body = docs_section.read_section(name, page)
+        assert body.startswith(("|", "`python3 bench/")), name
+        source = (ROOT / "bench" / f"{name}.py").read_text()
+        assert f'recorded("{name}"' in source, f"bench/{name}.py does not write its section"
     before = {name: docs_section.read_section(name, page) for name in BENCH_SECTIONS}
     text = page.read_text()
     docs_section.write_section("fuse", "| a |\n| --- |\n| 1 |\n", page)
@@ -215,6 +219,39 @@ def test_benchmark_sections(tmp_path: Path) -> None:
     assert sorted(p.name for p in tmp_path.iterdir()) == ["benchmarks.md"]  # nothing staged left
     with pytest.raises(ValueError, match="bench:nosuch"):
         docs_section.write_section("nosuch", "x", page)
+
+
+def test_a_bench_run_writes_what_it_printed(tmp_path: Path, monkeypatch, capsys) -> None:
+    """A run that ends puts what it printed, under its command line, into its section; a
+    failed run and a run with ``write=False`` leave the page as it was."""
+    docs_section = _docs_section()
+    page = tmp_path / "benchmarks.md"
+    page.write_text("intro\n<!-- bench:fuse -->\nold\n<!-- /bench:fuse -->\nend\n")
+    monkeypatch.setattr(sys, "argv", ["bench/fuse.py", "--frames", "3"])
+
+    def failing_run() -> None:
+        with docs_section.recorded("fuse", page=page):
+            print("half a table")
+            raise RuntimeError
+
+    with pytest.raises(RuntimeError):
+        failing_run()
+    with docs_section.recorded("fuse", write=False, page=page):
+        print("a trial")
+    assert docs_section.read_section("fuse", page) == "old"
+    with docs_section.recorded("fuse", page=page):
+        print("views/s: 31.5")
+    assert "views/s: 31.5" in capsys.readouterr().out  # still printed
+    body = docs_section.read_section("fuse", page)
+    assert body.startswith("`python3 bench/fuse.py --frames 3`")
+    assert "```text\nviews/s: 31.5\n```" in body
+    assert page.read_text().startswith("intro\n")
+    assert page.read_text().endswith("end\n")
+    printed = "maps: 3\n## goal poses\n| a | b |\n| --- | --- |\n| 1 | 2 |\nratio x2\n"
+    assert docs_section.as_markdown(printed) == (
+        "```text\nmaps: 3\n```\n\n**goal poses**\n\n| a | b |\n| --- | --- |\n| 1 | 2 |"
+        "\n\n```text\nratio x2\n```"
+    )
 
 
 def _repository_files() -> list[str]:
