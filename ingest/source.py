@@ -41,7 +41,12 @@ from ingest import decode
 from ingest.readers import RecordingReader, TopicInfo, open_reader
 from ingest.sync import Match, StampSync
 from ingest.tf import TFBuffer, check_transform
-from ingest.topics import TopicSelection, select_topics
+from ingest.topics import (
+    TopicSelection,
+    depth_camera_info,
+    registered_depth_topics,
+    select_topics,
+)
 from ingest.undistort import Distortion, undistort
 
 __all__ = ["ReadOptions", "ReadStats", "RecordingFrames"]
@@ -95,7 +100,12 @@ class ReadOptions:
     frames a tenth of a second apart is far above it. Compared between consecutive
     synchronised, posed frames, before any --start/--every/--min-motion selection."""
 
-    HOW: ClassVar[tuple[str, ...]] = ("max_translation", "max_speed")
+    depth_registered: bool = False
+    """The depth topic is registered to the colour camera whatever its own camera info
+    says; without it, depth whose camera info differs from the colour camera's (another
+    sensor's intrinsics or frame) is refused rather than paired with the wrong pixels."""
+
+    HOW: ClassVar[tuple[str, ...]] = ("max_translation", "max_speed", "depth_registered")
     """Fields that only refuse a recording: a store they let through is the same whatever
     their values, so they are left out of its fingerprint and recorded config (stores built
     before they existed stay current)."""
@@ -190,11 +200,18 @@ class RecordingFrames:
         if not o.static_pose and not sel.tf and not sel.pose_source:
             msg = f"{self.path}: no pose source: no /tf or /tf_static messages and no nav_msgs/Odometry or geometry_msgs/PoseStamped topic; pass --static-pose to give every frame the identity pose, or --pose-source TOPIC."
             raise IngestError(msg)
+        depth_info = None if o.depth_registered else depth_camera_info(self.topics, sel)
         small = [sel.camera_info, *sel.tf, *filter(None, [sel.pose_source, sel.class_names])]
+        small += [depth_info] if depth_info else []
         pose_samples: list[decode.StampedTransform] = []
+        depth_intrinsics: tuple[np.ndarray, int, int, str] | None = None
         for topic, t, msg in self._reader.messages(small):
             if topic == sel.camera_info:
                 self._add_info(msg, t)
+            elif topic == depth_info:
+                if depth_intrinsics is None:
+                    K, w, h = decode.camera_info(msg, topic)
+                    depth_intrinsics = (K, w, h, str(msg.header.frame_id).lstrip("/"))
             elif topic == sel.class_names:
                 self.label_names = self._parse_names(msg.data, topic)
             elif topic == sel.pose_source:
@@ -208,11 +225,53 @@ class RecordingFrames:
         if not self._infos:
             msg = f"{self.path}: camera info topic {sel.camera_info} has no messages; record camera_info or pass --camera-info TOPIC."
             raise IngestError(msg)
+        colour_frame = self.camera_frame
         self.camera_frame = o.camera_frame or self.camera_frame
+        if depth_info and depth_intrinsics is not None:
+            self._check_depth_registered(depth_info, depth_intrinsics, colour_frame)
         if not o.static_pose and pose_samples:
             self._add_pose_source(pose_samples)
         if not o.static_pose and self.camera_frame:
             self._resolve_world_frame()
+
+    def _check_depth_registered(
+        self, topic: str, depth: tuple[np.ndarray, int, int, str], colour_frame: str | None
+    ) -> None:
+        """Refuse depth that comes from another sensor than the colour camera: its own
+        camera info has other intrinsics (compared at the colour image's size) or names
+        another optical frame. Such depth paired pixel by pixel with colour puts every
+        point in the wrong place."""
+        sel = self.selection
+        assert sel is not None
+        Kd, wd, hd, frame = depth
+        _, Kc, wc, hc, _ = self._infos[0]
+        scaled = Kd.copy()
+        if wd and hd and wc and hc:
+            scaled[0] *= wc / wd
+            scaled[1] *= hc / hd
+        same_k = np.allclose(scaled, Kc, rtol=1e-3, atol=0.5)
+        same_frame = not frame or not colour_frame or frame == colour_frame
+        if same_k and same_frame:
+            return
+        found = (
+            f"fx {Kd[0, 0]:.1f}, fy {Kd[1, 1]:.1f} against the colour camera's "
+            f"{Kc[0, 0]:.1f}, {Kc[1, 1]:.1f}"
+            if not same_k
+            else f"frame {frame} against the colour camera's {colour_frame}"
+        )
+        aligned = [t for t in registered_depth_topics(self.topics, sel.rgb) if t != sel.depth]
+        fix = (
+            f"pass --depth {aligned[0]} (registered to colour)"
+            if aligned
+            else "record depth registered to the colour camera (a driver's "
+            "aligned_depth_to_color topic, e.g. realsense2_camera align_depth:=true)"
+        )
+        msg = (
+            f"{self.path}: depth {sel.depth} comes from another sensor than {sel.rgb} (its "
+            f"camera info {topic}: {found}); {fix}, or pass --depth-registered if it is "
+            "registered already."
+        )
+        raise IngestError(msg)
 
     def _add_pose_source(self, samples: list[decode.StampedTransform]) -> None:
         """Put the pose source's samples into TF, replacing TF's own transform to its child."""

@@ -20,7 +20,9 @@ __all__ = [
     "POSE_TYPES",
     "TF_TYPES",
     "TopicSelection",
+    "depth_camera_info",
     "pose_topics",
+    "registered_depth_topics",
     "select_topics",
 ]
 
@@ -202,6 +204,35 @@ def select_topics(
         None,
     )
     return TopicSelection(rgb, depth, camera_info, tf, pose_source, extras, class_names)
+
+
+def depth_camera_info(topics: Mapping[str, TopicInfo], sel: TopicSelection) -> str | None:
+    """The depth sensor's own camera info, where the depth topic has one: the CameraInfo
+    topic, other than the colour camera's, that shares more of its name with the depth topic
+    than with the colour topic (``/camera/depth/camera_info`` beside
+    ``/camera/depth/image_raw``; an ``aligned_depth_to_color`` topic's info is the colour
+    camera's and so matches it)."""
+    own = [
+        t
+        for t in topics.values()
+        if t.msgtype in CAMERA_INFO_TYPES
+        and t.name != sel.camera_info
+        and _common_prefix(t.name, sel.depth) > _common_prefix(t.name, sel.rgb)
+    ]
+    if not own:
+        return None
+    return max(own, key=lambda t: (_common_prefix(t.name, sel.depth), t.count)).name
+
+
+def registered_depth_topics(topics: Mapping[str, TopicInfo], rgb: str) -> list[str]:
+    """Depth image topics whose names say they are registered to the colour camera."""
+    return sorted(
+        t.name
+        for t in topics.values()
+        if t.msgtype in IMAGE_TYPES
+        and t.name != rgb
+        and any(w in t.name.lower() for w in ("aligned", "registered"))
+    )
 
 
 def pose_topics(topics: Mapping[str, TopicInfo]) -> list[str]:
