@@ -110,12 +110,27 @@ class Attempts:
 
 def candidates_near(cmap: CandidateMap, xy: np.ndarray, radius: float) -> np.ndarray:
     """Sorted ids of the candidates within ``radius`` m (floor plane) of any position in
-    ``xy`` (P, 2): the candidates a robot that went there has seen not to be the object."""
+    ``xy`` (P, 2): the candidates a robot that went there has seen not to be the object.
+
+    A position farther than ``radius`` outside the box of the map's candidates is an error,
+    not a visit that excludes nothing: it is almost always given in another frame."""
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
     if not np.isfinite(xy).all():
         msg = "visited positions must be finite x,y in metres"
         raise ReplanError(msg)
     pos = cmap.positions[:, :2].astype(np.float64)
+    if len(xy) and len(pos):
+        lo, hi = pos.min(axis=0) - radius, pos.max(axis=0) + radius
+        outside = ~((xy >= lo) & (xy <= hi)).all(axis=1)
+        if outside.any():
+            x, y = xy[np.argmax(outside)]
+            msg = (
+                f"visited position {x:g},{y:g} lies outside the map (its candidates span x "
+                f"{lo[0] + radius:.2f}..{hi[0] - radius:.2f}, y {lo[1] + radius:.2f}.."
+                f"{hi[1] - radius:.2f} m, in the map frame of the goals and map.yaml); give "
+                "positions in that frame"
+            )
+            raise ReplanError(msg)
     near = np.zeros(cmap.num_candidates, bool)
     for p in xy:
         near |= ((pos - p) ** 2).sum(axis=1) <= radius**2

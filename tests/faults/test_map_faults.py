@@ -288,6 +288,11 @@ def test_fuse_store_directory_not_writable(care, fx, copy_good) -> None:
             r"--visited 'a,b': give a candidate id \(12\) or a map position x,y",
             1,
         ),
+        (
+            ("replan", "{store}", "chair", "--map", "grid", "--visited", "500,-500"),
+            r"visited position 500,-500 lies outside the map \(its candidates span x ",
+            1,
+        ),
         (("replan", "{store}", "chair", "-k", "0", "--visited", "0"), r"'-k'", 2),
         (
             ("query", "{store}/meta.json", "chair"),
@@ -304,6 +309,7 @@ def test_fuse_store_directory_not_writable(care, fx, copy_good) -> None:
         "exclude-nan",
         "visited-out-of-range",
         "visited-not-int",
+        "visited-outside-the-map",
         "k-0",
         "store-is-a-file",
     ],

@@ -322,7 +322,12 @@ def test_visited_positions_count_the_candidates_around_them(kind: str) -> None:
     by_id = next_goal(cmap, "chair", expected, strategy="min_stderr", k=2, exclude_radius=0)
     assert by_place == by_id
     assert by_place.strategy == "min_stderr"  # a replan, not a first attempt
-    nowhere = next_goal(cmap, "chair", visited_at=[(50.0, 50.0)], strategy="min_stderr", k=2)
-    assert nowhere.strategy == "min_stderr"  # the robot looked somewhere: not a first attempt
+    # a place beyond the radius of every candidate's box was given in another frame
+    lo, hi = cmap.positions[:, :2].min(0), cmap.positions[:, :2].max(0)
+    edge = (float(hi[0]) + 0.9, float(lo[1]))
+    at_edge = next_goal(cmap, "chair", visited_at=[edge], strategy="min_stderr", k=2)
+    assert at_edge.strategy == "min_stderr"  # the robot looked somewhere: not a first attempt
+    with pytest.raises(ReplanError, match=r"visited position 50,50 lies outside the map"):
+        next_goal(cmap, "chair", visited_at=[(50.0, 50.0)], strategy="min_stderr", k=2)
     with pytest.raises(ReplanError, match="finite"):
         next_goal(cmap, "chair", visited_at=[(np.nan, 0.0)])
