@@ -187,8 +187,12 @@ def select_topics(
     if pose_source:
         _check(topics, pose_source, POSE_TYPES, "--pose-source", path)
     tf = tuple(sorted(t.name for t in topics.values() if t.msgtype in TF_TYPES and t.count > 0))
-    if not tf and not pose_source and (candidates := pose_topics(topics)):
-        pose_source = candidates[0]  # no TF at all: the recording's only pose is the pose source
+    moving_tf = [name for name in tf if not name.rstrip("/").endswith("tf_static")]
+    if not moving_tf and not pose_source and (candidates := pose_topics(topics)):
+        # TF holds no moving transform (none at all, or only the static chain of a robot
+        # whose motion is on nav_msgs/Odometry, REP 105): the pose topic is what moves;
+        # the static chain places the camera on the body it moves
+        pose_source = candidates[0]
     extras = {
         key: t.name
         for key, suffix in _EXTRA_SUFFIXES.items()
@@ -236,5 +240,8 @@ def registered_depth_topics(topics: Mapping[str, TopicInfo], rgb: str) -> list[s
 
 
 def pose_topics(topics: Mapping[str, TopicInfo]) -> list[str]:
-    """Odometry / PoseStamped topics, candidates for ``--pose-source``."""
-    return [t.name for t in topics.values() if t.msgtype in POSE_TYPES]
+    """Odometry / PoseStamped topics with messages, candidates for ``--pose-source``:
+    Odometry first (a robot's motion estimate), then by message count."""
+    found = [t for t in topics.values() if t.msgtype in POSE_TYPES and t.count > 0]
+    found.sort(key=lambda t: (POSE_TYPES.index(t.msgtype), -t.count, t.name))
+    return [t.name for t in found]
