@@ -20,8 +20,11 @@ import typer
 
 from care.encoders.base import EncoderOptions
 from care_cli.choices import EncoderName, MapKind
+from care_cli.ingest_cmd import read_options
 from care_cli.options import Options, config_options, with_choices
 from evaluate.config import EvalConfig, RunConfig
+from ingest.select import FrameSelection
+from ingest.source import ReadOptions
 from query.goals import GoalConfig
 from replan.attempts import ReplanConfig
 from replan.batch import BatchConfig
@@ -383,6 +386,8 @@ _RUN = {
                 extra={**_RUN, "encoder": {"type": EncoderName},
                        "rrd_class": {"flags": ("--rrd-class",)}})  # fmt: skip
 @config_options("encoding", EncoderOptions, only=("weights", "precomputed"))
+@read_options
+@config_options("selection", FrameSelection)
 def run(
     recording: Annotated[
         Path | None,
@@ -398,6 +403,8 @@ def run(
     settings: Options[RunConfig] = None,  # type: ignore[assignment]
     run_options: Options[Execution] = None,  # type: ignore[assignment]
     evaluation: Options[EvalConfig] = None,  # type: ignore[assignment]
+    read: Options[ReadOptions] = None,  # type: ignore[assignment]
+    selection: Options[FrameSelection] = None,  # type: ignore[assignment]
     ray: RayOpt = False,
     gt: GtOpt = None,
     gt_format: GtFormatOpt = None,
@@ -413,6 +420,8 @@ def run(
 
     config = settings.config(
         encoder_options=encoding.config(),
+        read=read.config(),
+        select=selection.config(),
         evaluation=evaluation.config(),
         gt=tuple(gt or ()),
         gt_defaults=_gt_defaults(gt_format, gt_transform, gt_class_map),

@@ -22,6 +22,8 @@ from care.fingerprint import config_fields, fingerprint
 from care.maps import MapKind
 from evaluate.groundtruth import GtSource, UnknownClasses
 from fuse.config import GridConfig, InstanceConfig
+from ingest.select import FrameSelection
+from ingest.source import ReadOptions
 from replan.attempts import DEFAULT_ATTEMPTS, DEFAULT_EXCLUDE_RADIUS
 from replan.strategies import Criterion, StrategyName
 from truth.model import LABEL_DISTANCE
@@ -138,6 +140,10 @@ class RunConfig:
     """Its options (``--weights`` for ``clip``, ...)."""
     vocabulary: str | None = None
     """Class names to cache at ingest (default: the recording's own class names)."""
+    read: ReadOptions = field(default_factory=ReadOptions)
+    """How each recording is read (topics, frames, poses), as ``care ingest`` takes it."""
+    select: FrameSelection = field(default_factory=FrameSelection)
+    """Which frames of each recording are kept, as ``care ingest`` takes it."""
     grid: GridConfig = field(default_factory=GridConfig)
     """Grid map settings (the defaults of ``care fuse grid``: neither rebuilds the other's map)."""
     instances: InstanceConfig = field(default_factory=InstanceConfig)

@@ -174,7 +174,8 @@ class RecordingTask:
             self.store,
             IngestConfig(
                 encoder=config.encoder, encoder_options=config.encoder_options,
-                vocabulary=config.vocabulary, rrd=ingest_rrd,
+                vocabulary=config.vocabulary, rrd=ingest_rrd, read=config.read,
+                select=config.select,
             ),
             run=run,
         )  # fmt: skip
