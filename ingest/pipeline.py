@@ -226,14 +226,17 @@ def _run_ingest(job: _Job, encoder: Encoder | None) -> Path:
     request = request_fingerprint(config, source) if encoder is None else None
     if request is not None and _up_to_date(job, request, "request_fingerprint"):
         return _log_missing_rrd(job)  # before building the encoder: no model is loaded
-    if encoder is None and config.encoder is not None:
-        encoder = make_encoder(config.encoder, config.encoder_options)
-    with output_lock(out):
-        check_output(out, kind=OutputKind.STORE, inputs=[recording])  # as the lock found it
-        fp = fingerprint(config, encoder, source)
-        if _up_to_date(job, fp):
-            return _log_missing_rrd(job)
-        _build(job, encoder, source, fp, request)
+    # opening the recording checks its topics, camera info and pose source: a recording
+    # that cannot be read is refused before a model is loaded
+    with RecordingFrames(recording, config.read) as frames:
+        if encoder is None and config.encoder is not None:
+            encoder = make_encoder(config.encoder, config.encoder_options)
+        with output_lock(out):
+            check_output(out, kind=OutputKind.STORE, inputs=[recording])  # as the lock found it
+            fp = fingerprint(config, encoder, source)
+            if _up_to_date(job, fp):
+                return _log_missing_rrd(job)
+            _build(job, frames, encoder, source, fp, request)
     return out
 
 
@@ -267,55 +270,55 @@ def _log_missing_rrd(job: _Job) -> Path:
 
 def _build(
     job: _Job,
+    frames: RecordingFrames,
     encoder: Encoder | None,
     source: dict[str, Any],
     fp: str,
     request: str | None,
 ) -> None:
     config, recording = job.config, job.recording
-    with RecordingFrames(recording, config.read) as frames:
-        vocab = _vocabulary(config, frames.label_names)
-        if encoder is not None:
-            encoder.prepare(RecordingContext(recording, frames.label_names))
-        info = encoder.info(vocab) if encoder is not None else None
-        # the text side first: a missing text table or model fails before any frame is read
-        text = encoder.encode_text(vocab) if encoder is not None and vocab else None
-        logger = _open_logger(job, frames)
-        total = frames.topics[frames.selection.rgb].count if frames.selection else None
-        bar = tqdm(
-            total=total,
-            desc=f"ingest {recording.name}",
-            unit="frame",
-            disable=not job.run.progress,
-        )
-        try:
-            with StoreWriter(job.out, info) as writer:
-                selector = FrameSelector(config.select)
-                _stream(
-                    frames,
-                    writer,
-                    encoder,
-                    config.encoder_options.batch_size,
-                    logger,
-                    bar,
-                    selector,
-                )
-                if text is not None:
-                    writer.set_text(vocab, text)
-                meta = _meta(job, frames, source, fp, vocab, encoder)
-                meta["counts"]["skipped"] = dict(sorted(selector.skipped.items()))
-                writer.commit({**meta, "request_fingerprint": request})
-        except BaseException:
-            bar.leave = False  # the error is the one line left on the terminal
-            if logger is not None:
-                logger.close()
-                logger.discard()
-            raise
-        finally:
-            bar.close()
+    vocab = _vocabulary(config, frames.label_names)
+    if encoder is not None:
+        encoder.prepare(RecordingContext(recording, frames.label_names))
+    info = encoder.info(vocab) if encoder is not None else None
+    # the text side first: a missing text table or model fails before any frame is read
+    text = encoder.encode_text(vocab) if encoder is not None and vocab else None
+    logger = _open_logger(job, frames)
+    total = frames.topics[frames.selection.rgb].count if frames.selection else None
+    bar = tqdm(
+        total=total,
+        desc=f"ingest {recording.name}",
+        unit="frame",
+        disable=not job.run.progress,
+    )
+    try:
+        with StoreWriter(job.out, info) as writer:
+            selector = FrameSelector(config.select)
+            _stream(
+                frames,
+                writer,
+                encoder,
+                config.encoder_options.batch_size,
+                logger,
+                bar,
+                selector,
+            )
+            if text is not None:
+                writer.set_text(vocab, text)
+            meta = _meta(job, frames, source, fp, vocab, encoder)
+            meta["counts"]["skipped"] = dict(sorted(selector.skipped.items()))
+            writer.commit({**meta, "request_fingerprint": request})
+    except BaseException:
+        bar.leave = False  # the error is the one line left on the terminal
         if logger is not None:
             logger.close()
-            logger.keep()
+            logger.discard()
+        raise
+    finally:
+        bar.close()
+    if logger is not None:
+        logger.close()
+        logger.keep()
 
 
 def _stream(

@@ -161,13 +161,14 @@ def test_depth_invalid_everywhere(run_cli, tmp_path: Path, h, encoding: str) -> 
 def test_realsense_needs_static_pose(run_cli, tmp_path: Path, shared_data: Path) -> None:
     bag = shared_data / "rosbag1" / "realsense_single_depth_color_640x480.bag"
     _expect_failure(run_cli, tmp_path, bag, r"no pose source: .*pass --static-pose")
-    # Its only colour frame is 102 ms from the nearest depth frame.
+    # Its depth comes from another sensor (Depth_0, fx 390.4) than colour (fx 613.2).
     _expect_failure(
-        run_cli, tmp_path, bag, r"within --max-dt 20 ms \(nearest was 102 ms\)", "--static-pose"
+        run_cli, tmp_path, bag, r"comes from another sensor .*--depth-registered", "--static-pose"
     )
-    code, out, _ = run_cli(
-        "ingest", bag, "--out", tmp_path / "store", "--static-pose", "--max-dt", "0.15"
-    )
+    # Its only colour frame is 102 ms from the nearest depth frame.
+    flags = ("--static-pose", "--depth-registered")
+    _expect_failure(run_cli, tmp_path, bag, r"within --max-dt 20 ms \(nearest was 102 ms\)", *flags)
+    code, out, _ = run_cli("ingest", bag, "--out", tmp_path / "store", *flags, "--max-dt", "0.15")
     assert code == 0
     assert "1 views from 1 colour images" in out
     from care.store import Store
