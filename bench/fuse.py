@@ -484,7 +484,8 @@ def main() -> None:
     )
     add_docs_flag(parser)
     args = parser.parse_args()
-    with recorded("fuse", write=not (args.no_docs or args.quick)):
+    full = not (args.no_docs or args.quick or args.only)  # one table is not the whole run
+    with recorded("fuse", write=full):
         from runtime.threads import Work, use_threads
 
         # like the naive loop: one core, torch and BLAS alike (and fair on a shared machine)

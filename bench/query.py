@@ -252,7 +252,8 @@ def main() -> None:
     )
     add_docs_flag(parser)
     args = parser.parse_args()
-    with recorded("query", write=not args.no_docs):
+    full = not args.no_docs and set(SIZES) <= set(args.sizes)  # fewer sizes: a quick look
+    with recorded("query", write=full):
         print(
             f"grid maps: d={D}, {N_CLASSES} classes, {CELL} m cells; replan: min stderr, k={K}, 1 m"
         )
