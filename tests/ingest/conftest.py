@@ -148,6 +148,30 @@ def tf_msg(t_ns: int, parent: str, child: str, xyz, quat_xyzw):
     return T["tf2_msgs/msg/TFMessage"](transforms=[ts])
 
 
+def odometry_msg(t_ns: int, T_parent_child: np.ndarray, parent: str, child: str):
+    """A nav_msgs/Odometry placing ``child`` at the 4x4 ``T_parent_child`` (zero twist)."""
+    from scipy.spatial.transform import Rotation
+
+    q = Rotation.from_matrix(np.asarray(T_parent_child)[:3, :3]).as_quat()
+    x, y, z = np.asarray(T_parent_child)[:3, 3]
+    pose = T["geometry_msgs/msg/Pose"](
+        position=T["geometry_msgs/msg/Point"](x=float(x), y=float(y), z=float(z)),
+        orientation=T["geometry_msgs/msg/Quaternion"](
+            x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])
+        ),
+    )
+    zero = T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
+    twist = T["geometry_msgs/msg/TwistWithCovariance"](
+        twist=T["geometry_msgs/msg/Twist"](linear=zero, angular=zero), covariance=np.zeros(36)
+    )
+    return T["nav_msgs/msg/Odometry"](
+        header=header(t_ns, parent),
+        child_frame_id=child,
+        pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
+        twist=twist,
+    )
+
+
 def png_bytes(array: np.ndarray) -> bytes:
     import io
 
@@ -273,6 +297,7 @@ def h() -> SimpleNamespace:
         compressed_msg=compressed_msg,
         camera_info_msg=camera_info_msg,
         tf_msg=tf_msg,
+        odometry_msg=odometry_msg,
         png_bytes=png_bytes,
         jpeg_bytes=jpeg_bytes,
         write_bag=write_bag,

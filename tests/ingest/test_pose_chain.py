@@ -27,27 +27,6 @@ def _matrix(xyz, xyzw) -> np.ndarray:
     return T
 
 
-def _odometry(h, t: int, T_odom_base: np.ndarray):
-    q = Rotation.from_matrix(T_odom_base[:3, :3]).as_quat()
-    x, y, z = T_odom_base[:3, 3]
-    pose = h.T["geometry_msgs/msg/Pose"](
-        position=h.T["geometry_msgs/msg/Point"](x=float(x), y=float(y), z=float(z)),
-        orientation=h.T["geometry_msgs/msg/Quaternion"](
-            x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])
-        ),
-    )
-    zero = h.T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
-    twist = h.T["geometry_msgs/msg/TwistWithCovariance"](
-        twist=h.T["geometry_msgs/msg/Twist"](linear=zero, angular=zero), covariance=np.zeros(36)
-    )
-    return h.T["nav_msgs/msg/Odometry"](
-        header=h.header(t, "odom"),
-        child_frame_id="base_link",
-        pose=h.T["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
-        twist=twist,
-    )
-
-
 def test_odometry_and_a_static_chain_give_every_view_its_pose(
     tmp_path: Path, h, livingroom_root: Path
 ) -> None:
@@ -70,7 +49,7 @@ def test_odometry_and_a_static_chain_give_every_view_its_pose(
         info.header.frame_id = OPTICAL
         depth_mm = np.round(f.depth_m * 1000).astype(np.uint16)
         msgs += [
-            ("/odom", t, _odometry(h, t, T_odom_base)),
+            ("/odom", t, h.odometry_msg(t, T_odom_base, "odom", "base_link")),
             ("/camera/color/camera_info", t, info),
             ("/camera/color/image_raw", t, h.image_msg(t, f.rgb, "rgb8", OPTICAL)),
             ("/camera/depth/image_raw", t, h.image_msg(t, depth_mm, "16UC1", OPTICAL)),

@@ -144,7 +144,6 @@ def test_pipeline_store_meta_and_idempotence(tmp_path: Path, h) -> None:
 
 def test_pose_source_odometry(tmp_path: Path, h) -> None:
     """A recording without TF whose pose comes from nav_msgs/Odometry of the camera frame."""
-    T = h.T
     msgs = h.rgbd_messages(
         lambda i, t: h.image_msg(t, h.smooth_rgb(i), "rgb8"),
         lambda i, t: h.image_msg(t, np.full((24, 32), 2000, np.uint16), "16UC1"),
@@ -152,18 +151,9 @@ def test_pose_source_odometry(tmp_path: Path, h) -> None:
     )
     for i in range(3):
         t = 10**9 + i * 100_000_000
-        pose = T["geometry_msgs/msg/Pose"](
-            position=T["geometry_msgs/msg/Point"](x=float(i), y=0.0, z=0.5),
-            orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
-        )
-        cov = T["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36))
-        zero = T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
-        twist = T["geometry_msgs/msg/TwistWithCovariance"](
-            twist=T["geometry_msgs/msg/Twist"](linear=zero, angular=zero), covariance=np.zeros(36)
-        )
-        odom = T["nav_msgs/msg/Odometry"](
-            header=h.header(t, "odom"), child_frame_id="camera_optical_frame", pose=cov, twist=twist
-        )
+        place = np.eye(4)
+        place[:3, 3] = (float(i), 0.0, 0.5)
+        odom = h.odometry_msg(t, place, "odom", "camera_optical_frame")
         msgs.append(("/odom", t, odom))
     msgs.sort(key=lambda m: m[1])
     path = h.write_bag(tmp_path / "odom_bag", msgs)
