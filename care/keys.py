@@ -10,6 +10,7 @@ __all__ = [
     "ENCODER_DIM_KEY",
     "ENCODER_NAME_KEY",
     "ENCODER_VERSION_KEY",
+    "GOAL_FRAME_KEY",
     "GRID_CELL_SIZE_KEY",
     "GRID_ORIGIN_KEY",
     "GRID_SHAPE_KEY",
@@ -36,3 +37,7 @@ GRID_ORIGIN_KEY = b"care.grid.origin"
 """A grid's origin, the lower corner of cell (0, 0) (JSON [x, y])."""
 GRID_SHAPE_KEY = b"care.grid.shape"
 """A grid's size in cells (JSON [nx, ny])."""
+GOAL_FRAME_KEY = b"care.goal.frame"
+"""The frame of a table's goal columns (JSON: ``frame_id``, ``world_frame`` and the 16
+values of ``world_from_frame``, row-major): the world-frame goal is that matrix times the
+goal's pose (:mod:`query.publish`)."""

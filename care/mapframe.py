@@ -58,6 +58,12 @@ class MapFrame:
     def is_identity(self) -> bool:
         return bool(np.array_equal(self.map_from_world, np.eye(4)))
 
+    @property
+    def is_gravity_aligned(self) -> bool:
+        """The world frame already has z up: the map frame differs from it by the floor's
+        height at most, so x and y (a 2-D goal, an occupancy map) are the same in both."""
+        return bool(np.allclose(self.map_from_world[:3, :3], np.eye(3), rtol=0.0, atol=1e-9))
+
     def as_json(self) -> dict:
         return {
             "map_from_world": self.map_from_world.reshape(-1).tolist(),

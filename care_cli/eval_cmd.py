@@ -132,7 +132,7 @@ _BATCH = {
 _CLEARANCE = "clearance"
 
 
-@config_options("goal", GoalConfig, only=(_CLEARANCE,))
+@config_options("goal", GoalConfig, only=(_CLEARANCE, "frame_id"))
 @config_options("settings", BatchConfig, only=("top", "k", "attempts", "exclude_radius", "seed"),
                 extra=_BATCH)  # fmt: skip
 def query(
@@ -212,7 +212,7 @@ def query(
         )
 
 
-@config_options("goal", GoalConfig, only=(_CLEARANCE,))
+@config_options("goal", GoalConfig, only=(_CLEARANCE, "frame_id"))
 @config_options("settings", ReplanConfig, extra={"k": _BATCH["k"]})
 def replan(
     store: StoreArg,

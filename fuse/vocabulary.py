@@ -46,12 +46,12 @@ def vocabulary_text(
 
 
 def _encode(store: Store, names: list[str], weights: Path | None) -> np.ndarray:
-    from care.encoders.record import encoder_for_store
+    from care.encoders.record import text_encoder_for_store
 
     encoder_name = store.encoder.name
     try:
         return np.asarray(
-            encoder_for_store(store.path, weights=weights).encode_text(names), np.float32
+            text_encoder_for_store(store.path, weights=weights).encode_text(names), np.float32
         )
     except (CareError, ImportError) as err:
         msg = (

@@ -4,9 +4,10 @@ A candidate is a place where the object may be (a cell centre, an instance centr
 cannot drive *into* it. :class:`GoalMaker` turns a candidate into a
 ``geometry_msgs/PoseStamped``-shaped goal:
 
-- ``header.frame_id``: the store's world frame, or ``care_map`` when the store's
-  gravity-aligned map frame differs from it (then the goal also comes in the world frame, with
-  ``map_from_world``);
+- ``header.frame_id``: the recording's world frame when it has z up (the map frame differs
+  from it by the floor's height at most), else the map frame, ``care_map`` unless
+  ``frame_id`` names it, which the user publishes as a static transform (then the goal also
+  comes in the world frame, with ``map_from_world``; :mod:`query.publish`);
 - ``header.stamp``: the stamp of the last view fused into the map (the map's time);
 - ``pose.position``: an *approach point* on the floor (z = 0): the free cell nearest to the
   object that keeps ``clearance`` metres from every obstacle, searched within ``reach`` of the
@@ -36,18 +37,9 @@ from care.keys import GRID_SHAPE_KEY
 from care.store import META_FILE, StoreMeta, read_map_frame, read_table
 from fuse.layout import CELLS_TABLE, GridLayout
 from query.map import CandidateMap
+from query.publish import MAP_FRAME_ID, FramePlan, frame_plan
 
 __all__ = ["MAP_FRAME_ID", "FreeSpace", "Goal", "GoalConfig", "GoalMaker"]
-
-MAP_FRAME_ID = "care_map"
-"""``frame_id`` of goals when the store's gravity-aligned map frame is not its world frame
-(publish ``map_from_world`` as a static transform to use them, or take ``world_pose_stamped``)."""
-
-
-def _map_frame(store: Path) -> np.ndarray | None:
-    """The store's ``map_from_world``, None when the map frame is the world frame."""
-    frame = read_map_frame(store)
-    return None if frame.is_identity else frame.map_from_world
 
 
 @dataclass(frozen=True)
@@ -59,6 +51,10 @@ class GoalConfig:
     reach: float = 1.0
     """Farthest (m, floor plane) the approach point may lie from the object: the grid success
     radius of ``method.md``."""
+    frame_id: str | None = None
+    """Frame of the goals: the recording's world frame's name gives them in the world frame;
+    any other name is the map frame's, published as a static transform (``care frame``).
+    Default: the world frame when it has z up, else ``care_map``."""
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.clearance) and self.clearance >= 0):
@@ -88,9 +84,11 @@ class Goal:
     """Distance (m) from ``position`` to the nearest obstacle cell; None without a grid."""
 
     map_from_world: np.ndarray | None = None
-    """(4, 4) the store's map frame (None: the map frame is the recording's world frame)."""
+    """(4, 4) the store's map frame, where goals are not in the world frame (None: they are)."""
     world_frame: str = DEFAULT_WORLD_FRAME
     """The recording's world frame name."""
+    frame_from_map: np.ndarray | None = None
+    """(4, 4) from the map frame to ``frame_id`` (None: ``frame_id`` is the map frame)."""
 
     def pose_matrix(self) -> np.ndarray:
         """(4, 4) the goal pose in the map frame: at ``position``, yawed by ``yaw`` about z."""
@@ -106,6 +104,8 @@ class Goal:
         pose, frame_id = self.pose_matrix(), self.frame_id
         if in_world and self.map_from_world is not None:
             pose, frame_id = np.linalg.solve(self.map_from_world, pose), self.world_frame
+        elif self.frame_from_map is not None:
+            pose = self.frame_from_map @ pose
         from scipy.spatial.transform import Rotation
 
         qx, qy, qz, qw = Rotation.from_matrix(pose[:3, :3]).as_quat()
@@ -263,30 +263,51 @@ class GoalMaker:
     free_space: FreeSpace | None
     config: GoalConfig = GoalConfig()
     map_from_world: np.ndarray | None = None
-    """The store's map frame when it is not the world frame (goals then also come in the world
-    frame)."""
+    """The store's map frame when goals are not in the world frame (they then also come in
+    the world frame)."""
     world_frame: str = DEFAULT_WORLD_FRAME
+    frame_from_map: np.ndarray | None = None
+    """From the map frame to :attr:`frame_id` when they differ (goals in the world frame)."""
 
     @classmethod
     def from_store(cls, store: Path, config: GoalConfig | None = None) -> GoalMaker:
-        """Frame from the store's ``meta.json`` (``map`` when it names none), stamp of its last
-        view (0, ROS's "latest", for a directory that holds maps without views)."""
+        """Frame from the store's ``meta.json`` and map frame (:func:`query.publish.frame_plan`),
+        stamp of its last view (0, ROS's "latest", for a directory that holds maps without
+        views)."""
         store = Path(store)
-        meta = StoreMeta.read(store) if (store / META_FILE).is_file() else None
+        config = config or GoalConfig()
         views = store / "views.parquet"
         stamps = (
             read_table(views, ["stamp_ns"]).column("stamp_ns").to_numpy() if views.is_file() else []
         )
-        world = str((meta and meta.world_frame) or DEFAULT_WORLD_FRAME)
-        frame = _map_frame(store)
+        plan = cls.plan(store, config.frame_id)
+        frame = read_map_frame(store)
+        in_world = not plan.publish
         return cls(
-            frame_id=world if frame is None else MAP_FRAME_ID,
+            frame_id=plan.frame_id,
             stamp_ns=int(np.max(stamps)) if len(stamps) else 0,
             free_space=FreeSpace.from_store(store),
-            config=config or GoalConfig(),
-            map_from_world=frame,
-            world_frame=world,
+            config=config,
+            map_from_world=None if in_world else frame.map_from_world,
+            world_frame=plan.world_frame,
+            frame_from_map=(
+                None if not in_world or frame.is_identity else np.linalg.inv(frame.map_from_world)
+            ),
         )
+
+    def world_from_frame(self) -> np.ndarray:
+        """(4, 4) from :attr:`frame_id` to the world frame (identity where they are one)."""
+        if self.map_from_world is None:
+            return np.eye(4)
+        return np.linalg.inv(self.map_from_world)
+
+    @staticmethod
+    def plan(store: Path, frame_id: str | None = None) -> FramePlan:
+        """The frame goals of ``store`` are in (``frame_id``: the user's name for it)."""
+        store = Path(store)
+        meta = StoreMeta.read(store) if (store / META_FILE).is_file() else None
+        world = str((meta and meta.world_frame) or DEFAULT_WORLD_FRAME)
+        return frame_plan(read_map_frame(store), world, frame_id)
 
     def goal(self, cmap: CandidateMap, candidate: int) -> Goal:
         """The goal for one candidate of ``cmap``."""
@@ -298,11 +319,11 @@ class GoalMaker:
         if found is None:
             return Goal(
                 candidate, self.frame_id, self.stamp_ns, target, target, 0.0, False, None,
-                self.map_from_world, self.world_frame,
+                self.map_from_world, self.world_frame, self.frame_from_map,
             )  # fmt: skip
         x, y, clear = found
         yaw = math.atan2(target[1] - y, target[0] - x)
         return Goal(
             candidate, self.frame_id, self.stamp_ns, target, (x, y, 0.0), yaw, True, clear,
-            self.map_from_world, self.world_frame,
+            self.map_from_world, self.world_frame, self.frame_from_map,
         )  # fmt: skip

@@ -10,12 +10,15 @@ with no success anywhere, vectorised over the queries, so every row equals what 
 seeded by ``BatchConfig.seed``: reproducible, but not the draws of separate calls).
 
 The result is one long Arrow table (:data:`BATCH_SCHEMA`): a row per (query, ``ranking``
-position) and per (query, strategy, criterion, attempt).
+position) and per (query, strategy, criterion, attempt). With goals, its schema metadata
+names their frame (:data:`care.keys.GOAL_FRAME_KEY`): ``goal_x``, ``goal_y`` and ``goal_yaw``
+are in ``frame_id``, and ``world_from_frame`` gives each goal in the recording's world frame.
 """
 
 from __future__ import annotations
 
 import csv
+import json
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +27,7 @@ import numpy as np
 import pyarrow as pa
 
 from care.errors import ReplanError
+from care.keys import GOAL_FRAME_KEY
 from care.maps import MapKind
 from query.confidence import rank_by_confidence
 from query.goals import Goal, GoalMaker
@@ -326,4 +330,12 @@ def plan_batch(
                 )  # fmt: skip
         bar.update(len(chunk))
     bar.close()
-    return pa.concat_tables(parts) if parts else BATCH_SCHEMA.empty_table()
+    table = pa.concat_tables(parts) if parts else BATCH_SCHEMA.empty_table()
+    if goals is None:
+        return table
+    frame = {
+        "frame_id": goals.frame_id,
+        "world_frame": goals.world_frame,
+        "world_from_frame": goals.world_from_frame().reshape(-1).tolist(),
+    }
+    return table.replace_schema_metadata({GOAL_FRAME_KEY: json.dumps(frame).encode()})

@@ -189,7 +189,7 @@ def test_cli_reference_is_current() -> None:
     )
 
 
-BENCH_SECTIONS = ("ingest", "world", "fuse", "scale", "query", "batch", "dataset")
+BENCH_SECTIONS = ("ingest", "world", "fuse", "scale", "query", "cold_query", "batch", "dataset")
 """The sections of docs/benchmarks.md, each written by ``bench/<name>.py``."""
 
 

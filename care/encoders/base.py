@@ -61,6 +61,16 @@ class Encoder(ABC):
     dim: int = 0
     supports_crops: bool = False
 
+    @classmethod
+    def for_text(cls, options: EncoderOptions) -> Encoder:
+        """An instance that only needs to embed text (a free-text query on a built map).
+
+        Default: the whole encoder. A model with separate towers (CLIP) overrides it to
+        load the text tower alone, so a query does not pay for the image side it never
+        runs; :meth:`encode_views` may then fail, :attr:`version` and :attr:`dim` must
+        stay those of the whole encoder (the store's record is checked against them)."""
+        return cls(options)
+
     def prepare(self, context: RecordingContext) -> None:  # noqa: B027 - optional hook
         """Called once per recording before :meth:`encode_views`; default does nothing."""
 

@@ -72,14 +72,8 @@ class ClipEncoder(Encoder):
         prompt: str = PROMPT_TEMPLATE,
     ) -> None:
         import torch
-        import transformers
 
-        self.weights = options.weights or DEFAULT_CHECKPOINT
-        self.batch_size = max(1, int(options.batch_size))
-        self.device = torch.device(
-            options.device or ("cuda" if torch.cuda.is_available() else "cpu")
-        )
-        self.prompt = prompt
+        self._setup(options, prompt)
         self.model, self.tokenizer, self.processor = _load(self.weights)
         self.model.to(self.device).eval()
         vision = self.model.config.vision_config
@@ -96,8 +90,34 @@ class ClipEncoder(Encoder):
         # uint8 -> normalised input in one multiply-add: (x * scale - mean) / std
         self._gain = (scale / std).view(1, 3, 1, 1).to(self.device)
         self._bias = (-mean / std).view(1, 3, 1, 1).to(self.device)
+
+    def _setup(self, options: EncoderOptions, prompt: str) -> None:
+        """What both the whole encoder and its text side take from the options."""
+        import torch
+        import transformers
+
+        self.weights = options.weights or DEFAULT_CHECKPOINT
+        self.batch_size = max(1, int(options.batch_size))
+        self.device = torch.device(
+            options.device or ("cuda" if torch.cuda.is_available() else "cpu")
+        )
+        self.prompt = prompt
         checkpoint = Path(self.weights).name if Path(self.weights).is_dir() else self.weights
         self.version = f"{checkpoint}+transformers-{transformers.__version__}+maskclip"
+
+    @classmethod
+    def for_text(cls, options: EncoderOptions) -> ClipEncoder:
+        """The text tower and tokenizer alone (``CLIPTextModelWithProjection``): a free-text
+        query embeds one prompt and never runs the image side, whose weights are most of a
+        ViT checkpoint's memory. :meth:`encode_text` gives the whole model's embeddings."""
+        self = cls.__new__(cls)
+        self._setup(options, PROMPT_TEMPLATE)
+        self.model, self.tokenizer = _load_text(self.weights)
+        self.model.to(self.device).eval()
+        self.processor = None
+        self.max_tokens = int(self.model.config.max_position_embeddings)
+        self.dim = int(self.model.config.projection_dim)
+        return self
 
     # -- image side -------------------------------------------------------------------------
 
@@ -182,13 +202,15 @@ class ClipEncoder(Encoder):
                 max_length=self.max_tokens,
                 return_tensors="pt",
             )
+            inputs = {
+                "input_ids": tokens["input_ids"].to(self.device),
+                "attention_mask": tokens["attention_mask"].to(self.device),
+            }
             with torch.no_grad():
-                emb = _pooled(
-                    self.model.get_text_features(
-                        input_ids=tokens["input_ids"].to(self.device),
-                        attention_mask=tokens["attention_mask"].to(self.device),
-                    )
-                )
+                if self.processor is None:  # the text tower alone (for_text)
+                    emb = self.model(**inputs).text_embeds
+                else:
+                    emb = _pooled(self.model.get_text_features(**inputs))
                 out.append(F.normalize(emb, dim=-1).float().cpu().numpy())
         return np.concatenate(out)
 
@@ -199,35 +221,75 @@ def _pooled(output: Any) -> Any:
     return output if pooled is None else pooled
 
 
-def _load(weights: str) -> tuple[Any, Any, Any]:
-    """Model, tokenizer and image processor from a directory or checkpoint id, or one clear error."""
-    import torch
-    from transformers import AutoImageProcessor, AutoTokenizer, CLIPModel
-
+def _source(weights: str) -> tuple[str, bool]:
+    """Where ``from_pretrained`` reads (a directory or a checkpoint id) and whether it is a
+    local directory; a path that names no directory is one clear error."""
     path = Path(weights).expanduser()
     looks_local = path.is_absolute() or weights.startswith((".", "~")) or path.exists()
     if looks_local and not path.is_dir():
         msg = f"--weights {weights}: no such directory; give a folder written by CLIPModel.save_pretrained."
         raise EncoderError(msg)
-    source = str(path) if looks_local else weights
+    return (str(path) if looks_local else weights), looks_local
+
+
+def _load_text(weights: str) -> tuple[Any, Any]:
+    """The text tower with its projection and the tokenizer, from a whole CLIP checkpoint.
+
+    The checkpoint's image weights are left unread; transformers reports them as unexpected
+    keys, which is the point, so its loading report is silenced for this call."""
+    import torch
+    from transformers import AutoTokenizer, CLIPConfig, CLIPTextModelWithProjection
+    from transformers.utils import logging as hf_logging
+
+    source, looks_local = _source(weights)
+    level = hf_logging.get_verbosity()
+    hf_logging.set_verbosity_error()
+    try:
+        # the text config of a whole checkpoint may keep its own default projection size;
+        # the whole model's projection_dim is what the text projection was saved with
+        whole = CLIPConfig.from_pretrained(source)
+        text = whole.text_config
+        text.projection_dim = whole.projection_dim
+        model = CLIPTextModelWithProjection.from_pretrained(
+            source, config=text, dtype=torch.float32
+        )
+        tokenizer = AutoTokenizer.from_pretrained(source)
+    except (OSError, ValueError, KeyError) as err:
+        raise _load_error(err, weights, source, looks_local) from err
+    finally:
+        hf_logging.set_verbosity(level)
+    return model, tokenizer
+
+
+def _load(weights: str) -> tuple[Any, Any, Any]:
+    """Model, tokenizer and image processor from a directory or checkpoint id, or one clear error."""
+    import torch
+    from transformers import AutoImageProcessor, AutoTokenizer, CLIPModel
+
+    source, looks_local = _source(weights)
     try:
         model = CLIPModel.from_pretrained(source, dtype=torch.float32)
         tokenizer = AutoTokenizer.from_pretrained(source)
         processor = AutoImageProcessor.from_pretrained(source)
     except (OSError, ValueError, KeyError) as err:
-        text = str(err).strip()
-        reason = text.splitlines()[0].rstrip(".") if text else type(err).__name__
-        where = (
-            f"directory {source}"
-            if looks_local
-            else f"checkpoint {weights!r} (neither downloadable from here nor in the Hugging Face cache)"
-        )
-        msg = (
-            f"cannot load CLIP from {where}: {reason}. Pass --weights DIR, a folder holding a "
-            "CLIPModel, its tokenizer and image processor (save_pretrained of each)."
-        )
-        raise EncoderError(msg) from err
+        raise _load_error(err, weights, source, looks_local) from err
     if getattr(model.config.vision_config, "patch_size", None) is None:
         msg = f"{source}: not a CLIP ViT checkpoint (no patch size); dense features need a ViT."
         raise EncoderError(msg)
     return model, tokenizer, processor
+
+
+def _load_error(err: Exception, weights: str, source: str, looks_local: bool) -> EncoderError:
+    """The one line for a checkpoint that cannot be loaded, naming where it was looked for."""
+    text = str(err).strip()
+    reason = text.splitlines()[0].rstrip(".") if text else type(err).__name__
+    where = (
+        f"directory {source}"
+        if looks_local
+        else f"checkpoint {weights!r} (neither downloadable from here nor in the Hugging Face cache)"
+    )
+    msg = (
+        f"cannot load CLIP from {where}: {reason}. Pass --weights DIR, a folder holding a "
+        "CLIPModel, its tokenizer and image processor (save_pretrained of each)."
+    )
+    return EncoderError(msg)

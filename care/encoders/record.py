@@ -32,6 +32,7 @@ __all__ = [
     "EncoderRecord",
     "encoder_for_store",
     "store_text_encoder",
+    "text_encoder_for_store",
     "weights_digest",
 ]
 
@@ -214,6 +215,16 @@ def encoder_for_store(
     return record.check(make_encoder(record.name, record.options(batch_size=batch_size)))
 
 
+def text_encoder_for_store(store: Path, *, weights: Path | None) -> Encoder:
+    """:func:`encoder_for_store` built by :meth:`Encoder.for_text`: the text side only
+    (embedding class names or a query never needs the image side's weights)."""
+    from care.encoders import ENCODERS
+
+    record = store_record(store, weights=weights)
+    record.check_weights()
+    return record.check(ENCODERS.load(record.name).for_text(record.options()))
+
+
 def store_text_encoder(
     store: Path, *, weights: Path | None = None
 ) -> Callable[[Sequence[str]], np.ndarray] | None:
@@ -227,5 +238,4 @@ def store_text_encoder(
         if text_file is None or not Path(text_file).is_file():
             return None
         return lambda names: lookup_text(Path(text_file), names, record.dim)
-    encoder = encoder_for_store(store, weights=weights)
-    return encoder.encode_text
+    return text_encoder_for_store(store, weights=weights).encode_text

@@ -182,3 +182,28 @@ def test_cli_no_floor_is_one_line_and_no_map(tmp_path: Path, h) -> None:
     )
     assert given.returncode == 0, given.stderr[-1500:]
     assert (store / "cells.parquet").is_file()
+
+
+def test_care_frame_says_what_to_publish(stores, run_cli) -> None:
+    """The y-down store's goals are in care_map, published under the world frame by the
+    printed command; the z-up store's are in the world frame when its floor is level."""
+    from query.goals import GoalMaker
+
+    code, out, err = run_cli("frame", stores["mcap"])
+    assert code == 0, err
+    world = Store(stores["mcap"]).meta.world_frame
+    assert "'care_map'" in out
+    assert f"--frame-id {world} --child-frame-id care_map" in out
+    code, out, err = run_cli("frame", stores["mcap"], "--json")
+    tf = json.loads(out)
+    assert tf["child_frame_id"] == "care_map"
+    t, q = tf["transform"]["translation"], tf["transform"]["rotation"]
+    world_from_map = np.eye(4)
+    world_from_map[:3, :3] = Rotation.from_quat([q[k] for k in "xyzw"]).as_matrix()
+    world_from_map[:3, 3] = [t[k] for k in "xyz"]
+    np.testing.assert_allclose(
+        world_from_map @ _frame(stores["mcap"]).map_from_world, np.eye(4), atol=1e-9
+    )
+    zup = _frame(stores["zup"])
+    plan = GoalMaker.plan(stores["zup"])
+    assert plan.publish == (not zup.is_gravity_aligned)

@@ -119,6 +119,47 @@ def test_free_text_joins_the_vocabulary_through_clip(clip_store) -> None:
     assert top["confidence"] == pytest.approx(probs[top["candidate"]], rel=1e-3)
 
 
+_IMPORTS_AFTER_QUERY = """
+import sys
+from care_cli.main import main
+sys.argv = ["care", "query", *sys.argv[1:]]
+try:
+    main()
+except SystemExit as exit_:
+    assert not exit_.code, exit_.code
+print(sorted(m for m in ("torch", "transformers") if m in sys.modules), file=sys.stderr)
+"""
+
+
+def test_a_class_name_query_loads_no_model(clip_store) -> None:
+    """A class of the vocabulary is answered from the store's own text embeddings: a cold
+    query never imports torch or transformers (their import alone takes seconds)."""
+    store, _ = clip_store
+    _care("fuse", "grid", store, "--cell-size", "0.1")
+    # the map's vocabulary is the store's cached one (another test recomputes it)
+    _care("fuse", "grid", store, "--recompute", "--vocabulary", "chair,table,floor")
+    done = subprocess.run(
+        [sys.executable, "-c", _IMPORTS_AFTER_QUERY, str(store), "chair", "--map", "grid"],
+        capture_output=True, text=True, env=OFFLINE, check=True,
+    )  # fmt: skip
+    assert done.stderr.strip().splitlines()[-1] == "[]"
+
+
+def test_free_text_loads_the_text_tower_alone(clip_store) -> None:
+    """Free text needs only CLIP's text tower; its embeddings are the whole model's."""
+    from transformers import CLIPTextModelWithProjection
+
+    from care.encoders.record import store_text_encoder
+
+    store, weights = clip_store
+    embed = store_text_encoder(store)
+    assert type(embed.__self__.model) is CLIPTextModelWithProjection
+    texts = ["a red chair", "somewhere to sit"]
+    np.testing.assert_allclose(
+        embed(texts), _direct(weights).encode_text(texts), rtol=1e-5, atol=1e-6
+    )
+
+
 def test_moved_or_changed_weights_are_one_clear_error(clip_store, tmp_path: Path) -> None:
     store, weights = clip_store
     _care("fuse", "grid", store, "--cell-size", "0.1")
