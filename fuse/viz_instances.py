@@ -4,7 +4,8 @@ Entities (all 3D ones under ``world``, z up):
 
 - ``world/scene/rgb``: the scene cloud in its colours;
 - ``world/instances/<i>``: instance ``i``'s box, labelled briefly (``3 nightstand``), so
-  each can be selected and toggled; ``world/segments/<i>``: its points in its colour;
+  each can be selected and toggled; where boxes crowd, only the largest instance's label
+  stays on screen (:func:`geometry.labels.spread_labels`), the others show on hover; ``world/segments/<i>``: its points in its colour;
 - on the ``instance`` timeline (one step per instance): ``world/selected`` highlights
   instance ``i`` and draws a line to each camera that sees it, ``world/chosen/<rank>`` holds
   its chosen views as cameras (pose, pinhole) with their JPEG inside, and ``instance`` a
@@ -31,6 +32,7 @@ import rerun.blueprint as rrb
 from care.keys import VOCABULARY_KEY
 from care.store import Store, read_table
 from care.viz import log_camera, open_scene_recording, overview_eye, panels
+from geometry.labels import spread_labels
 
 __all__ = [
     "ENTITY_CHOSEN",
@@ -141,16 +143,20 @@ def log_instances(store_path: Path, rrd: Path, *, scene: str | None = None) -> P
     hi = np.asarray(table.column("bbox_max").to_pylist(), np.float32).reshape(-1, 3)
     top = table.column("top_classes").to_pylist()
     names = [vocabulary[t[0]] if t else "?" for t in top]
+    # overlapping instances would pile their labels up: the largest of each neighbourhood
+    # keeps its label on screen, the others show theirs on hover
+    shown = spread_labels((lo + hi) / 2, lengths)
     for i in range(n):  # one entity per instance: selectable, toggleable, its own label
         points = cloud.points[flat[offsets[i] : offsets[i + 1]]]
         rec.log(f"{ENTITY_SEGMENTS}/{i}", rr.Points3D(points, colors=colours[i]), static=True)
         rec.log(
             f"{ENTITY_INSTANCES}/{i}",
             rr.Boxes3D(
-                mins=lo[i], sizes=hi[i] - lo[i], colors=colours[i], labels=f"{i} {names[i]}"
+                mins=lo[i], sizes=hi[i] - lo[i], colors=colours[i], labels=f"{i} {names[i]}",
+                show_labels=bool(shown[i]),
             ),
             static=True,
-        )
+        )  # fmt: skip
 
     meta = store.views(["view_id", "width", "height", "K", "rgb_jpeg"])
     keep = pc.is_in(meta.column("view_id"), pa.array(np.unique(vid)))

@@ -30,6 +30,7 @@ from ingest.write import CAMERA_FRAME, WORLD_FRAME
 __all__ = [
     "CAMERA_ENTITY",
     "DEPTH_ENTITY",
+    "DEPTH_SCALE_ENTITY",
     "MAP_ENTITY",
     "RGB_ENTITY",
     "TF_ENTITY",
@@ -47,11 +48,20 @@ MAP_ENTITY = "world/map"
 TRAJECTORY_ENTITY = "world/trajectory"
 TF_ENTITY = "tf"
 """The recording's TF frames as a graph (world frame -> optical frame -> image)."""
+DEPTH_SCALE_ENTITY = "legend/depth"
+"""A strip of depths from the near to the far end of the depth view's colour range, drawn
+with the same colour map: the depth view's scale."""
 
 _POINT_STRIDE = 4
 """Pixels between back-projected points (16x fewer points than pixels)."""
 _DEPTH_RANGE_M = (0.0, 6.0)
 """Colour range of the depth view; indoor RGB-D cameras see a few metres."""
+_DEPTH_COLORMAP = "turbo"
+_SCALE_SIZE = (16, 240)
+"""Rows and columns of the depth scale strip (metres grow to the right)."""
+_DEPTH_SCALE_NAME = (
+    f"depth scale: {_DEPTH_RANGE_M[0]:g} m (left) to {_DEPTH_RANGE_M[1]:g} m (right)"
+)
 
 
 def ingest_blueprint(world_frame: str = WORLD_FRAME, camera_frame: str = CAMERA_FRAME):
@@ -61,8 +71,12 @@ def ingest_blueprint(world_frame: str = WORLD_FRAME, camera_frame: str = CAMERA_
         rrb.Vertical(
             rrb.Horizontal(
                 rrb.Spatial2DView(origin=CAMERA_ENTITY, contents=RGB_ENTITY, name="camera rgb"),
-                rrb.Spatial2DView(
-                    origin=CAMERA_ENTITY, contents=DEPTH_ENTITY, name="camera depth (m)"
+                rrb.Vertical(
+                    rrb.Spatial2DView(
+                        origin=CAMERA_ENTITY, contents=DEPTH_ENTITY, name="camera depth (m)"
+                    ),
+                    rrb.Spatial2DView(origin=DEPTH_SCALE_ENTITY, name=_DEPTH_SCALE_NAME),
+                    row_shares=[8, 1],
                 ),
             ),
             rrb.Horizontal(
@@ -130,6 +144,7 @@ class IngestLogger:
             ),
             static=True,
         )
+        rec.log(DEPTH_SCALE_ENTITY, _depth_scale(), static=True)
         self._static_done = True
 
     def log(self, index: int, frame: Frame) -> None:
@@ -147,7 +162,7 @@ class IngestLogger:
                 depth_png(frame.depth_m),
                 media_type="image/png",
                 meter=1000.0,
-                colormap="turbo",
+                colormap=_DEPTH_COLORMAP,
                 depth_range=[r * 1000.0 for r in _DEPTH_RANGE_M],
             ),
         )
@@ -178,3 +193,17 @@ class IngestLogger:
     def discard(self) -> None:
         """Remove the unfinished file of a failed run (after :meth:`close`)."""
         self.tmp.unlink(missing_ok=True)
+
+
+def _depth_scale() -> rr.DepthImage:
+    """The depth view's legend: millimetres rising left to right over its colour range,
+    coloured by the viewer exactly as the depth images are (same map, range and unit)."""
+    near, far = (r * 1000.0 for r in _DEPTH_RANGE_M)
+    rows, cols = _SCALE_SIZE
+    ramp = np.linspace(near, far, cols).round().astype(np.uint16)
+    return rr.DepthImage(
+        np.broadcast_to(ramp, (rows, cols)).copy(),
+        meter=1000.0,
+        colormap=_DEPTH_COLORMAP,
+        depth_range=[near, far],
+    )
