@@ -427,6 +427,11 @@ def run(
         gt_defaults=_gt_defaults(gt_format, gt_transform, gt_class_map),
     )
     result = run_all(recording, out, config, run=_execution(run_options, ray))
+    from care_cli.summary import store_lines
+
+    for store in result.stores:
+        for line in store_lines(store):
+            typer.echo(line)
     if result.unevaluated:
         typer.echo(
             f"no ground truth for {', '.join(result.unevaluated)}: maps and Rerun files made, "

@@ -172,7 +172,9 @@ def grid(
         if rrd is not None:
             log_grid(store, rrd, target=rrd_class)
     _summary(path)
-    _frame_line(store)
+    from care_cli.summary import frame_line
+
+    typer.echo(frame_line(store))
     if rrd is not None:
         typer.echo(f"rerun {rrd}")
 
@@ -186,15 +188,6 @@ def _writing(store: Path, rrd: Path | None) -> Any:
     if rrd is not None:
         check_file_output(rrd, inputs=[store])
     return output_lock(store)
-
-
-def _frame_line(store: Path) -> None:
-    """Where map.yaml and goals are, for the robot stack (``care frame`` says how)."""
-    from query.goals import GoalMaker
-
-    plan = GoalMaker.plan(store)
-    publish = f", publish it with `care frame {store}`" if plan.publish else ""
-    typer.echo(f"{store / 'map.yaml'}: in frame {plan.frame_id!r}{publish}")
 
 
 def _summary(path: Path) -> None:

@@ -36,9 +36,15 @@ def test_run_takes_the_option_its_error_names(
     code, _, err = run_cli(*args)
     assert code == 1
     assert "--static-pose" in err
-    code, _, err = run_cli(*args, "--static-pose", "--every", "2")
+    code, out, err = run_cli(*args, "--static-pose", "--every", "2")
     assert code == 0, err
     store = Store(tmp_path / "out" / "stores" / "no_pose")
     assert store.num_views == 2  # --every 2 of 3 frames
+    # what each stage found, as care ingest and care fuse print it
+    where = tmp_path / "out" / "stores" / "no_pose"
+    assert f"{where}: 2 views from 3 colour images, skipped {{'every': 1}}" in out
+    assert f"{where}: map frame" in out
+    assert f"{where / 'cells.parquet'}: " in out
+    assert f"{where / 'map.yaml'}: in frame " in out
     identity = np.broadcast_to(np.eye(4), (2, 4, 4))
     np.testing.assert_allclose(store.poses(in_map=False), identity)  # as recorded
