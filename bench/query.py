@@ -187,9 +187,9 @@ def _run_size(folder: str, n_cells: int, legacy: bool, queue) -> None:
     queue.put(out)
 
 
-def _floor(n: int, seed: int = 0):
+def _floor(n: int, seed: int = 0, clutter: float = 0.01):
     """A square floor of about ``n`` 5 cm cells: 4 m rooms walled on two sides with a 1 m
-    door each, and 1% clutter, all seen."""
+    door each, and ``clutter`` of the cells obstacles, all seen."""
     from fuse.layout import GridLayout
     from query.goals import FreeSpace
 
@@ -198,7 +198,7 @@ def _floor(n: int, seed: int = 0):
     room = int(4 / CELL)
     door = (ix % room > room // 2) & (ix % room < room // 2 + int(1 / CELL))
     wall = (ix % room == 0) & ~(iy % room > 20) | (iy % room == 0) & ~door
-    clutter = np.random.default_rng(seed).random(ix.size) < 0.01
+    clutter = np.random.default_rng(seed).random(ix.size) < clutter
     return FreeSpace.from_cells(GridLayout(CELL, (0.0, 0.0), (side, side)), ix, iy, wall | clutter)
 
 

@@ -21,7 +21,7 @@ import dataclasses
 import io
 import json
 import os
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from types import TracebackType
@@ -395,6 +395,9 @@ class StoreMeta:
     topics: dict[str, Any] = dataclasses.field(default_factory=dict)
     world_frame: str | None = None
     camera_frame: str | None = None
+    camera_convention: dict[str, Any] | None = None
+    """The camera frame's axes as ingest found or was told them (``{"convention",
+    "reason"}``; poses are stored in the optical convention whatever they were)."""
     distortion: list[dict[str, Any]] | None = None
     """The lens distortions removed from the images at ingest, ``{"model", "D"}`` as the
     camera info gave them, in order of first appearance; empty: zero D, the images are as
@@ -595,8 +598,10 @@ class StoreWriter:
             append_rows(self._features_writer, table)
             self._features.clear()
 
-    def commit(self, meta: dict[str, Any]) -> None:
-        """Finish the tables, write ``meta.json`` last, and rename into place."""
+    def commit(self, meta: dict[str, Any], *, replacing: Callable[[], None] | None = None) -> None:
+        """Finish the tables, write ``meta.json`` last, and rename into place; ``replacing``
+        is called once everything is written, just before the old store is replaced (a
+        commit that fails earlier leaves the old store, and says nothing of replacing it)."""
         self._flush()
         for writer in (self._views_writer, self._features_writer):
             if writer is not None:
@@ -616,6 +621,8 @@ class StoreWriter:
         record = StoreMeta.from_json(full, self.tmp / META_FILE)
         (self.tmp / META_FILE).write_text(record.to_json())
         write_marker(self.tmp, OutputKind.STORE, source=record.source.path)
+        if replacing is not None:
+            replacing()
         # in one step: a kill leaves the previous store or this one (swap_in)
         swap_in(self.tmp, self.path)
 

@@ -3,7 +3,8 @@ a dataset, and the main job that chains every stage.
 
 The options are generated from the configs (:mod:`care_cli.options`):
 :class:`replan.batch.BatchConfig`, :class:`query.goals.GoalConfig`,
-:class:`evaluate.config.EvalConfig` and :class:`evaluate.config.RunConfig` (what is made),
+:class:`query.paths.PathConfig`, :class:`evaluate.config.EvalConfig` and
+:class:`evaluate.config.RunConfig` (what is made),
 and :class:`runtime.execution.Execution` (how it runs: workers, Ray), one default and one
 help text each. Stage modules are imported inside the commands so ``care --help``
 stays fast.
@@ -26,6 +27,7 @@ from evaluate.config import EvalConfig, RunConfig
 from ingest.select import FrameSelection
 from ingest.source import ReadOptions
 from query.goals import GoalConfig
+from query.paths import PathConfig
 from replan.attempts import ReplanConfig
 from replan.batch import BatchConfig
 from runtime.execution import Backend, Execution
@@ -130,8 +132,10 @@ _BATCH = {
     "top": {"min": 1},
 }
 _CLEARANCE = "clearance"
+_FROM = {"start": {"flags": ("--from",)}}
 
 
+@config_options("path", PathConfig, only=("start",), extra=_FROM)
 @config_options("goal", GoalConfig, only=(_CLEARANCE, "frame_id"))
 @config_options("settings", BatchConfig, only=("top", "k", "attempts", "exclude_radius", "seed"),
                 extra=_BATCH)  # fmt: skip
@@ -145,6 +149,7 @@ def query(
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
     settings: Options[BatchConfig] = None,  # type: ignore[assignment]
     goal: Options[GoalConfig] = None,  # type: ignore[assignment]
+    path: Options[PathConfig] = None,  # type: ignore[assignment]
     weights: WeightsOpt = None,
     batch: Annotated[
         Path | None,
@@ -158,23 +163,27 @@ def query(
         typer.Option(help="Parquet table of a --batch run (default: BATCH.answers.parquet)."),
     ] = None,
 ) -> None:
-    """Rank a map's candidates by confidence for TEXT, with their uncertainty measures and a
-    goal pose for each (``geometry_msgs/PoseStamped`` JSON with --json); with --batch, every
-    query's ranking and each strategy's attempt sequence as a Parquet table."""
+    """Rank a map's candidates by confidence for TEXT, with their uncertainty measures, a
+    goal pose for each (``geometry_msgs/PoseStamped`` JSON with --json), its distance along
+    free space from --from (default: the recording's first pose) and the path to the top
+    one (``nav_msgs/Path``); with --batch, every query's ranking and each strategy's attempt
+    sequence as a Parquet table."""
 
     from query import rank_by_confidence
 
     if (batch is None) == (text is None):
         _fail("give either TEXT or --batch FILE")
-    config = settings.config()
+    config, paths = settings.config(), path.config()
     if batch is not None:
         _batch(store, kind, batch, out, weights, goal.config(), config)
         return
     target = _resolve(store, kind, text, weights)
     cmap, match = target.cmap, target.match
     goals = _goal_maker(store, goal.config())
+    travel = _travel(store, goals, paths)
     conf = target.confidence()
     order = rank_by_confidence(conf[None])[0][: config.top]
+    chosen = [goals.goal(cmap, int(c)) for c in order]
     rows = [
         {
             "rank": r + 1,
@@ -185,33 +194,38 @@ def query(
             "pwkl": float(cmap.pwkl[c]),
             "num_views": int(cmap.num_views[c]),
             "position": [round(float(v), 3) for v in cmap.positions[c]],
-            "goal": goals.goal(cmap, int(c)).as_dict(),
+            "goal": g.as_dict(),
+            "distance": _distance(travel, g),
         }
-        for r, c in enumerate(order)
+        for r, (c, g) in enumerate(zip(order, chosen, strict=True))
     ]
     if as_json:
-        typer.echo(
-            json.dumps(
-                {"query": text, "class": match.names[0], "method": match.method, "candidates": rows}
-            )
-        )
+        top = _way(travel, chosen[0]) if chosen else _way(None, None)
+        out = {"query": text, "class": match.names[0], "method": match.method}
+        note = {"path_note": _no_path(travel, paths)}
+        typer.echo(json.dumps({**out, "candidates": rows, **top, **note}))
         return
     typer.echo(
         f"{MapKind(kind).value} map, class {match.names[0]!r}: {cmap.num_candidates} candidates"
     )
     typer.echo(
         f"rank  cand  confidence  entropy   stderr     pwkl  views  position  "
-        f"goal in {goals.frame_id!r} (x, y, yaw deg)"
+        f"goal in {goals.frame_id!r} (x, y, yaw deg)  path m"
     )
     for r in rows:
         pose = r["goal"]["pose_stamped"]["pose"]["position"]
+        dist = "-" if r["distance"] is None else f"{r['distance']:.2f}"
         typer.echo(
             f"{r['rank']:>4} {r['candidate']:>5} {r['confidence']:>11.4g} {r['entropy']:>8.3f} "
             f"{r['stderr']:>8.4g} {r['pwkl']:>8.4g} {r['num_views']:>6}  {r['position']}  "
-            f"({pose['x']:.2f}, {pose['y']:.2f}, {math.degrees(r['goal']['yaw']):.0f})"
+            f"({pose['x']:.2f}, {pose['y']:.2f}, {math.degrees(r['goal']['yaw']):.0f})  {dist}"
         )
+    note = _no_path(travel, paths)
+    if note is not None:
+        typer.echo(note)
 
 
+@config_options("path", PathConfig, only=("start",), extra=_FROM)
 @config_options("goal", GoalConfig, only=(_CLEARANCE, "frame_id"))
 @config_options("settings", ReplanConfig, extra={"k": _BATCH["k"]})
 def replan(
@@ -228,15 +242,18 @@ def replan(
     settings: Options[ReplanConfig] = None,  # type: ignore[assignment]
     kind: MapOpt = MapKind.INSTANCES,
     goal: Options[GoalConfig] = None,  # type: ignore[assignment]
+    path: Options[PathConfig] = None,  # type: ignore[assignment]
     weights: WeightsOpt = None,
 ) -> None:
     """The next candidate to try for TEXT after the --visited ones (JSON on stdout), with its
-    goal pose (``geometry_msgs/PoseStamped`` in the map frame, facing the object)."""
+    goal pose (``geometry_msgs/PoseStamped`` in the map frame, facing the object) and the
+    path to it along free space from --from (``nav_msgs/Path``)."""
     import dataclasses
 
     from replan import next_goal
 
     ids, places = _visited(visited or [])
+    paths = path.config()
     target = _resolve(store, kind, text, weights)
     cmap, match = target.cmap, target.match
     goals = _goal_maker(store, goal.config())
@@ -245,9 +262,13 @@ def replan(
     out = dataclasses.asdict(choice)
     found = choice.candidate >= 0
     out["position"] = [float(v) for v in cmap.positions[choice.candidate]] if found else None
-    out["goal"] = goals.goal(cmap, choice.candidate).as_dict() if found else None
+    chosen = goals.goal(cmap, choice.candidate) if found else None
+    out["goal"] = chosen.as_dict() if chosen else None
     out["class"] = match.names[0]
     out["method"] = match.method
+    travel = _travel(store, goals, paths) if found else None
+    out.update(_way(travel, chosen))
+    out["path_note"] = _no_path(travel, paths)
     typer.echo(json.dumps(out))
 
 
@@ -308,6 +329,62 @@ def _goal_maker(store: Path, config: GoalConfig) -> Any:
     from query.goals import GoalMaker
 
     return GoalMaker.from_store(store, config)
+
+
+def _travel(store: Path, goals: Any, config: PathConfig) -> Any:
+    """Shortest paths over the store's free space (:class:`query.paths.Travel`) from
+    ``config.start``, else the recording's first pose; None without a grid or a start."""
+    from query.paths import Roadmap
+
+    roadmap = Roadmap.for_goals(goals)
+    start = config.start or _first_pose(store)
+    if roadmap is None or start is None:
+        return None
+    return roadmap.travel(start, config.start_reach)
+
+
+def _no_path(travel: Any, config: PathConfig) -> str | None:
+    """Why there are no paths (the start is off free space), None where there are: part of
+    the answer (a line under the table, ``path_note`` in JSON), not an error."""
+    if travel is None or travel.source is not None:
+        return None
+    x, y = travel.start
+    return (
+        f"no paths: no free cell keeps --clearance within {config.start_reach} m of the "
+        f"start ({x:.2f}, {y:.2f}); give --from x,y in free space"
+    )
+
+
+def _first_pose(store: Path) -> tuple[float, float] | None:
+    """Where the recording starts: its first view's camera position on the floor (map x, y);
+    None for a store without views."""
+    from care.store import Store
+
+    if not (store / "views.parquet").is_file():
+        return None
+    poses = Store(store).poses()
+    return (float(poses[0, 0, 3]), float(poses[0, 1, 3])) if len(poses) else None
+
+
+def _distance(travel: Any, goal: Any) -> float | None:
+    """Metres along free space to ``goal`` (None: unreachable, or no paths)."""
+    metres = travel.distance_to(goal) if travel is not None else math.inf
+    return metres if math.isfinite(metres) else None
+
+
+def _way(travel: Any, goal: Any) -> dict:
+    """The way to ``goal``: ``distance`` (m along free space, None: unreachable or no
+    paths), ``path`` (``nav_msgs/Path`` JSON, None likewise), ``path_length`` and the
+    ``start`` (map x, y)."""
+    from query.paths import nav_path, path_length
+
+    points = travel.waypoints(goal) if travel is not None and goal is not None else None
+    return {
+        "distance": None if points is None else _distance(travel, goal),
+        "path": None if points is None else nav_path(goal, points),
+        "path_length": None if points is None else path_length(points),
+        "start": None if travel is None else list(travel.start),
+    }
 
 
 def _fail(message: str) -> NoReturn:

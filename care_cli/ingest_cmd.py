@@ -1,4 +1,5 @@
-"""``care ingest`` (a recording into a feature store) and ``care topics`` (what is in it).
+"""``care ingest`` (a recording or dataset folder into a feature store) and ``care topics``
+(what is in it).
 
 Their options are generated from :class:`ingest.pipeline.IngestConfig`,
 :class:`care.encoders.EncoderOptions`, :class:`ingest.source.ReadOptions`,
@@ -26,6 +27,10 @@ __all__ = ["register"]
 
 _READ = "Topics and frames"
 """Help panel of the reading options, shared by ``care ingest`` and ``care topics``."""
+_SOURCE_HELP = (
+    "MCAP file, rosbag2 directory, ROS 1 .bag, or a dataset folder (ScanNet, Replica, TUM "
+    "RGB-D, ICL-NUIM/Redwood, Matterport3D, generic: docs/inputs.md)."
+)
 
 read_options = config_options(
     "read", ReadOptions, extra={f.name: {"rich_help_panel": _READ} for f in fields(ReadOptions)}
@@ -59,7 +64,7 @@ read_options = config_options(
 @read_options
 @config_options("selection", FrameSelection)
 def ingest(
-    recording: Annotated[Path, typer.Argument(help="MCAP file, rosbag2 directory or ROS 1 .bag.")],
+    recording: Annotated[Path, typer.Argument(help=_SOURCE_HELP)],
     out: Annotated[
         Path,
         typer.Option(
@@ -74,7 +79,8 @@ def ingest(
     selection: Options[FrameSelection] = None,  # type: ignore[assignment]
     run: Options[Execution] = None,  # type: ignore[assignment]
 ) -> None:
-    """Read a robot recording into a feature store (views, poses, features)."""
+    """Read a robot recording or a dataset folder into a feature store (views, poses,
+    features)."""
     from care.store import Store
     from ingest.pipeline import run_ingest
 
@@ -97,7 +103,7 @@ def ingest(
 
 @read_options
 def topics(
-    recording: Annotated[Path, typer.Argument(help="MCAP file, rosbag2 directory or ROS 1 .bag.")],
+    recording: Annotated[Path, typer.Argument(help=_SOURCE_HELP)],
     read: Options[ReadOptions] = None,  # type: ignore[assignment]
     stamps: Annotated[
         bool,
@@ -108,16 +114,21 @@ def topics(
         ),
     ] = False,
 ) -> None:
-    """List a recording's topics, types and counts, and what ingest would pick."""
+    """List a recording's topics, types and counts, and what ingest would pick; for a dataset
+    folder, its layout, views and what it reads them with."""
     from care.errors import CareError
+    from ingest.folders.frames import open_frames, resolve_layout
     from ingest.readers import open_reader
     from ingest.source import RecordingFrames
 
     options = read.config()
     if stamps:
-        with RecordingFrames(recording, options) as frames:
+        with open_frames(recording, options) as frames:
             for frame in frames:
                 typer.echo(str(frame.stamp_ns))
+        return
+    if resolve_layout(recording, options.format) is not None:
+        _folder_topics(recording, options)
         return
 
     with open_reader(recording) as reader:
@@ -137,6 +148,30 @@ def topics(
         typer.echo(f"  {role:<12} {sel[role]}")
     typer.echo(f"  {'tf':<12} {', '.join(sel['tf']) or None}")
     typer.echo(f"  {'extras':<12} {sel['extras'] or None}")
+    typer.echo(f"  world frame  {chosen['world_frame']}, camera frame {chosen['camera_frame']}")
+    axes = chosen.get("camera_convention")
+    if axes:
+        typer.echo(f"  camera axes  {axes['convention']} ({axes['reason']})")
+
+
+def _folder_topics(folder: Path, options: ReadOptions) -> None:
+    """``care topics`` of a dataset folder: the layout, its views (and those it leaves out),
+    its files, camera and frames."""
+    from ingest.folders.frames import FolderFrames
+
+    with FolderFrames(folder, options) as frames:
+        chosen = frames.describe()
+        stats = frames.stats
+    layout = dict(chosen["topics"])
+    kind, views = layout.pop("layout"), layout.pop("views")
+    dropped = dict(stats.dropped)
+    typer.echo(
+        f"dataset folder, layout {kind}: {views} views of {stats.rgb_messages} colour images"
+        + (f", dropped {dropped}" if dropped else "")
+    )
+    typer.echo("ingest would use:")
+    for key, value in layout.items():
+        typer.echo(f"  {key:<12} {value}")
     typer.echo(f"  world frame  {chosen['world_frame']}, camera frame {chosen['camera_frame']}")
 
 

@@ -25,6 +25,7 @@ from typing import Any
 import typer
 
 from care.errors import CareError
+from care.notices import print_notices
 from care_cli import INTERRUPTED as _INTERRUPTED
 from care_cli import INTERRUPTED_LINE as _INTERRUPTED_LINE
 from care_cli import stop_while_loading
@@ -220,6 +221,7 @@ def _main() -> None:
         from click import exceptions as click_errors
 
     try:
+        print_notices()  # what a stage says as it goes on: one line each on stderr
         keep_freed_memory()  # per-frame stages reuse resident pages (see runtime.malloc)
         use_threads(Work.DEFAULT)  # thread pools sized by kind of work (see runtime.threads)
         _register()

@@ -29,6 +29,7 @@ from typing import Annotated, Any, TypeVar, Union
 import typer
 
 from care.config import field_docs, recorded_fields
+from care.errors import CareError
 
 __all__ = [
     "GeneratedOption",
@@ -125,6 +126,20 @@ def csv_choices(item: type, name: str) -> Callable[[str | None], tuple[Any, ...]
     return parse
 
 
+def _from_text(kind: type, name: str) -> Callable[[str], Any]:
+    """The parser of a field whose type reads itself from the option's text (a classmethod
+    ``from_text``, e.g. :class:`ingest.intrinsics.CameraIntrinsics`); text it refuses is a
+    usage error (exit 2) naming the option."""
+
+    def parse(value: str) -> Any:
+        try:
+            return kind.from_text(value)  # type: ignore[attr-defined]
+        except CareError as err:
+            raise typer.BadParameter(str(err), param_hint=name) from err
+
+    return parse
+
+
 def _option(
     cls: type, f: dataclasses.Field, hint: Any, name: str, parse: Callable | None, extra: dict
 ) -> tuple[Any, Any, GeneratedOption]:
@@ -139,6 +154,8 @@ def _option(
     item = typing.get_args(inner)[0] if typing.get_origin(inner) is tuple else None
     if parse is None and item is not None:
         parse = csv_choices(item, flag)
+    if parse is None and callable(getattr(inner, "from_text", None)):
+        parse = _from_text(inner, flag)
     enum_type = item if _is_enum(item) else inner if _is_enum(inner) else None
     choices = tuple(str(m.value) for m in enum_type) if enum_type else ()
     if choices:  # in the help text too: a narrow terminal cuts the metavar, not the help

@@ -3,8 +3,9 @@
 A scene's ground truth is the file named for it (``--gt`` or an index entry's ``gt``), or else
 the first found beside its recording by name (:func:`truth.load.find_beside`), in any format
 of :mod:`truth.load`. It is matched to the map frame by an explicit 4x4 (``--gt-transform``;
-the automatic gravity-aligned map frame of own recordings is not available yet, so a scan
-in another frame needs it) and its classes may be renamed (``--gt-class-map``).
+a scan in another frame needs it), or, for a dataset's own ground truth inside the dataset
+folder that is the recording, by the store's ``map_from_world`` (it shares the recording's
+world frame); its classes may be renamed (``--gt-class-map``).
 
 Before anything is evaluated every scene's ground truth is read and checked (classes the
 map's vocabulary lacks, no overlap with the map's points), so a bad scene stops the run
@@ -13,6 +14,7 @@ with one line before any result is written.
 
 from __future__ import annotations
 
+import contextlib
 import enum
 import json
 from dataclasses import dataclass
@@ -23,13 +25,18 @@ import pyarrow.parquet as pq
 
 from care.errors import CareError, EvalError, GroundTruthError
 from care.keys import VOCABULARY_KEY
-from care.store import read_table
+from care.store import read_map_frame, read_table
 from query.map import MAP_TABLES
+from truth.formats.matterport import CATEGORY_MAPPING
 from truth.formats.native import gt_paths
+from truth.formats.scannet import scannet_files
 from truth.load import (
+    MATTERPORT_FOLDERS,
     GtFormat,
     beside_paths,
+    detect_format,
     find_beside,
+    inside_paths,
     parse_transform,
     read_class_map,
     read_ground_truth,
@@ -107,30 +114,53 @@ class GtSource:
         """Ground truth is named, or found beside ``recording`` by name."""
         return self.path is not None or find_beside(recording) is not None
 
-    def load(self, recording: Path) -> GroundTruth:
+    def in_world_frame(self, recording: Path) -> bool:
+        """The ground truth is the dataset's own, found inside the dataset folder that is the
+        recording (:func:`truth.load.inside_paths`), with no ``transform``: it is in the
+        recording's world frame (a ScanNet scan and its poses, a Matterport3D house and its
+        cameras share one), not in the map frame that fusion finds."""
+        if self.path is not None or self.transform is not None:
+            return False
+        return find_beside(recording) in inside_paths(recording)
+
+    def load(self, recording: Path, store: Path | None = None) -> GroundTruth:
+        """The ground truth, in the map frame of ``store`` where it is in the recording's
+        world frame (:meth:`in_world_frame`; given a store), else as read and transformed."""
         path, fmt = self.resolve(recording)
         transform = np.asarray(self.transform).reshape(4, 4) if self.transform else None
+        if transform is None and store is not None and self.in_world_frame(recording):
+            transform = read_map_frame(store).map_from_world
         mapping = read_class_map(self.class_map) if self.class_map else None
         return read_ground_truth(path, fmt, transform=transform, class_map=mapping)
 
 
 def gt_files(source: GtSource, recording: Path) -> list[Path]:
     """The files a scene's ground truth is read from (for the result cache's key): a folder's
-    files (a Matterport3D house for any of its files), the native pair, or the files beside a
-    single file that share its scene name (its class table, rooms, a ScanNet scene's
-    siblings)."""
+    files (a Matterport3D house's segmentations, for any of its files), the native pair, a
+    ScanNet scene's mesh, segments and aggregation, or the files beside a single file that
+    share its scene name (its class table, rooms)."""
     try:
         path, fmt = source.resolve(recording)
     except CareError:
         return []
-    if path.is_file() and path.parent.name in ("region_segmentations", "house_segmentations"):
+    if path.is_file() and path.parent.name in MATTERPORT_FOLDERS:
         path = path.parent.parent  # a Matterport3D file: the reader reads the whole house
     if path.name in ("mesh_semantic.ply", "info_semantic.json"):
         path = path.parent  # a Replica file: its habitat folder
+    if path.is_dir() and any((path / name).is_dir() for name in MATTERPORT_FOLDERS):
+        # a house: its segmentations and class table, not the images beside them (gigabytes)
+        files = [p for name in MATTERPORT_FOLDERS for p in (path / name).rglob("*")]
+        tables = [p / CATEGORY_MAPPING for p in (path, *path.parents)]
+        return sorted(p for p in files if p.is_file()) + [p for p in tables if p.is_file()][:1]
     if path.is_dir():
         return sorted(p for p in path.rglob("*") if p.is_file())
     if fmt is GtFormat.NATIVE or path.name.endswith(".gt.json"):
         return list(gt_paths(path.with_name(path.name.removesuffix(".gt.json"))))
+    if fmt is None:
+        with contextlib.suppress(CareError):
+            fmt = detect_format(path)
+    if fmt is GtFormat.SCANNET:
+        return list(scannet_files(path))  # not the scene's .sens beside them (gigabytes)
     scene = path.name.split(".")[0].removesuffix("_vh_clean_2").removesuffix("_vh_clean")
     return sorted(p for p in path.parent.iterdir() if p.is_file() and p.name.startswith(scene))
 

@@ -294,7 +294,7 @@ def evaluate_scene(scene: Scene, config: EvalConfig) -> pa.Table:
 
 
 def _evaluate_scene(scene: Scene, config: EvalConfig) -> pa.Table:
-    gt = scene.gt.load(scene.recording)
+    gt = scene.gt.load(scene.recording, scene.store)
     tables = []
     for kind in config.maps:
         if not (scene.store / f"{MAP_TABLES[kind]}.parquet").is_file():
@@ -462,7 +462,7 @@ def check_scenes(scenes: Sequence[Scene], config: EvalConfig) -> dict[str, list[
     stops the run before any output is written); returns the classes left out per scene."""
     left_out = {}
     for scene in scenes:
-        gt = scene.gt.load(scene.recording)
+        gt = scene.gt.load(scene.recording, scene.store)
         where = f"{scene.gt.resolve(scene.recording)[0]} (ground truth of {scene.name})"
         left_out[scene.name] = check_ground_truth(
             gt, where=where, store=scene.store, maps=config.maps,

@@ -236,7 +236,7 @@ class SceneLogTask:
             maps = {kind: load_map(self.store, kind) for kind in self.maps}  # type: ignore[misc]
             write_evaluation_rrd(
                 self.eval_rrd, self.attempts, self.summary, maps, scene=self.name,
-                gt=self.scene.gt.load(self.scene.recording), store=self.store,
+                gt=self.scene.gt.load(self.scene.recording, self.store), store=self.store,
             )  # fmt: skip
 
 

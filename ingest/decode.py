@@ -199,7 +199,7 @@ def camera_info(msg: Any, topic: str) -> tuple[np.ndarray, int, int]:
         k = getattr(msg, "K", None)
     K = np.asarray(k, np.float64).reshape(3, 3) if k is not None else np.zeros((3, 3))
     if not (K[0, 0] > 0 and K[1, 1] > 0 and K[2, 2] == 1.0):
-        msg_ = f"topic {topic}: camera_info field K/k = {K.ravel().tolist()} is not a valid pinhole matrix (fx, fy > 0, K[2,2] = 1); calibrate the camera or pass --camera-info."
+        msg_ = f"topic {topic}: camera_info field K/k = {K.ravel().tolist()} is not a valid pinhole matrix (fx, fy > 0, K[2,2] = 1); calibrate the camera, pass --camera-info, or give --intrinsics."
         raise IngestError(msg_)
     return K, int(msg.width), int(msg.height)
 

@@ -1,7 +1,9 @@
 """``care ingest``: a recording in, a feature store (and optionally a Rerun file) out.
 
-Frames stream from :class:`ingest.source.RecordingFrames`, are encoded in batches and go
-straight into a :class:`care.store.StoreWriter`, so at most one batch of images is held.
+Frames stream from :func:`ingest.folders.frames.open_frames` (a recording's
+:class:`ingest.source.RecordingFrames`, or a dataset folder's
+:class:`ingest.folders.frames.FolderFrames`), are encoded in batches and go straight into a
+:class:`care.store.StoreWriter`, so at most one batch of images is held.
 The store is committed atomically with a meta.json that records where it came from and
 what was dropped; its ``fingerprint`` (source identity + configuration) lets a re-run with
 the same inputs return at once (idempotent), while any change to the recording or to the
@@ -30,10 +32,19 @@ from care.errors import IngestError, StoreError
 from care.fingerprint import config_fields, content_digest
 from care.fingerprint import fingerprint as content_fingerprint
 from care.frames import DEFAULT_CAMERA_FRAME, DEFAULT_WORLD_FRAME, Frame
-from care.outputs import OutputKind, check_file_output, check_output, damaged, output_lock
+from care.notices import notice
+from care.outputs import (
+    MARKER,
+    OutputKind,
+    check_file_output,
+    check_output,
+    damaged,
+    output_lock,
+)
 from care.store import META_FILE, SCHEMA_VERSION, Store, StoreMeta, StoreWriter
+from ingest.folders.frames import Frames, folder_identity, open_frames
 from ingest.select import FrameSelection, FrameSelector
-from ingest.source import ReadOptions, RecordingFrames
+from ingest.source import ReadOptions
 from runtime.execution import DEFAULT_EXECUTION, Execution
 from runtime.threads import Work, threads_for
 
@@ -41,6 +52,12 @@ __all__ = ["INGEST_VERSION", "IngestConfig", "fingerprint", "request_fingerprint
 
 _NOT_RECORDED = ("rrd",)
 """Fields of :class:`IngestConfig` the store does not record: where its Rerun file goes."""
+_READ_NOT_RECORDED = (*ReadOptions.HOW, "format")
+"""Fields of :class:`ingest.source.ReadOptions` neither fingerprinted nor recorded: the limits
+that only refuse, and ``format``, which only picks the layout a folder is read as. The layout
+itself is part of the source's identity (fingerprinted) and recorded under ``topics``,
+whether it was detected or forced: a forced layout equal to the detected one leaves the
+store current, and stores of recordings keep their bytes."""
 
 INGEST_VERSION = "1"
 """Bumped when ingest's output for the same input changes; part of the fingerprint."""
@@ -66,23 +83,28 @@ class IngestConfig:
     default the recording's own class names if it has any."""
     rrd: Path | None = None
     """Write a Rerun recording of the ingest here."""
-    rrd_every: int = 10
-    """Log the back-projected point cloud of every Nth frame."""
+    rrd_every: int | None = None
+    """Log the back-projected point cloud of every Nth view; default every view of a short
+    recording, else every 10th (:func:`ingest.viz.cloud_every`)."""
 
     def __post_init__(self) -> None:
+        every = {} if self.rrd_every is None else {"rrd_every": self.rrd_every}
         check_numbers(
             IngestError,
             "ingest config",
-            at_least_one={"rrd_every": self.rrd_every,
-                          "batch_size": self.encoder_options.batch_size},
-        )  # fmt: skip
+            at_least_one={**every, "batch_size": self.encoder_options.batch_size},
+        )
 
 
-def _source_identity(path: Path) -> dict[str, Any]:
-    """What a recording *is*: its size and checksum (every file of a bag directory, with
-    their relative names), not where it lies or when it was touched, so a dataset copied to
-    another directory or machine keeps its stores (:func:`care.fingerprint.content_digest`)."""
-    return content_digest(path)
+def _source_identity(path: Path, read: ReadOptions) -> dict[str, Any]:
+    """What a recording *is*: its size and checksum (every file of a bag directory or dataset
+    folder, with their relative names), not where it lies or when it was touched, so a dataset
+    copied to another directory or machine keeps its stores
+    (:func:`care.fingerprint.content_digest`); for a dataset folder also the layout it is read
+    as and what the layout reads it with (:func:`ingest.folders.frames.folder_identity`)."""
+    identity = content_digest(path)
+    layout = folder_identity(path, read)
+    return identity if layout is None else {**identity, "layout": layout}
 
 
 def _digest(config: IngestConfig, source: dict[str, Any], encoder_key: dict[str, Any]) -> str:
@@ -96,7 +118,7 @@ def _digest(config: IngestConfig, source: dict[str, Any], encoder_key: dict[str,
             "ingest_version": INGEST_VERSION,
             "schema_version": SCHEMA_VERSION,
             "source": source,
-            "read": config_fields(config.read, ReadOptions.HOW),
+            "read": config_fields(config.read, _READ_NOT_RECORDED),
             "select": config.select,
             "encoder_options": options if encoder_key["encoder"] is not None else None,
             "vocabulary": config.vocabulary,
@@ -166,16 +188,18 @@ def _vocabulary(config: IngestConfig, label_names: tuple[str, ...]) -> list[str]
     return list(vocabulary_option(config.vocabulary))
 
 
-def _open_logger(job: _Job, frames: RecordingFrames) -> Any:
+def _open_logger(job: _Job, frames: Frames) -> Any:
     """A Rerun logger writing to a temporary file that :meth:`keep` renames into place."""
     config = job.config
     if config.rrd is None:
         return None
-    from ingest.viz import IngestLogger
+    from ingest.viz import IngestLogger, cloud_every
 
+    total = frames.total
+    views = None if total is None else -(-total // config.select.every)
     return IngestLogger(
         config.rrd,
-        every=config.rrd_every,
+        every=cloud_every(config.rrd_every, views),
         world_frame=frames.world_frame or DEFAULT_WORLD_FRAME,
         camera_frame=frames.camera_frame or DEFAULT_CAMERA_FRAME,
         scene=job.out.name,
@@ -222,13 +246,13 @@ def _run_ingest(job: _Job, encoder: Encoder | None) -> Path:
     check_output(out, kind=OutputKind.STORE, inputs=[recording])
     if config.rrd is not None:
         check_file_output(config.rrd, inputs=[recording])
-    source = _source_identity(recording)
+    source = _source_identity(recording, config.read)
     request = request_fingerprint(config, source) if encoder is None else None
     if request is not None and _up_to_date(job, request, "request_fingerprint"):
         return _log_missing_rrd(job)  # before building the encoder: no model is loaded
-    # opening the recording checks its topics, camera info and pose source: a recording
-    # that cannot be read is refused before a model is loaded
-    with RecordingFrames(recording, config.read) as frames:
+    # opening the recording checks its topics, camera info and pose source (a folder its
+    # layout's files): a source that cannot be read is refused before a model is loaded
+    with open_frames(recording, config.read) as frames:
         if encoder is None and config.encoder is not None:
             encoder = make_encoder(config.encoder, config.encoder_options)
         with output_lock(out):
@@ -246,12 +270,12 @@ def _log_missing_rrd(job: _Job) -> Path:
     rrd = job.config.rrd
     if rrd is None or rrd.is_file():
         return job.out
-    from ingest.viz import IngestLogger
+    from ingest.viz import IngestLogger, cloud_every
 
     store = Store(job.out)
     logger = IngestLogger(
         rrd,
-        every=job.config.rrd_every,
+        every=cloud_every(job.config.rrd_every, store.num_views),
         world_frame=store.meta.world_frame or DEFAULT_WORLD_FRAME,
         camera_frame=store.meta.camera_frame or DEFAULT_CAMERA_FRAME,
         scene=job.out.name,
@@ -268,9 +292,29 @@ def _log_missing_rrd(job: _Job) -> Path:
     return job.out
 
 
+_STORE_OWN = frozenset({"views.parquet", "features.parquet", "text.parquet", META_FILE, MARKER})
+"""What ingest writes into a store; anything else in it was made from the store (maps)."""
+
+
+def _say_maps_go(out: Path, *, forced: bool) -> None:
+    """As a rebuilt store replaces the old one, name the maps made from the old one: the
+    new store replaces the directory whole, so they go with it (they describe other views).
+    Said once the new store is written, just before the swap, so a rebuild that fails (and
+    keeps the old store and its maps) says nothing of them."""
+    if not (out / META_FILE).is_file():
+        return
+    made = sorted(p.name for p in out.iterdir() if p.name not in _STORE_OWN and p.name[0] != ".")
+    why = "as asked (--force)" if forced else "for another recording or other ingest options"
+    if made:
+        notice(
+            f"{out}: rebuilt {why}, so the maps made from the old store go with it "
+            f"({', '.join(made)}); run `care fuse` again after"
+        )
+
+
 def _build(
     job: _Job,
-    frames: RecordingFrames,
+    frames: Frames,
     encoder: Encoder | None,
     source: dict[str, Any],
     fp: str,
@@ -284,9 +328,8 @@ def _build(
     # the text side first: a missing text table or model fails before any frame is read
     text = encoder.encode_text(vocab) if encoder is not None and vocab else None
     logger = _open_logger(job, frames)
-    total = frames.topics[frames.selection.rgb].count if frames.selection else None
     bar = tqdm(
-        total=total,
+        total=frames.total,
         desc=f"ingest {recording.name}",
         unit="frame",
         disable=not job.run.progress,
@@ -307,7 +350,10 @@ def _build(
                 writer.set_text(vocab, text)
             meta = _meta(job, frames, source, fp, vocab, encoder)
             meta["counts"]["skipped"] = dict(sorted(selector.skipped.items()))
-            writer.commit({**meta, "request_fingerprint": request})
+            writer.commit(
+                {**meta, "request_fingerprint": request},
+                replacing=lambda: _say_maps_go(job.out, forced=job.run.overwrite),
+            )
     except BaseException:
         bar.leave = False  # the error is the one line left on the terminal
         if logger is not None:
@@ -322,7 +368,7 @@ def _build(
 
 
 def _stream(
-    frames: RecordingFrames,
+    frames: Frames,
     writer: StoreWriter,
     encoder: Encoder | None,
     batch_size: int,
@@ -359,7 +405,7 @@ def _stream(
 
 def _meta(
     job: _Job,
-    frames: RecordingFrames,
+    frames: Frames,
     source: dict[str, Any],
     fp: str,
     vocab: list[str],
@@ -368,7 +414,7 @@ def _meta(
     config = job.config
     described = frames.describe()
     recorded = config_fields(config, _NOT_RECORDED)
-    for name in ReadOptions.HOW:  # limits that only refuse: not what the store is
+    for name in _READ_NOT_RECORDED:  # not what the store is (see there)
         recorded["read"].pop(name, None)
     record = (
         None if encoder is None else EncoderRecord.of(encoder, config.encoder_options).as_json()
@@ -384,6 +430,7 @@ def _meta(
         },
         "topics": described["topics"],
         "world_frame": described["world_frame"],
+        "camera_convention": described.get("camera_convention"),
         "camera_frame": described["camera_frame"],
         "distortion": [lens.as_json() for lens in frames.distortions],
         "label_names": described["label_names"],

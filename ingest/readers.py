@@ -289,16 +289,21 @@ def _sniff(path: Path) -> str | None:
 
 
 def is_recording(path: Path) -> bool:
-    """Whether ``path`` looks like a recording a reader is registered for: a ``.mcap`` or
-    ``.bag`` file, or a rosbag2 directory (its ``metadata.yaml``)."""
+    """Whether ``path`` looks like something ingest reads: a ``.mcap`` or ``.bag`` file, a
+    rosbag2 directory (its ``metadata.yaml``), or a dataset folder of a known layout
+    (:func:`ingest.folders.is_dataset_folder`: a ScanNet scene, a TUM sequence, ...), which
+    is one recording, not a folder of them."""
+    from ingest.folders import is_dataset_folder
+
     path = Path(path)
     if path.is_dir():
-        return (path / "metadata.yaml").is_file()
+        return (path / "metadata.yaml").is_file() or is_dataset_folder(path)
     return path.is_file() and path.suffix.lower() in READERS and path.suffix.lower() != "dir"
 
 
 def recordings_in(folder: Path) -> list[Path]:
-    """The recordings directly inside ``folder`` (any mix of formats), sorted by name."""
+    """The recordings directly inside ``folder`` (any mix of formats, dataset folders among
+    them), sorted by name."""
     return sorted(
         p for p in Path(folder).iterdir() if not p.name.startswith(".") and is_recording(p)
     )

@@ -7,10 +7,13 @@ Two passes over the recording, so memory stays bounded whatever its length:
 2. the image topics are streamed through :class:`ingest.sync.StampSync`; only the
    messages inside the matching window are held, and each matched set becomes a Frame.
 
-Frame conventions: the camera frame (``--camera-frame``, default the camera info's or the
-image's ``header.frame_id``) must be an *optical* frame, x right, y down, z forward, as
-REP 103 prescribes for image frames (``*_optical_frame``); the pose is
-``world_from_camera`` at the colour image's header stamp.
+Frame conventions: the pose is ``world_from_camera`` of an *optical* frame (x right, y
+down, z forward, as REP 103 prescribes for image frames) at the colour image's header stamp.
+The camera frame (``--camera-frame``, default the camera info's or the image's
+``header.frame_id``) may be in REP 103's body convention instead (x forward, y left, z up):
+found from its name and its poses, or given (``--camera-convention``), and turned into the
+optical frame (:mod:`ingest.conventions`). The intrinsics are the camera info's, or given
+(``--intrinsics``, :mod:`ingest.intrinsics`) for recordings without a right one.
 
 A view is one image and one pose, so whatever makes either ambiguous or impossible is one
 error naming where, never a silent pick: two different transforms for one frame and stamp
@@ -35,9 +38,13 @@ from typing import Any, ClassVar
 import numpy as np
 
 from care.checks import check_numbers
+from care.config import member
 from care.errors import IngestError
 from care.frames import DEFAULT_WORLD_FRAME, Frame
 from ingest import decode
+from ingest.conventions import CameraConvention, ConventionFound, find_convention, optical_pose
+from ingest.folders.base import DatasetLayout
+from ingest.intrinsics import CameraIntrinsics
 from ingest.readers import RecordingReader, TopicInfo, open_reader
 from ingest.sync import Match, StampSync
 from ingest.tf import TFBuffer, check_transform
@@ -52,6 +59,8 @@ from ingest.undistort import Distortion, undistort
 __all__ = ["ReadOptions", "ReadStats", "RecordingFrames"]
 
 _WORLD_FRAME_NAMES = ("map", "world", "odom")
+_CONVENTION_POSES = 500
+"""Most TF poses the camera convention is judged on (evenly spread over the recording)."""
 
 
 def _image_digest(msg: Any) -> bytes:
@@ -79,7 +88,22 @@ class ReadOptions:
     world_frame: str | None = None
     """TF frame of the world; default map, world or odom if present, else the TF root."""
     camera_frame: str | None = None
-    """Optical frame of the colour camera; default the camera info's header.frame_id."""
+    """Frame of the colour camera; default the camera info's (or the images')
+    header.frame_id."""
+    camera_convention: CameraConvention | None = None
+    """Axes of the camera frame: optical (x right, y down, z forward, *_optical_frame) or
+    body (x forward, y left, z up, REP 103's camera_link); default found from the frame's
+    name and its poses, refused where unclear.
+
+    A body frame read as optical turns every view a quarter turn about two axes: the map is
+    noise and nothing fails, so an unclear frame named like a body is refused rather than
+    guessed (:mod:`ingest.conventions`)."""
+    intrinsics: CameraIntrinsics | None = None
+    """Colour camera intrinsics instead of a camera info topic: fx,fy,cx,cy (pixels) or a
+    camera_info YAML / intrinsics JSON file; default the camera info topic.
+
+    Given as text (the CLI, or Python), a file is read at once: the store records the
+    numbers, so a changed file makes it stale (:mod:`ingest.intrinsics`)."""
     max_dt: float = 0.02
     """Seconds: largest stamp difference between colour and depth (and the TF
     extrapolation allowed at the ends of a transform's samples)."""
@@ -105,12 +129,26 @@ class ReadOptions:
     says; without it, depth whose camera info differs from the colour camera's (another
     sensor's intrinsics or frame) is refused rather than paired with the wrong pixels."""
 
+    format: DatasetLayout | None = None
+    """Read a dataset folder as this layout; default the one its file names match (a
+    recording takes none)."""
+
     HOW: ClassVar[tuple[str, ...]] = ("max_translation", "max_speed", "depth_registered")
     """Fields that only refuse a recording: a store they let through is the same whatever
     their values, so they are left out of its fingerprint and recorded config (stores built
     before they existed stay current)."""
 
     def __post_init__(self) -> None:
+        if self.camera_convention is not None:
+            convention = member(
+                CameraConvention, self.camera_convention, IngestError, "camera convention"
+            )
+            object.__setattr__(self, "camera_convention", convention)
+        if isinstance(self.intrinsics, str):
+            object.__setattr__(self, "intrinsics", CameraIntrinsics.from_text(self.intrinsics))
+        if self.intrinsics is not None and self.camera_info is not None:
+            msg = "read options: --intrinsics replaces the camera info topic; pass either it or --camera-info, not both."
+            raise IngestError(msg)
         check_numbers(
             IngestError,
             "read options",
@@ -147,6 +185,8 @@ class RecordingFrames:
         self.selection: TopicSelection | None = None
         self.world_frame: str | None = None
         self.camera_frame: str | None = None
+        self.convention: ConventionFound | None = None
+        """The camera frame's convention and what decided it, once known."""
         self._reader: RecordingReader | None = None
         self._tf = TFBuffer()
         self._infos: list[tuple[int, np.ndarray, int, int, Distortion]] = []
@@ -195,17 +235,20 @@ class RecordingFrames:
             depth=o.depth,
             camera_info=o.camera_info,
             pose_source=o.pose_source,
+            intrinsics=o.intrinsics is not None,
         )
         self.selection = sel
         if not o.static_pose and not sel.tf and not sel.pose_source:
             msg = f"{self.path}: no pose source: no /tf or /tf_static messages and no nav_msgs/Odometry or geometry_msgs/PoseStamped topic; pass --static-pose to give every frame the identity pose, or --pose-source TOPIC."
             raise IngestError(msg)
         depth_info = None if o.depth_registered else depth_camera_info(self.topics, sel)
-        small = [sel.camera_info, *sel.tf, *filter(None, [sel.pose_source, sel.class_names])]
+        small = [*sel.tf, *filter(None, [sel.camera_info, sel.pose_source, sel.class_names])]
         small += [depth_info] if depth_info else []
         pose_samples: list[decode.StampedTransform] = []
         depth_intrinsics: tuple[np.ndarray, int, int, str] | None = None
-        for topic, t, msg in self._reader.messages(small):
+        # no small topic at all (--intrinsics and --static-pose): nothing to read, and an
+        # empty list would ask the reader for every topic
+        for topic, t, msg in self._reader.messages(small) if small else ():
             if topic == sel.camera_info:
                 self._add_info(msg, t)
             elif topic == depth_info:
@@ -222,9 +265,14 @@ class RecordingFrames:
                 static = topic.rstrip("/").endswith("tf_static")
                 for tf in decode.transforms(msg, t):
                     self._tf.add(tf, static=static, topic=topic)
+        if o.intrinsics is not None:
+            given = o.intrinsics
+            self._infos = [(0, given.K, given.width, given.height, given.lens)]
         if not self._infos:
-            msg = f"{self.path}: camera info topic {sel.camera_info} has no messages; record camera_info or pass --camera-info TOPIC."
+            msg = f"{self.path}: camera info topic {sel.camera_info} has no messages; record camera_info, pass --camera-info TOPIC, or give the intrinsics with --intrinsics fx,fy,cx,cy (or a camera_info YAML)."
             raise IngestError(msg)
+        if self.camera_frame is None and not o.camera_frame:
+            self.camera_frame = self._first_image_frame()
         colour_frame = self.camera_frame
         self.camera_frame = o.camera_frame or self.camera_frame
         if depth_info and depth_intrinsics is not None:
@@ -233,6 +281,18 @@ class RecordingFrames:
             self._add_pose_source(pose_samples)
         if not o.static_pose and self.camera_frame:
             self._resolve_world_frame()
+        if o.static_pose:  # the camera frame is the world: any convention is consistent
+            given = o.camera_convention or CameraConvention.OPTICAL
+            self.convention = ConventionFound(given, "static pose")
+
+    def _first_image_frame(self) -> str | None:
+        """The first colour image's ``header.frame_id`` (no camera info names the frame):
+        read now, so the world frame and the convention are checked before any model loads."""
+        assert self._reader is not None
+        assert self.selection is not None
+        for _, _, msg in self._reader.messages([self.selection.rgb]):
+            return str(msg.header.frame_id).lstrip("/") or None
+        return None
 
     def _check_depth_registered(
         self, topic: str, depth: tuple[np.ndarray, int, int, str], colour_frame: str | None
@@ -348,6 +408,7 @@ class RecordingFrames:
             "topics": self.selection.as_dict() if self.selection else None,
             "world_frame": self.world_frame,
             "camera_frame": self.camera_frame,
+            "camera_convention": self.convention.as_json() if self.convention else None,
             "label_names": list(self.label_names),
             "options": asdict(self.options),
         }
@@ -445,6 +506,24 @@ class RecordingFrames:
         self.world_frame = self._choose_world_frame()
         assert self.camera_frame is not None
         self._tf.check_connected(self.world_frame, self.camera_frame)
+        self.convention = self._find_convention()
+
+    def _find_convention(self) -> ConventionFound:
+        """The camera frame's convention: as given, else from its name and its poses at TF's
+        own stamps (no image decoded)."""
+        given = self.options.camera_convention
+        if given is not None:
+            return ConventionFound(given, "given (--camera-convention)")
+        assert self.world_frame is not None
+        assert self.camera_frame is not None
+        stamps = self._tf.sample_stamps(self.world_frame, self.camera_frame)
+        if len(stamps) > _CONVENTION_POSES:
+            spread = np.linspace(0, len(stamps) - 1, _CONVENTION_POSES).round().astype(int)
+            stamps = stamps[spread]
+        if not len(stamps):  # a static chain: one pose at any time
+            stamps = np.zeros(1, np.int64)
+        poses, valid = self._tf.lookup(self.world_frame, self.camera_frame, stamps)
+        return find_convention(self.camera_frame, self.world_frame, poses[valid])
 
     def _why_empty(self) -> str:
         sel = self.selection
@@ -511,16 +590,26 @@ class RecordingFrames:
         if (iw, ih) != (0, 0) and (iw, ih) != (w, h):
             sel = self.selection
             assert sel is not None
-            msg = f"{self.path}: camera info {sel.camera_info} is for {iw}x{ih} images but {sel.rgb} has {w}x{h}; pass the colour camera's --camera-info."
+            if self.options.intrinsics is not None:
+                msg = f"{self.path}: --intrinsics are for {iw}x{ih} images but {sel.rgb} has {w}x{h}; give the colour camera's intrinsics."
+            else:
+                msg = f"{self.path}: camera info {sel.camera_info} is for {iw}x{ih} images but {sel.rgb} has {w}x{h}; pass the colour camera's --camera-info, or --intrinsics."
             raise IngestError(msg)
         return K, lens
 
     def _pose(self, t: int) -> np.ndarray | None:
+        """``world_from_optical`` at ``t`` (None: TF does not cover it)."""
+        convention = self.convention.convention if self.convention else CameraConvention.OPTICAL
         if self.options.static_pose:
-            return np.eye(4)
+            return optical_pose(np.eye(4), convention)
         assert self.world_frame is not None
         assert self.camera_frame is not None
         T, valid = self._tf.lookup(
             self.world_frame, self.camera_frame, np.array([t]), round(self.options.max_dt * 1e9)
         )
-        return T[0] if valid[0] else None
+        return optical_pose(T[0], convention) if valid[0] else None
+
+    @property
+    def total(self) -> int | None:
+        """Colour images the recording holds (the progress bar's length), once entered."""
+        return self.topics[self.selection.rgb].count if self.selection else None

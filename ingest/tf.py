@@ -235,6 +235,16 @@ class TFBuffer:
         tree = self.tree(frame)
         return f"the tree of {frame!r} rooted at {tree[0]!r} ({', '.join(tree)})"
 
+    def sample_stamps(self, target: str, source: str) -> np.ndarray:
+        """Sorted stamps (ns) of the moving transforms on the chain joining ``source`` to
+        ``target``: where TF itself says where ``source`` is (empty: a static chain)."""
+        self.check_connected(target, source)
+        up_source, up_target = self._chain(source), self._chain(target)
+        common = next(f for f in up_source if f in set(up_target))
+        children = up_source[: up_source.index(common)] + up_target[: up_target.index(common)]
+        stamps = [self._edges[c].arrays()[0] for c in children if not self._edges[c].static]
+        return np.unique(np.concatenate(stamps)) if stamps else np.zeros(0, np.int64)
+
     def lookup(
         self, target: str, source: str, times: np.ndarray, tolerance_ns: int = 0
     ) -> tuple[np.ndarray, np.ndarray]:

@@ -56,7 +56,8 @@ class TopicSelection:
 
     rgb: str
     depth: str
-    camera_info: str
+    camera_info: str | None
+    """None where the intrinsics are given (``--intrinsics``) instead."""
     tf: tuple[str, ...] = ()
     """TF topics; those named ``*tf_static`` are static (latched)."""
     pose_source: str | None = None
@@ -154,7 +155,7 @@ def _pick_depth(topics: Mapping[str, TopicInfo], rgb: str, path: str) -> str:
 def _pick_camera_info(topics: Mapping[str, TopicInfo], rgb: str, path: str) -> str:
     infos = [t for t in topics.values() if t.msgtype in CAMERA_INFO_TYPES]
     if not infos:
-        msg = f"{path}: no camera info topic (sensor_msgs/CameraInfo) for {rgb}; topics present: {_listing(topics)}. Record camera_info, or pass --camera-info TOPIC."
+        msg = f"{path}: no camera info topic (sensor_msgs/CameraInfo) for {rgb}; topics present: {_listing(topics)}. Record camera_info, pass --camera-info TOPIC, or give the intrinsics with --intrinsics fx,fy,cx,cy (or a camera_info YAML)."
         raise IngestError(msg)
     # The info beside the colour image: longest common prefix, then not a depth camera's.
     return max(
@@ -171,19 +172,20 @@ def select_topics(
     depth: str | None = None,
     camera_info: str | None = None,
     pose_source: str | None = None,
+    intrinsics: bool = False,
 ) -> TopicSelection:
-    """Auto-detect each role's topic unless its override is given (then check it exists)."""
+    """Auto-detect each role's topic unless its override is given (then check it exists);
+    with ``intrinsics`` given, no camera info topic is read."""
     rgb = _check(topics, rgb, IMAGE_TYPES, "--rgb", path) if rgb else _pick_rgb(topics, path)
     depth = (
         _check(topics, depth, IMAGE_TYPES, "--depth", path)
         if depth
         else _pick_depth(topics, rgb, path)
     )
-    camera_info = (
-        _check(topics, camera_info, CAMERA_INFO_TYPES, "--camera-info", path)
-        if camera_info
-        else _pick_camera_info(topics, rgb, path)
-    )
+    if camera_info:
+        camera_info = _check(topics, camera_info, CAMERA_INFO_TYPES, "--camera-info", path)
+    elif not intrinsics:
+        camera_info = _pick_camera_info(topics, rgb, path)
     if pose_source:
         _check(topics, pose_source, POSE_TYPES, "--pose-source", path)
     tf = tuple(sorted(t.name for t in topics.values() if t.msgtype in TF_TYPES and t.count > 0))

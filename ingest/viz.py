@@ -36,6 +36,7 @@ __all__ = [
     "TF_ENTITY",
     "TRAJECTORY_ENTITY",
     "IngestLogger",
+    "cloud_every",
     "ingest_blueprint",
 ]
 
@@ -52,6 +53,12 @@ DEPTH_SCALE_ENTITY = "legend/depth"
 """A strip of depths from the near to the far end of the depth view's colour range, drawn
 with the same colour map: the depth view's scale."""
 
+SHORT_RECORDING = 40
+"""Views up to which every view's points are logged: a short recording is looked at view by
+view, and its clouds are few."""
+CLOUD_EVERY = 10
+"""Views between logged clouds of a longer recording (the map still builds up, the file
+stays small)."""
 _POINT_STRIDE = 4
 """Pixels between back-projected points (16x fewer points than pixels)."""
 _DEPTH_RANGE_M = (0.0, 6.0)
@@ -94,6 +101,15 @@ def ingest_blueprint(world_frame: str = WORLD_FRAME, camera_frame: str = CAMERA_
     )
 
 
+def cloud_every(every: int | None, views: int | None) -> int:
+    """Views between back-projected clouds: ``every`` when given, else every view of a
+    recording of at most :data:`SHORT_RECORDING` views (``views``: their number, or an
+    estimate; None: unknown), else :data:`CLOUD_EVERY`."""
+    if every is not None:
+        return every
+    return 1 if views is not None and views <= SHORT_RECORDING else CLOUD_EVERY
+
+
 class IngestLogger:
     """Logs frames as they are ingested into a temporary file.
 
@@ -106,7 +122,7 @@ class IngestLogger:
         self,
         rrd_path: Path,
         *,
-        every: int = 10,
+        every: int = CLOUD_EVERY,
         world_frame: str = WORLD_FRAME,
         camera_frame: str = CAMERA_FRAME,
         scene: str | None = None,

@@ -39,7 +39,7 @@ from fuse.layout import CELLS_TABLE, GridLayout
 from query.map import CandidateMap
 from query.publish import MAP_FRAME_ID, FramePlan, frame_plan
 
-__all__ = ["MAP_FRAME_ID", "FreeSpace", "Goal", "GoalConfig", "GoalMaker"]
+__all__ = ["MAP_FRAME_ID", "FreeSpace", "Goal", "GoalConfig", "GoalMaker", "stamped_poses"]
 
 
 @dataclass(frozen=True)
@@ -106,18 +106,7 @@ class Goal:
             pose, frame_id = np.linalg.solve(self.map_from_world, pose), self.world_frame
         elif self.frame_from_map is not None:
             pose = self.frame_from_map @ pose
-        from scipy.spatial.transform import Rotation
-
-        qx, qy, qz, qw = Rotation.from_matrix(pose[:3, :3]).as_quat()
-        sec, nanosec = divmod(int(self.stamp_ns), 1_000_000_000)
-        x, y, z = (float(v) for v in pose[:3, 3])
-        return {
-            "header": {"frame_id": frame_id, "stamp": {"sec": sec, "nanosec": nanosec}},
-            "pose": {
-                "position": {"x": x, "y": y, "z": z},
-                "orientation": {"x": float(qx), "y": float(qy), "z": float(qz), "w": float(qw)},
-            },
-        }
+        return stamped_poses(pose[None], frame_id, self.stamp_ns)[0]
 
     def as_dict(self) -> dict:
         """JSON of the goal: the PoseStamped (and, where the map frame is not the world frame,
@@ -134,6 +123,26 @@ class Goal:
             out["world_pose_stamped"] = self.pose_stamped(in_world=True)
             out["map_from_world"] = self.map_from_world.reshape(-1).tolist()
         return out
+
+
+def stamped_poses(poses: np.ndarray, frame_id: str, stamp_ns: int) -> list[dict]:
+    """(M, 4, 4) poses as ``geometry_msgs/PoseStamped`` JSON (ROS 2 field names), one header
+    for all: a goal is one of them, a ``nav_msgs/Path`` many (:mod:`query.paths`)."""
+    from scipy.spatial.transform import Rotation
+
+    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
+    quats = Rotation.from_matrix(poses[:, :3, :3]).as_quat() if len(poses) else np.empty((0, 4))
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    return [
+        {
+            "header": {"frame_id": frame_id, "stamp": {"sec": sec, "nanosec": nanosec}},
+            "pose": {
+                "position": dict(zip("xyz", (float(v) for v in pose[:3, 3]), strict=True)),
+                "orientation": dict(zip("xyzw", (float(v) for v in quat), strict=True)),
+            },
+        }
+        for pose, quat in zip(poses, quats, strict=True)
+    ]
 
 
 @dataclass(frozen=True)

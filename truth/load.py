@@ -22,10 +22,12 @@ from truth.model import GroundTruth
 
 __all__ = [
     "EXPORT_FORMATS",
+    "MATTERPORT_FOLDERS",
     "GtFormat",
     "detect_format",
     "export_ground_truth",
     "find_beside",
+    "inside_paths",
     "parse_transform",
     "read_class_map",
     "read_ground_truth",
@@ -52,8 +54,32 @@ def _stem(recording: Path) -> str:
     return recording.stem if recording.suffix else recording.name
 
 
+MATTERPORT_FOLDERS = ("region_segmentations", "house_segmentations")
+"""The folders of a Matterport3D house that hold its ground truth."""
+
+
+def inside_paths(folder: Path) -> list[tuple[Path, GtFormat]]:
+    """Ground truth inside a dataset folder read as one recording, as the dataset ships it
+    there: a ScanNet scene's annotation (``<scene>.aggregation.json`` and its mesh and
+    segments) beside the frames exported into the scene folder, or a Matterport3D house's
+    segmentations beside its undistorted images (unzipped in the house, in
+    ``<house>/<house>/``, or into a folder named after the zip)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    found = [(p, GtFormat.SCANNET) for p in sorted(folder.glob("*.aggregation.json"))[:1]]
+    houses = (folder, folder / folder.name, folder / MATTERPORT_FOLDERS[0] / folder.name)
+    found += [
+        (house, GtFormat.MATTERPORT)
+        for house in houses
+        if any(next((house / name).glob("*.ply"), None) for name in MATTERPORT_FOLDERS)
+    ][:1]
+    return found
+
+
 def beside_paths(recording: Path) -> list[tuple[Path, GtFormat]]:
-    """Where ground truth is looked for beside a recording, in order of preference."""
+    """Where ground truth is looked for beside a recording, in order of preference; for a
+    dataset folder, then inside it (:func:`inside_paths`)."""
     recording = Path(recording)
     stem, folder = _stem(recording), recording.parent
     return [
@@ -66,6 +92,7 @@ def beside_paths(recording: Path) -> list[tuple[Path, GtFormat]]:
         (folder / f"{stem}.scannet", GtFormat.SCANNET),
         (folder / f"{stem}.matterport", GtFormat.MATTERPORT),
         (folder / f"{stem}.replica", GtFormat.REPLICA),
+        *inside_paths(recording),
     ]
 
 

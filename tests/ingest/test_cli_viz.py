@@ -36,6 +36,14 @@ def test_ingest_logs_rerun_entities(run_cli, tmp_path: Path, h) -> None:
     assert counts[(e(viz.TRAJECTORY_ENTITY), "LineStrips3D:strips")] == 6
     assert RrdReader(rrd).blueprints()
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+    # the depth view's scale, drawn once with the depth view's own colour map and range
+    assert counts[(e(viz.DEPTH_SCALE_ENTITY), "DepthImage:buffer")] == 1
+    # by default a short recording has every view back-projected
+    again = tmp_path / "again.rrd"
+    code, _, err = run_cli("ingest", rec, "--out", tmp_path / "store2", "--rrd", again)
+    assert code == 0, err
+    clouds = {p for p, c in rrd_entity_counts(again) if p.startswith(e(viz.MAP_ENTITY) + "/")}
+    assert clouds == {e(f"{viz.MAP_ENTITY}/{i}") for i in range(7)}
 
 
 def test_topics_lists_and_shows_choice(run_cli, tmp_path: Path, h) -> None:
@@ -120,3 +128,19 @@ def test_rrd_of_an_up_to_date_store_is_written_from_it(
 
     np.testing.assert_allclose(poses(rrd), poses(tmp_path / "ref.rrd"), atol=1e-6)
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+    # other options rebuild the store: the maps made from the old one are named first
+    code, _, err = run_cli("ingest", rec, "--out", store, "--every", "2", *model)
+    assert code == 0, err
+    said = [line for line in err.splitlines() if "run `care fuse` again" in line]
+    assert len(said) == 1, err
+    assert said[0].startswith(f"{store}: rebuilt for another recording or other ingest options")
+    for name in ("cells.parquet", "map.yaml", "map_frame.json"):
+        assert name in said[0]
+        assert not (store / name).exists()
+
+
+def test_cloud_cadence_of_short_and_long_recordings() -> None:
+    assert viz.cloud_every(None, viz.SHORT_RECORDING) == 1
+    assert viz.cloud_every(None, viz.SHORT_RECORDING + 1) == viz.CLOUD_EVERY
+    assert viz.cloud_every(None, None) == viz.CLOUD_EVERY  # length unknown: the long way
+    assert viz.cloud_every(3, 5) == 3  # asked for

@@ -40,7 +40,10 @@ from truth.formats.common import (
 from truth.geometry import _hull
 from truth.model import GroundTruth, Room
 
-__all__ = ["ROOM_TYPES", "read_matterport", "write_matterport"]
+__all__ = ["CATEGORY_MAPPING", "ROOM_TYPES", "read_matterport", "write_matterport"]
+
+CATEGORY_MAPPING = "category_mapping.tsv"
+"""Matterport3D's class table, looked for in the house folder and its parents."""
 
 ROOM_TYPES = {
     "a": "bathroom", "b": "bedroom", "c": "closet", "d": "dining room", "e": "entryway",
@@ -81,7 +84,7 @@ def _meshes(house: Path) -> list[Path]:
 
 def _category_names(house: Path) -> dict[int, str]:
     for folder in (house, *house.parents):
-        tsv = folder / "category_mapping.tsv"
+        tsv = folder / CATEGORY_MAPPING
         if tsv.is_file():
             with tsv.open(newline="") as fh:
                 return {
@@ -297,7 +300,7 @@ def write_matterport(gt: GroundTruth, house: Path, name: str) -> list[Path]:
         ]
     house_file = house / "house_segmentations" / f"{name}.house"
     write_text(house_file, "\n".join([*lines, *surfaces, *vertex_lines]) + "\n")
-    tsv = house / "category_mapping.tsv"
+    tsv = house / CATEGORY_MAPPING
     rows = ["index\traw_category\tcategory"] + [
         f"{i}\t{n}\t{n}" for n, i in sorted(cat_index.items(), key=lambda kv: kv[1])
     ]

@@ -1,0 +1,201 @@
+"""Reading a dataset folder's own files: image lists, images, text tables, stamps, poses.
+
+Every reader here fails with one :class:`care.errors.IngestError` line that names the file
+(and the line of a text file) and what to do, never a traceback: a dataset as downloaded is
+bad input like any recording.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from collections.abc import Iterable
+from decimal import Decimal, InvalidOperation
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from PIL import Image, UnidentifiedImageError
+
+from care.errors import IngestError
+from geometry.transforms import quaternion_to_matrix
+
+__all__ = [
+    "DEPTH_MILLIMETRES",
+    "IMAGE_SUFFIXES",
+    "PINHOLE_KEYS",
+    "PRIMESENSE",
+    "Intrinsics",
+    "image_files",
+    "json_file",
+    "natural_key",
+    "numbers",
+    "pose_from_tum",
+    "read_colour",
+    "read_depth",
+    "stamp_ns",
+    "table",
+]
+
+DEPTH_MILLIMETRES = 1000.0
+"""Depth value of one metre in millimetre PNGs (Redwood, Open3D, our generic layout)."""
+PINHOLE_KEYS = ("fx", "fy", "cx", "cy")
+"""The pinhole parameters (pixels) a camera file names, as :class:`Intrinsics` takes them."""
+PRIMESENSE = {"fx": 525.0, "fy": 525.0, "cx": 319.5, "cy": 239.5, "width": 640, "height": 480}
+"""The PrimeSense / Kinect default camera: Open3D's ``PrimeSenseDefault`` and the ROS default
+that TUM's conversion code applies to every sequence."""
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+"""Colour image files a folder may hold (Open3D's reconstruction system reads the first two)."""
+
+
+def natural_key(path: Path) -> tuple[Any, ...]:
+    """Sort key that orders ``frame2`` before ``frame10`` (numbers compared as numbers), as the
+    datasets' own loaders sort their file lists."""
+    parts = re.split(r"(\d+)", path.name)
+    return tuple(int(p) if p.isdigit() else p for p in parts)
+
+
+def image_files(
+    folder: Path, suffixes: Iterable[str] = IMAGE_SUFFIXES, pattern: str = "*"
+) -> list[Path]:
+    """The images in ``folder`` matching ``pattern`` with one of ``suffixes``, naturally sorted."""
+    wanted = tuple(s.lower() for s in suffixes)
+    found = [p for p in folder.glob(pattern) if p.is_file() and p.suffix.lower() in wanted]
+    return sorted(found, key=natural_key)
+
+
+def _open(path: Path) -> Image.Image:
+    if not path.is_file():
+        msg = f"{path}: no such image; the dataset folder is incomplete (re-copy it)."
+        raise IngestError(msg)
+    try:
+        image = Image.open(path)
+        image.load()
+    except (OSError, UnidentifiedImageError, ValueError) as err:
+        msg = (
+            f"{path}: cannot read the image ({err}); the file is truncated or corrupt, re-copy it."
+        )
+        raise IngestError(msg) from err
+    return image
+
+
+def read_colour(path: Path) -> np.ndarray:
+    """(H, W, 3) uint8 RGB of a colour image file."""
+    with _open(path) as image:
+        return np.asarray(image.convert("RGB"))
+
+
+def read_depth(path: Path, scale: float) -> np.ndarray:
+    """(H, W) float32 metres of a 16-bit depth PNG whose value ``scale`` is one metre."""
+    with _open(path) as image:
+        mode = image.mode
+        values = np.asarray(image)
+    if values.ndim != 2 or values.dtype.kind not in "ui" or mode in ("L", "P", "1"):
+        msg = f"{path}: a {mode} image of shape {values.shape}, not a 16-bit single-channel depth image; the folder's depth/ holds something else (check the layout with care topics)."
+        raise IngestError(msg)
+    return (values.astype(np.float32) / np.float32(scale)).astype(np.float32)
+
+
+def table(path: Path, columns: int | tuple[int, ...], what: str) -> list[tuple[int, list[str]]]:
+    """``(line number, fields)`` of each row of a whitespace-separated text file, without blank
+    lines and ``#`` comments; every row must have one of ``columns`` fields. ``what`` says
+    what the file should hold, for the error."""
+    if not path.is_file():
+        msg = f"{path}: missing; the folder needs it ({what})."
+        raise IngestError(msg)
+    wanted = (columns,) if isinstance(columns, int) else columns
+    rows = []
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as err:
+        msg = f"{path}: cannot read it as text ({err}); re-copy the file."
+        raise IngestError(msg) from err
+    for number, line in enumerate(text.splitlines(), start=1):
+        fields = line.replace(",", " ").split()
+        if not fields or fields[0].startswith("#"):
+            continue
+        if len(fields) not in wanted:
+            counts = " or ".join(str(n) for n in wanted)
+            msg = f"{path}: line {number} has {len(fields)} fields, expected {counts} ({what}); fix or re-copy the file."
+            raise IngestError(msg)
+        rows.append((number, fields))
+    return rows
+
+
+def numbers(fields: list[str], path: Path, line: int) -> np.ndarray:
+    """The fields of one row as float64 (``nan`` and ``inf`` kept: a lost pose reads as one)."""
+    try:
+        return np.array([float(f) for f in fields], np.float64)
+    except ValueError as err:
+        msg = f"{path}: line {line} is not all numbers ({err}); fix or re-copy the file."
+        raise IngestError(msg) from err
+
+
+def stamp_ns(text: str, path: Path, line: int) -> int:
+    """Seconds written as a decimal (``1305031102.175304``) to integer nanoseconds, exactly:
+    a float64 of epoch seconds keeps only about a quarter of a microsecond."""
+    try:
+        value = Decimal(text)
+    except InvalidOperation as err:
+        msg = f"{path}: line {line}: {text!r} is not a time in seconds; fix or re-copy the file."
+        raise IngestError(msg) from err
+    if not value.is_finite():
+        msg = f"{path}: line {line}: time {text!r} is not finite; fix or re-copy the file."
+        raise IngestError(msg)
+    return int((value * 1_000_000_000).to_integral_value())
+
+
+def pose_from_tum(values: np.ndarray, path: Path, line: int) -> np.ndarray:
+    """(4, 4) pose of ``tx ty tz qx qy qz qw``; non-finite values give a non-finite pose (a
+    view the reader drops as unposed), a zero quaternion is an error (no rotation at all)."""
+    pose = np.full((4, 4), np.nan)
+    if not np.isfinite(values).all():
+        return pose
+    if np.linalg.norm(values[3:]) < 1e-6:
+        msg = f"{path}: line {line}: quaternion {values[3:].tolist()} is zero, not a rotation; fix or re-copy the file."
+        raise IngestError(msg)
+    pose = np.eye(4)
+    pose[:3, :3] = quaternion_to_matrix(values[3:])
+    pose[:3, 3] = values[:3]
+    return pose
+
+
+def json_file(path: Path, what: str) -> dict[str, Any]:
+    """A JSON object file, or one line naming it."""
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        msg = f"{path}: cannot read it as JSON ({err}); it should hold {what}."
+        raise IngestError(msg) from err
+    if not isinstance(data, dict):
+        msg = f"{path}: not a JSON object; it should hold {what}."
+        raise IngestError(msg)
+    return data
+
+
+class Intrinsics:
+    """A pinhole camera as a dataset states it: K, the image size it is for (0: any) and where
+    it came from (a file name relative to the folder, or the dataset's published values)."""
+
+    def __init__(self, fx: float, fy: float, cx: float, cy: float, *, width: int = 0,
+                 height: int = 0, source: str) -> None:  # fmt: skip
+        self.K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], np.float64)
+        self.width, self.height, self.source = int(width), int(height), source
+        if not (np.isfinite(self.K).all() and fx > 0 and fy > 0):
+            msg = f"{source}: intrinsics fx {fx}, fy {fy}, cx {cx}, cy {cy} are not a camera (focal lengths must be finite and positive); fix the file."
+            raise IngestError(msg)
+
+    def check_size(self, width: int, height: int, image: Path, fix: str) -> None:
+        """Refuse images of another size than the intrinsics are for: K would put every
+        pixel's ray in the wrong place. ``fix`` names the file that gives the right ones."""
+        if self.width and self.height and (width, height) != (self.width, self.height):
+            msg = f"{image}: {width}x{height} image, but the intrinsics ({self.source}) are for {self.width}x{self.height}; {fix}."
+            raise IngestError(msg)
+
+    def as_json(self) -> dict[str, Any]:
+        K = self.K
+        return {
+            "fx": float(K[0, 0]), "fy": float(K[1, 1]), "cx": float(K[0, 2]),
+            "cy": float(K[1, 2]), "width": self.width, "height": self.height,
+            "source": self.source,
+        }  # fmt: skip

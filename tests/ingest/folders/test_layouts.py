@@ -1,0 +1,203 @@
+"""Dataset folders as downloaded give the map their frames give as a recording: the same 40
+living-room frames laid out as Redwood, TUM RGB-D, Replica (NICE-SLAM) and our generic layout,
+each in its dataset's own conventions (conftest), and written as an MCAP bag by the real
+writer. Every store has the bag's views and poses, and the same grid, cell for cell within 1%."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from care.store import Store, read_table
+from fuse.grid import GridConfig, build_grid
+from ingest.folders import DatasetLayout, detect_layout
+from ingest.folders.frames import FolderFrames, open_frames
+from ingest.folders.tum import TumLayout
+from ingest.pipeline import IngestConfig, run_ingest
+from ingest.source import ReadOptions
+from ingest.write import write_recording
+from runtime.execution import Execution
+
+QUIET = Execution(progress=False)
+CELL = 0.05
+LAYOUTS = ("redwood", "tum", "replica", "generic")
+
+
+@pytest.fixture(scope="module")
+def sources(tmp_path_factory, livingroom40, lay) -> dict[str, Path]:
+    root = tmp_path_factory.mktemp("layouts")
+    return {
+        "bag": write_recording(root / "rec.mcap", livingroom40, fmt="mcap"),
+        "redwood": lay.redwood(root / "livingroom_redwood", livingroom40),
+        "tum": lay.tum(root / "rgbd_dataset_livingroom", livingroom40),
+        "replica": lay.replica(root / "Replica", livingroom40),
+        "generic": lay.generic(root / "generic", livingroom40),
+    }
+
+
+@pytest.fixture(scope="module")
+def stores(sources, tmp_path_factory, h) -> dict[str, Path]:
+    root = tmp_path_factory.mktemp("stores")
+    out = {}
+    for name, source in sources.items():
+        config = IngestConfig(vocabulary="red,green,blue")
+        out[name] = run_ingest(source, root / name, config, run=QUIET, encoder=h.TinyEncoder())
+        build_grid(out[name], GridConfig(cell_size=CELL, stride=2), run=QUIET)
+    return out
+
+
+def _poses(store: Path) -> np.ndarray:
+    return np.stack(
+        [f.cam_to_world for _, f in Store(store).iter_frames(extras=False, in_map=False)]
+    )
+
+
+def _cells(store: Path) -> set[tuple[int, int]]:
+    table = read_table(store / "cells.parquet", ["ix", "iy"])
+    return set(zip(table.column("ix").to_pylist(), table.column("iy").to_pylist(), strict=True))
+
+
+def test_each_layout_is_detected_by_its_names(tmp_path, livingroom40, lay) -> None:
+    frames = livingroom40[:2]
+    for name in LAYOUTS:
+        folder = getattr(lay, name)(tmp_path / name, frames)
+        assert detect_layout(folder) == DatasetLayout(name)
+    assert detect_layout(tmp_path / "replica") is None  # the release folder above the scene
+    bag = write_recording(tmp_path / "rec.mcap", frames, fmt="mcap")
+    assert detect_layout(bag) is None  # a file
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_a_dataset_folder_gives_the_bags_views_and_grid(stores, layout: str) -> None:
+    meta = json.loads((stores[layout] / "meta.json").read_text())
+    assert meta["topics"]["layout"] == layout
+    assert meta["counts"]["frames"] == 40
+    assert "format" not in meta["config"]["read"]  # only picks the layout, recorded in topics
+    # TUM: poses interpolated between 100 Hz samples of a trajectory that is itself linear
+    # between the images, so it cuts the corners at them (under a millimetre); TUM and
+    # generic: quaternions written with six decimals
+    atol = {"tum": 1e-3, "generic": 1e-5}.get(layout, 1e-6)
+    np.testing.assert_allclose(_poses(stores[layout]), _poses(stores["bag"]), atol=atol)
+    ours, bag = _cells(stores[layout]), _cells(stores["bag"])
+    assert len(ours ^ bag) <= 0.01 * len(bag), (len(ours), len(bag), len(ours ^ bag))
+
+
+def test_tum_associates_depth_and_interpolates_the_ground_truth(
+    tmp_path, livingroom40, lay
+) -> None:
+    frames = livingroom40[:16]
+    folder = lay.tum(tmp_path / "rgbd_dataset_livingroom", frames)
+    layout = TumLayout(folder, max_dt=0.02)
+    views = layout.views()
+    assert len(views) == 16
+    assert not layout.dropped
+    first = frames[0]
+    for view, frame in zip(views, frames, strict=True):
+        seconds = lay.tum_seconds(frame, first)
+        assert view.colour.name == f"{seconds:.6f}.png"
+        assert view.depth.name == f"{seconds + 0.007:.6f}.png"  # the depth 7 ms later
+        assert view.stamp_ns == round(seconds * 1e6) * 1000  # microseconds, exactly
+        np.testing.assert_allclose(view.cam_to_world, frame.cam_to_world, atol=1e-3)
+    # depth further than --max-dt away: no colour image has depth
+    assert not TumLayout(folder, max_dt=0.005).views()
+
+
+def test_tum_drops_colour_without_depth_or_ground_truth(tmp_path, livingroom40, lay) -> None:
+    folder = lay.tum(tmp_path / "rgbd_dataset_livingroom", livingroom40[:12])
+    depth = (folder / "depth.txt").read_text().splitlines()
+    (folder / "depth.txt").write_text("\n".join(depth[:3] + depth[4:]) + "\n")  # image 0's
+    gt = (folder / "groundtruth.txt").read_text().splitlines()
+    lost = [i for i, line in enumerate(gt) if not line.startswith("#")][20:40]  # 0.2 s lost
+    (folder / "groundtruth.txt").write_text(
+        "\n".join(line for i, line in enumerate(gt) if i not in set(lost)) + "\n"
+    )
+    with FolderFrames(folder) as frames:
+        got = list(frames)
+        stats = frames.stats
+    assert stats.rgb_messages == 12
+    assert stats.dropped == {"no_depth": 1, "no_pose": 12 - 1 - len(got)}
+    assert 0 < stats.dropped["no_pose"] < 5
+    assert stats.frames == len(got)
+
+
+def test_tum_camera_from_the_folder_name_or_intrinsics_json(tmp_path, livingroom40, lay) -> None:
+    frames = livingroom40[:3]
+    fr1 = lay.tum(tmp_path / "rgbd_dataset_freiburg1_xyz", frames)
+    with open_frames(fr1) as opened:
+        assert isinstance(opened, FolderFrames)
+        K = next(iter(opened)).K
+        lens = opened.distortions
+    assert (K[0, 0], K[1, 1], K[0, 2], K[1, 2]) == (517.3, 516.5, 318.6, 255.3)
+    assert lens[0].coefficients == (0.2624, -0.9531, -0.0054, 0.0026, 1.1633)
+    (fr1 / "intrinsics.json").write_text(json.dumps({"fx": 500, "fy": 501, "cx": 320, "cy": 240}))
+    with FolderFrames(fr1) as opened:
+        frame = next(iter(opened))
+        topics = opened.describe()["topics"]
+    assert frame.K[0, 0] == 500.0
+    assert topics["depth_scale"] == 5000.0  # TUM's, the file gives none
+    assert topics["intrinsics"]["source"] == "intrinsics.json"
+    assert opened.distortions == []
+
+
+@pytest.mark.slow
+def test_a_forced_layout_equal_to_the_detected_one_keeps_the_store(stores, sources, h) -> None:
+    before = (stores["redwood"] / "meta.json").read_bytes()
+    config = IngestConfig(
+        vocabulary="red,green,blue", read=ReadOptions(format=DatasetLayout.REDWOOD)
+    )
+    run_ingest(sources["redwood"], stores["redwood"], config, run=QUIET, encoder=h.TinyEncoder())
+    assert (stores["redwood"] / "meta.json").read_bytes() == before
+
+
+@pytest.mark.slow
+def test_care_ingest_and_topics_read_the_living_room_folder_as_it_is(
+    livingroom_root: Path, tmp_path: Path, run_cli
+) -> None:
+    """The living-room folder (read-only, third-party) is itself an Open3D / Redwood folder."""
+    code, out, err = run_cli("topics", livingroom_root)
+    assert code == 0, err
+    assert "layout redwood: 211 views of 211 colour images" in out
+    assert "camera_intrinsic.json" in out
+    code, out, err = run_cli("ingest", livingroom_root, "--out", tmp_path / "store", "--end", "0.5")
+    assert code == 0, err
+    store = Store(tmp_path / "store")
+    assert store.num_views == 16  # 0.5 s at 30 Hz, from the first view
+    assert store.meta.topics["layout"] == "redwood"
+    assert store.meta.world_frame == "redwood_world"
+    code, out, _ = run_cli("topics", livingroom_root, "--stamps")
+    assert code == 0
+    assert out.split()[:2] == ["0", "33333333"]
+
+
+@pytest.mark.slow
+def test_care_run_maps_a_dataset_folder(
+    tmp_path: Path, livingroom40, lay, run_cli, save_tiny_clip
+) -> None:
+    """`care run` on a Replica scene folder: one recording, mapped, not evaluated (no ground
+    truth beside it). Folders of scene folders: ``test_folder_errors``."""
+    from care.frames import Frame
+
+    small = []
+    for f in livingroom40[::5]:  # 8 frames at a quarter resolution
+        K = f.K.copy()
+        K[:2] /= 4
+        K[:2, 2] = (f.K[:2, 2] - 1.5) / 4
+        rgb, depth = f.rgb[::4, ::4].copy(), f.depth_m[::4, ::4].copy()
+        small.append(Frame(f.stamp_ns, rgb, depth, K, f.cam_to_world))
+    scene = lay.replica(tmp_path / "Replica", small, "room0")
+    weights = save_tiny_clip(tmp_path / "tiny-clip", layers=2)
+    code, out, err = run_cli(
+        "run", scene, "--out", tmp_path / "out", "--encoder", "clip", "--weights", weights,
+        "--vocabulary", "chair,sofa,table",
+    )  # fmt: skip
+    assert code == 0, err
+    assert "no ground truth for room0" in out
+    store = tmp_path / "out" / "stores" / "room0"
+    assert (store / "cells.parquet").is_file()
+    assert (store / "instances.parquet").is_file()
+    assert Store(store).meta.topics["layout"] == "replica"
+    assert Store(store).num_views == 8

@@ -1,0 +1,337 @@
+"""Paths on the map: distances and paths against networkx's Dijkstra on a graph built
+apart (every cell a node, the moves added one by one from the whole grid's distance
+transform), a hand-worked floor, the ``nav_msgs/Path`` JSON as a real ROS 2 message, and
+``care query`` / ``care replan`` on a fused store."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+from pathlib import Path
+
+import networkx as nx
+import numpy as np
+import pytest
+from rosbags.typesys import Stores, get_typestore
+from scipy import ndimage
+
+from care.errors import QueryError
+from fuse.layout import GridLayout
+from query.goals import FreeSpace, Goal, GoalConfig, GoalMaker
+from query.paths import PathConfig, Roadmap, nav_path, passable_squared_distance, path_length
+
+STORE = get_typestore(Stores.ROS2_HUMBLE)
+CELL = 0.1
+
+
+def _space(obstacle: np.ndarray, seen: np.ndarray | None = None, cell: float = CELL) -> FreeSpace:
+    """A free space of an (nx, ny) obstacle raster, every cell seen unless ``seen`` says."""
+    ix, iy = (a.reshape(-1) for a in np.indices(obstacle.shape))
+    keep = np.ones(ix.size, bool) if seen is None else seen.reshape(-1)
+    layout = GridLayout(cell, (-1.0, 2.0), obstacle.shape)
+    return FreeSpace.from_cells(layout, ix[keep], iy[keep], obstacle.reshape(-1)[keep])
+
+
+def _rooms() -> np.ndarray:
+    """A 3 x 2 m floor: a wall at x = 1.5 m with a 0.6 m door, and a closed room in a
+    corner (walls all round, nothing gets in)."""
+    obstacle = np.zeros((30, 20), bool)
+    obstacle[15, :] = True
+    obstacle[15, 8:14] = False  # the door
+    obstacle[22:30, 12] = obstacle[22, 12:20] = True  # the closed room: x >= 2.3, y >= 3.3
+    obstacle[29, 12:20] = obstacle[22:30, 19] = True
+    return obstacle
+
+
+def _networkx(space: FreeSpace, clearance: float) -> tuple[nx.Graph, np.ndarray]:
+    """The 8-connected graph the robot moves on, built cell by cell from the whole grid's
+    distance transform (the approach points' rule), with networkx."""
+    metres = ndimage.distance_transform_edt(~space.blocked) * space.layout.cell_size
+    if not space.blocked.any():
+        metres = np.full(space.blocked.shape, np.inf)
+    ok = space.free & (metres.astype(np.float32) >= clearance)
+    graph = nx.Graph()
+    nx_, ny_ = ok.shape
+    size = space.layout.cell_size
+    for x, y in zip(*np.nonzero(ok), strict=True):
+        graph.add_node((x, y))
+        for dx, dy in ((1, 0), (0, 1), (1, 1), (1, -1)):
+            u, v = x + dx, y + dy
+            if not (0 <= u < nx_ and 0 <= v < ny_ and ok[u, v]):
+                continue
+            if dx and dy and not (ok[u, y] and ok[x, v]):  # no cutting a corner
+                continue
+            graph.add_edge((x, y), (u, v), weight=size * math.hypot(dx, dy))
+    return graph, ok
+
+
+def _centre(space: FreeSpace, cell: tuple[int, int]) -> tuple[float, float]:
+    size, (ox, oy) = space.layout.cell_size, space.layout.origin
+    return ox + (cell[0] + 0.5) * size, oy + (cell[1] + 0.5) * size
+
+
+def _goal_at(space: FreeSpace, cell: tuple[int, int], **kw) -> Goal:
+    x, y = _centre(space, cell)
+    return Goal(0, "map", 5, (x + 0.3, y, 0.5), (x, y, 0.0), 0.0, True, 1.0, **kw)
+
+
+def _check_against_networkx(space: FreeSpace, clearance: float, start_cell, seed: int) -> None:
+    graph, ok = _networkx(space, clearance)
+    roadmap = Roadmap.from_free_space(space, clearance)
+    np.testing.assert_array_equal(roadmap.passable, ok)
+    start = _centre(space, start_cell)
+    travel = roadmap.travel(start, reach=0.0)
+    want = nx.single_source_dijkstra_path_length(graph, start_cell) if ok[start_cell] else {}
+    cells = np.argwhere(space.free)
+    picks = np.random.default_rng(seed).choice(len(cells), min(60, len(cells)), replace=False)
+    for cell in map(tuple, cells[picks]):
+        goal = _goal_at(space, cell)
+        got = travel.distance_to(goal)
+        if cell not in want:
+            assert got == math.inf, cell
+            assert travel.waypoints(goal) is None
+            continue
+        assert got == pytest.approx(want[cell], abs=1e-9), cell
+        points = travel.waypoints(goal)
+        assert path_length(points) == pytest.approx(got, abs=1e-9)
+        _assert_moves(space, ok, points)
+
+
+def _assert_moves(space: FreeSpace, ok: np.ndarray, points: np.ndarray) -> None:
+    """Each step of a path is one move of the graph: a neighbour, both ends passable, a
+    diagonal with both cells beside it passable."""
+    size, origin = space.layout.cell_size, np.asarray(space.layout.origin)
+    cells = np.floor((points - origin) / size).astype(int)
+    assert ok[tuple(cells.T)].all()
+    for (x, y), (u, v) in itertools.pairwise(cells):
+        assert max(abs(u - x), abs(v - y)) == 1
+        if u != x and v != y:
+            assert ok[u, y]
+            assert ok[x, v]
+
+
+@pytest.mark.parametrize("clearance", [0.0, 0.1, 0.2])
+def test_distances_through_the_door_match_networkx(clearance: float) -> None:
+    _check_against_networkx(_space(_rooms()), clearance, (3, 3), seed=int(clearance * 10))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_generated_floors_match_networkx(seed: int) -> None:
+    """Random clutter, walls with gaps, unseen patches and radii on the cell's edge."""
+    rng = np.random.default_rng(seed)
+    shape = tuple(rng.integers(25, 45, 2))
+    obstacle = rng.random(shape) < rng.choice([0.01, 0.04, 0.1])
+    obstacle[rng.integers(5, shape[0] - 5), :] = True
+    obstacle[:, rng.integers(5, shape[1] - 5)] = True
+    obstacle[rng.random(shape) < 0.15] = False  # gaps in the walls
+    seen = rng.random(shape) > 0.05
+    space = _space(obstacle, seen, cell=0.05)
+    free = np.argwhere(space.free)
+    start = tuple(free[rng.integers(len(free))])
+    clearance = float(rng.choice([0.0, 0.05, 0.1, 0.15, 0.05 * math.sqrt(2)]))
+    _check_against_networkx(space, clearance, start, seed)
+
+
+def test_a_hand_worked_floor() -> None:
+    """An open 10 x 10 floor of 0.1 m cells, one obstacle cell: from (0, 0) to (3, 4) is
+    three diagonal moves and one straight; a goal 0.1 m from the obstacle is out of reach at
+    0.15 m clearance; the closed room of :func:`_rooms` is out of reach, the far side of its
+    wall is through the door."""
+    obstacle = np.zeros((10, 10), bool)
+    obstacle[8, 8] = True
+    space = _space(obstacle)
+    travel = Roadmap.from_free_space(space, 0.0).travel(_centre(space, (0, 0)), reach=0.0)
+    assert travel.distance_to(_goal_at(space, (3, 4))) == pytest.approx(0.3 * math.sqrt(2) + 0.1)
+    near = Roadmap.from_free_space(space, 0.15).travel(_centre(space, (0, 0)), reach=0.0)
+    assert near.distance_to(_goal_at(space, (7, 8))) == math.inf  # 0.1 m from the obstacle
+    assert near.distance_to(_goal_at(space, (6, 8))) < math.inf  # 0.2 m from it
+
+    rooms = _space(_rooms())
+    travel = Roadmap.from_free_space(rooms, 0.0).travel(_centre(rooms, (3, 3)), reach=0.0)
+    assert travel.distance_to(_goal_at(rooms, (25, 16))) == math.inf  # inside the closed room
+    # past the wall, through the door (cells y 8..13 of x = 15), entered straight: (3, 3) to
+    # (14, 8) is 5 diagonal and 6 straight moves, 2 straight through the door, then (16, 8)
+    # to (20, 3) 4 diagonal and 1 straight
+    beyond = travel.distance_to(_goal_at(rooms, (20, 3)))
+    assert beyond == pytest.approx(0.1 * (9 * math.sqrt(2) + 9))
+
+
+def test_goals_without_an_approach_point_are_unreachable() -> None:
+    space = _space(np.zeros((10, 10), bool))
+    travel = Roadmap.from_free_space(space, 0.0).travel(_centre(space, (0, 0)), reach=0.0)
+    goal = Goal(0, "map", 5, (0.0, 2.5, 0.4), (0.0, 2.5, 0.4), 0.0, False, None)
+    assert travel.distance_to(goal) == math.inf
+    assert travel.waypoints(goal) is None
+
+
+def test_a_start_off_the_free_space_joins_the_nearest_passable_cell() -> None:
+    obstacle = np.zeros((20, 20), bool)
+    obstacle[8:12, 8:12] = True  # a table the hand-held camera starts above
+    space = _space(obstacle)
+    roadmap = Roadmap.from_free_space(space, 0.2)
+    start = _centre(space, (10, 10))
+    goal = _goal_at(space, (10, 2))
+    travel = roadmap.travel(start, reach=1.0)
+    entry = roadmap.centres([travel.source])[0]
+    assert math.dist(entry, start) == pytest.approx(0.3)  # past the table's edge, 0.2 m off it
+    points = travel.waypoints(goal)
+    np.testing.assert_allclose(points[0], start)
+    assert travel.distance_to(goal) == pytest.approx(path_length(points))
+    stuck = roadmap.travel(start, reach=0.25)
+    assert stuck.source is None
+    assert stuck.distance_to(goal) == math.inf
+    outside = roadmap.travel((50.0, 50.0), reach=1.0)
+    assert outside.source is None
+
+
+@pytest.mark.parametrize("cell", [0.05, 0.1, 0.03])
+def test_the_robots_radius_keeps_the_approach_points_rule(cell: float) -> None:
+    """A goal said to keep the clearance stands on a passable cell, whatever the radius
+    (radii on a cell's edge, where float rounding decides, included)."""
+    rng = np.random.default_rng(int(cell * 100))
+    obstacle = rng.random((60, 50)) < 0.02
+    space = _space(obstacle, cell=cell)
+    for clearance in (0.0, cell, 2 * cell, 0.25, 0.3, cell * math.sqrt(5), 0.31):
+        roadmap = Roadmap.from_free_space(space, clearance)
+        config = GoalConfig(clearance=clearance, reach=1.0)
+        for target in rng.uniform(0.0, 1.0, (20, 2)) * np.array(space.layout.shape) * cell:
+            found = space.approach(tuple(target + space.layout.origin), config)
+            if found is None:
+                continue
+            ix, iy = roadmap.cell_of(found[:2])
+            assert roadmap.passable[ix, iy] == (found[2] >= np.float32(clearance))
+        k = passable_squared_distance(clearance, cell)
+        assert np.float32(math.sqrt(k) * cell) >= clearance
+        assert k == 0 or np.float32(math.sqrt(k - 1) * cell) < clearance
+
+
+def _message(msgtype: str, data):
+    """``data`` as a ROS 2 message of ``msgtype``: a field it lacks or misnames fails here."""
+    fields = {}
+    for name, (node, kind) in STORE.fielddefs[msgtype][1]:
+        assert name in data, (msgtype, name)
+        value = data[name]
+        if node.name == "NAME":
+            fields[name] = _message(kind, value)
+        elif node.name == "SEQUENCE":
+            fields[name] = [_message(kind[0][1], v) for v in value]
+        else:
+            fields[name] = value
+    assert set(data) == set(fields), msgtype
+    return STORE.types[msgtype](**fields)
+
+
+def test_nav_path_is_a_ros2_message_in_the_goals_frame() -> None:
+    """In the world frame of a z-up recording whose floor lies at z = 0.4: the poses lie on
+    the floor, face along the path, the last one is the goal's own pose."""
+    space = _space(_rooms())
+    travel = Roadmap.from_free_space(space, 0.1).travel(_centre(space, (3, 3)), reach=0.0)
+    frame_from_map = np.eye(4)
+    frame_from_map[2, 3] = 0.4
+    goal = _goal_at(space, (20, 3), frame_from_map=frame_from_map)
+    goal = Goal(0, "odom", 1_700_000_000_250_000_000, goal.target, goal.position, 0.7, True, 0.5,
+                frame_from_map=frame_from_map)  # fmt: skip
+    points = travel.waypoints(goal)
+    path = nav_path(goal, points)
+    msg = _message("nav_msgs/msg/Path", json.loads(json.dumps(path)))
+    assert len(STORE.serialize_cdr(msg, "nav_msgs/msg/Path")) > 0
+    assert path["header"]["frame_id"] == "odom"
+    assert path["header"]["stamp"] == {"sec": 1_700_000_000, "nanosec": 250_000_000}
+    poses = path["poses"]
+    assert len(poses) == len(points)
+    xyz = np.array([[p["pose"]["position"][k] for k in "xyz"] for p in poses])
+    np.testing.assert_allclose(xyz[:, :2], points)
+    np.testing.assert_allclose(xyz[:, 2], 0.4)
+    assert poses[-1] == goal.pose_stamped()
+    q = poses[0]["pose"]["orientation"]
+    heading = 2 * math.atan2(q["z"], q["w"])
+    step = points[1] - points[0]
+    assert heading == pytest.approx(math.atan2(step[1], step[0]))
+
+
+def test_path_settings_are_checked() -> None:
+    with pytest.raises(QueryError, match="x,y"):
+        PathConfig(start=(1.0, 2.0, 3.0))
+    with pytest.raises(QueryError, match="x,y"):
+        PathConfig(start=(1.0, math.nan))
+    with pytest.raises(QueryError, match="reach"):
+        PathConfig(start_reach=-1.0)
+
+
+def _fused_store(path: Path) -> Path:
+    """A floor with a box, seen from above by three cameras in a z-up world, fused."""
+    from care.frames import Frame
+    from care.store import EncoderInfo, StoreWriter
+    from fuse.grid import GridConfig, build_grid
+
+    h, w, d = 24, 32, 4
+    k = np.array([[20.0, 0, 15.5], [0, 20.0, 11.5], [0, 0, 1]])
+    rng = np.random.default_rng(3)
+    with StoreWriter(path, EncoderInfo("test", "1", d, ("chair", "table"))) as writer:
+        for i in range(3):
+            depth = np.full((h, w), 2.0, np.float32)
+            depth[4:10, 5:12] = 1.5  # a box 0.5 m tall
+            pose = np.eye(4)
+            pose[:3, :3] = np.diag([1.0, -1.0, -1.0])
+            pose[:3, 3] = [0.3 + 0.05 * i, -0.2, 2.0]
+            feats = rng.normal(size=(2, 2, d)).astype(np.float32)
+            feats /= np.linalg.norm(feats, axis=-1, keepdims=True)
+            rgb = rng.integers(0, 255, (h, w, 3), dtype=np.uint8)
+            writer.add(Frame(10**9 + i * 10**8, rgb, depth, k, pose), feats)
+        writer.set_text(("chair", "table"), np.eye(2, d, dtype=np.float32))
+        writer.commit({"source": "synthetic", "world_frame": "odom"})
+    build_grid(path, GridConfig(cell_size=0.2, stride=1))  # every cell of the floor seen
+    return path
+
+
+def test_cli_query_and_replan_give_the_path(tmp_path: Path, run_cli) -> None:
+    from care.store import Store
+
+    store = _fused_store(tmp_path / "s")
+    args = ("query", store, "chair", "--map", "grid", "--top", "4", "--clearance", "0.2")
+    code, out, err = run_cli(*args, "--json", "--from", "-0.4,-0.5")
+    assert code == 0, err
+    answer = json.loads(out)
+    assert answer["start"] == [-0.4, -0.5]
+    goals = GoalMaker.from_store(store, GoalConfig(clearance=0.2))
+    travel = Roadmap.for_goals(goals).travel((-0.4, -0.5), PathConfig().start_reach)
+    for row in answer["candidates"]:
+        goal = goals.goal(_candidates(store), row["candidate"])
+        want = travel.distance_to(goal)
+        assert row["distance"] == (pytest.approx(want) if math.isfinite(want) else None)
+    top = answer["candidates"][0]
+    assert top["distance"] is not None
+    assert answer["path_length"] == pytest.approx(top["distance"])
+    path = answer["path"]
+    _message("nav_msgs/msg/Path", path)
+    assert path["header"] == top["goal"]["pose_stamped"]["header"]
+    assert path["poses"][-1] == top["goal"]["pose_stamped"]
+    first = path["poses"][0]["pose"]["position"]
+    assert (first["x"], first["y"]) == pytest.approx((-0.4, -0.5))
+
+    code, out, err = run_cli(*args)  # the table, from the recording's first pose
+    assert code == 0, err
+    assert "path m" in out
+    code, out, err = run_cli(
+        "replan", store, "chair", "--map", "grid", "--visited", "0", "--clearance", "0.2"
+    )
+    assert code == 0, err
+    chosen = json.loads(out)
+    x, y = Store(store).poses()[0][:2, 3]  # the first camera, on the floor
+    assert chosen["start"] == pytest.approx([x, y])
+    travel = Roadmap.for_goals(goals).travel((x, y), PathConfig().start_reach)
+    want = travel.distance_to(goals.goal(_candidates(store), chosen["candidate"]))
+    assert math.isfinite(want)
+    assert chosen["distance"] == pytest.approx(want)
+    assert chosen["path_length"] == pytest.approx(want)
+    _message("nav_msgs/msg/Path", chosen["path"])
+    code, _, err = run_cli("query", store, "chair", "--from", "1,2,3")
+    assert code == 1
+    assert "x,y" in err
+
+
+def _candidates(store: Path):
+    from query import load_map
+
+    return load_map(store, "grid")
