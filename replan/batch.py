@@ -12,7 +12,8 @@ seeded by ``BatchConfig.seed``: reproducible, but not the draws of separate call
 The result is one long Arrow table (:data:`BATCH_SCHEMA`): a row per (query, ``ranking``
 position) and per (query, strategy, criterion, attempt). With goals, its schema metadata
 names their frame (:data:`care.keys.GOAL_FRAME_KEY`): ``goal_x``, ``goal_y`` and ``goal_yaw``
-are in ``frame_id``, and ``world_from_frame`` gives each goal in the recording's world frame.
+are in ``frame_id`` (the goal's height: 0 for an approach point, else the object's ``z``),
+and ``world_from_frame`` gives each goal in the recording's world frame.
 """
 
 from __future__ import annotations

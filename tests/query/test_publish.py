@@ -132,3 +132,28 @@ def test_naming_the_world_frame_gives_world_goals_even_where_it_is_tilted() -> N
     plan = frame_plan(Z_UP, "odom", "care_map")
     assert plan.publish
     np.testing.assert_allclose(plan.world_from_frame, np.linalg.inv(Z_UP.map_from_world))
+
+
+def test_batch_answers_name_their_goal_frame_and_give_the_world_goal() -> None:
+    """A batch table's goal columns are in the goal frame its metadata names; composing the
+    metadata's transform with a row's goal gives the goal's world-frame pose."""
+    import json
+
+    from care.keys import GOAL_FRAME_KEY
+    from replan.batch import BatchConfig, BatchQuery, plan_batch
+
+    maker = GoalMaker(MAP_FRAME_ID, 7, None, GoalConfig(), Y_DOWN.map_from_world, "camera_init")
+    cmap = _one_candidate_map((2.0, 1.0, 0.5))
+    table = plan_batch(cmap, [BatchQuery("chair")], BatchConfig(), goals=maker)
+    frame = json.loads(table.schema.metadata[GOAL_FRAME_KEY])
+    assert (frame["frame_id"], frame["world_frame"]) == (MAP_FRAME_ID, "camera_init")
+    world_from_frame = np.asarray(frame["world_from_frame"]).reshape(4, 4)
+    row = table.slice(0, 1).to_pylist()[0]
+    goal = np.eye(4)
+    yaw = row["goal_yaw"]
+    goal[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
+    # an approach point is on the floor; without one the goal is the object itself
+    goal[:3, 3] = [row["goal_x"], row["goal_y"], 0.0 if row["goal_approach"] else row["z"]]
+    world = maker.goal(cmap, 0).as_dict()["world_pose_stamped"]["pose"]
+    want = _matrix(world["position"], world["orientation"])
+    np.testing.assert_allclose(world_from_frame @ goal, want, atol=1e-9)

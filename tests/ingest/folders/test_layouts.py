@@ -174,11 +174,15 @@ def test_care_ingest_and_topics_read_the_living_room_folder_as_it_is(
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("layout", ["replica", "redwood", "tum", "generic"])
 def test_care_run_maps_a_dataset_folder(
-    tmp_path: Path, livingroom40, lay, run_cli, save_tiny_clip
+    tmp_path: Path, livingroom40, lay, run_cli, save_tiny_clip, layout: str
 ) -> None:
-    """`care run` on a Replica scene folder: one recording, mapped, not evaluated (no ground
-    truth beside it). Folders of scene folders: ``test_folder_errors``."""
+    """`care run` on a scene folder of each layout: one recording, mapped, not evaluated
+    (no ground truth beside it). ScanNet and Matterport3D folders, with their ground truth:
+    their own tests. Folders of scene folders: ``test_folder_errors``."""
+    import json
+
     from care.frames import Frame
 
     small = []
@@ -188,7 +192,14 @@ def test_care_run_maps_a_dataset_folder(
         K[:2, 2] = (f.K[:2, 2] - 1.5) / 4
         rgb, depth = f.rgb[::4, ::4].copy(), f.depth_m[::4, ::4].copy()
         small.append(Frame(f.stamp_ns, rgb, depth, K, f.cam_to_world))
-    scene = lay.replica(tmp_path / "Replica", small, "room0")
+    if layout == "replica":
+        scene = lay.replica(tmp_path / "Replica", small, "room0")
+    else:
+        scene = getattr(lay, layout)(tmp_path / "room0", small)
+    if layout == "tum":  # frames of another size than the benchmark's Kinects: their camera
+        K = small[0].K
+        camera = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2]}
+        (scene / "intrinsics.json").write_text(json.dumps(camera))
     weights = save_tiny_clip(tmp_path / "tiny-clip", layers=2)
     code, out, err = run_cli(
         "run", scene, "--out", tmp_path / "out", "--encoder", "clip", "--weights", weights,
@@ -199,5 +210,5 @@ def test_care_run_maps_a_dataset_folder(
     store = tmp_path / "out" / "stores" / "room0"
     assert (store / "cells.parquet").is_file()
     assert (store / "instances.parquet").is_file()
-    assert Store(store).meta.topics["layout"] == "replica"
+    assert Store(store).meta.topics["layout"] == layout
     assert Store(store).num_views == 8
