@@ -32,7 +32,7 @@ import rerun.blueprint as rrb
 from care.keys import VOCABULARY_KEY
 from care.store import Store, read_table
 from care.viz import log_camera, open_scene_recording, overview_eye, panels
-from geometry.labels import spread_labels
+from geometry.labels import label_gap, spread_labels
 
 __all__ = [
     "ENTITY_CHOSEN",
@@ -145,7 +145,8 @@ def log_instances(store_path: Path, rrd: Path, *, scene: str | None = None) -> P
     names = [vocabulary[t[0]] if t else "?" for t in top]
     # overlapping instances would pile their labels up: the largest of each neighbourhood
     # keeps its label on screen, the others show theirs on hover
-    shown = spread_labels((lo + hi) / 2, lengths)
+    anchors = (lo + hi) / 2
+    shown = spread_labels(anchors, lengths, label_gap(anchors))
     for i in range(n):  # one entity per instance: selectable, toggleable, its own label
         points = cloud.points[flat[offsets[i] : offsets[i + 1]]]
         rec.log(f"{ENTITY_SEGMENTS}/{i}", rr.Points3D(points, colors=colours[i]), static=True)

@@ -42,8 +42,10 @@ def _interrupt(fx, args: tuple[object, ...], after: float) -> tuple[int | None, 
 
 
 def _check(fx, code: int | None, err: str, took: float) -> None:
-    if code == 0:  # finished before the signal came
-        assert took == 0.0
+    if code == 0:
+        # finished before the signal came, or the signal came as the finished program was
+        # exiting (a poll then a send is a race): the callers check the outputs are whole
+        assert took < WITHIN, took
         return
     # on a loaded machine the unwinding may outlast the grace: what it left is a temporary
     # of a dead process, which the re-run each test makes must sweep (checked there)

@@ -8,7 +8,7 @@ import itertools
 import numpy as np
 import pytest
 
-from geometry.labels import spread_labels
+from geometry.labels import LABEL_GAP, LABELS_ACROSS, label_gap, spread_labels
 
 
 def test_a_crowd_keeps_the_largest_label_of_each_place() -> None:
@@ -28,7 +28,8 @@ def test_drawn_labels_are_apart_and_every_hidden_one_has_a_drawn_neighbour(seed:
     priority = rng.integers(0, 5, 60)  # ties broken by index
     gap = 0.6
     shown = spread_labels(anchors, priority, gap)
-    d = np.linalg.norm(anchors[:, None] - anchors[None], axis=-1)
+    flat = anchors[:, :2]  # distances on the floor plane
+    d = np.linalg.norm(flat[:, None] - flat[None], axis=-1)
     for i, j in itertools.combinations(np.flatnonzero(shown), 2):
         assert d[i, j] > gap
     for i in np.flatnonzero(~shown):
@@ -37,3 +38,16 @@ def test_drawn_labels_are_apart_and_every_hidden_one_has_a_drawn_neighbour(seed:
             if d[i, j] <= gap and (priority[j], -j) > (priority[i], -i)
         ]  # fmt: skip
         assert above, i
+
+
+def test_the_gap_grows_with_the_scene() -> None:
+    room = np.array([[0.0, 0.0, 1.0], [4.0, 3.0, 0.5]])
+    house = np.array([[0.0, 0.0, 1.0], [24.0, 6.0, 0.5]])
+    assert label_gap(room) == LABEL_GAP  # 4 m / 12 is below the least gap
+    assert label_gap(house) == pytest.approx(24.0 / LABELS_ACROSS)
+    assert label_gap(room[:1]) == LABEL_GAP
+
+
+def test_labels_stacked_in_height_count_as_one_place() -> None:
+    shelf = np.array([[1.0, 1.0, 0.3], [1.0, 1.0, 1.2], [1.0, 1.0, 1.9]])
+    assert spread_labels(shelf, np.array([1, 3, 2]), gap=0.5).tolist() == [False, True, False]
