@@ -34,6 +34,10 @@ class Frame:
         extras: further per-pixel images of the same size keyed by name, e.g. ``"instance"``
             (uint16 instance ids, 0 = none) and ``"class"`` (uint16 class ids) in sample-world
             recordings. Empty for ordinary robot recordings.
+        rgb_jpeg: the recording's own JPEG bytes that ``rgb`` was decoded from, unchanged
+            (no lens undistortion, no resizing); the store keeps them instead of encoding the
+            image again. None when ``rgb`` is not exactly those bytes decoded: a reader that
+            changes the image after decoding it must leave this out.
     """
 
     stamp_ns: int
@@ -42,6 +46,7 @@ class Frame:
     K: np.ndarray
     cam_to_world: np.ndarray
     extras: dict[str, np.ndarray] = field(default_factory=dict)
+    rgb_jpeg: bytes | None = None
 
     @property
     def height(self) -> int:

@@ -489,7 +489,8 @@ def rebuild_hint(store: Path, table: str) -> str:
     recording = (read_marker(store) or {}).get("source") or "RECORDING"
     meta = Path(store) / "meta.json"
     with contextlib.suppress(OSError, ValueError, AttributeError, KeyError, TypeError):
-        recording = json.loads(meta.read_text())["source"]["path"]
+        # a store written without a recording (the Python API) records none
+        recording = json.loads(meta.read_text())["source"]["path"] or "RECORDING"
     if recording != "RECORDING":  # recorded relative to the store
         recording = os.path.normpath(Path(store) / recording)
     template = REBUILD.get(name, "care ingest {recording} --out {store} --force")

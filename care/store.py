@@ -8,7 +8,10 @@ Layout of a store directory::
     text.parquet       class-name embeddings of the encoder's text side (TEXT_SCHEMA)
     <map tables>       written later by fuse (cells.parquet, instances.parquet, ...)
 
-Every table carries ``care.schema_version`` in its schema metadata. Whole stores are written
+How images and features are encoded is :mod:`care.codecs`'s (:class:`StoreEncoding`): stores
+are written in :attr:`~StoreEncoding.RAW_ZSTD`; the 0.1 encoding is still read and written
+(``encoding=``) to measure against. Every table carries ``care.schema_version`` in its
+schema metadata. Whole stores are written
 into a sibling temporary directory and renamed at the end, so an interrupted job never
 leaves a store that looks complete; single tables added later go through
 :func:`write_table_atomic`.
@@ -18,7 +21,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import io
 import json
 import os
 from collections.abc import Callable, Iterator, Sequence
@@ -31,8 +33,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
-from PIL import Image
 
+from care.codecs import StoreEncoding, decode_jpeg, encode_jpeg, jpeg_size
 from care.errors import StoreError
 from care.frames import Frame
 from care.keys import (
@@ -61,12 +63,15 @@ __all__ = [
     "BATCH_SIZE",
     "EXTRA_IMAGES",
     "FEATURES_SCHEMA",
+    "FEATURES_SCHEMA_LISTS",
     "MAP_FRAME_FILE",
     "META_FILE",
     "META_VERSION",
     "SCHEMA_VERSION",
     "TEXT_SCHEMA",
     "VIEWS_SCHEMA",
+    "VIEWS_SCHEMA_PNG",
+    "EncodedDepth",
     "EncoderInfo",
     "SourceRecord",
     "Store",
@@ -74,8 +79,7 @@ __all__ = [
     "StoreWriter",
     "append_rows",
     "damaged_table",
-    "decode_png",
-    "encode_png",
+    "features_encoding",
     "group_rows",
     "iter_batches",
     "open_writer",
@@ -83,6 +87,7 @@ __all__ = [
     "read_schema",
     "read_table",
     "source_recording",
+    "views_encoding",
     "write_table_atomic",
 ]
 
@@ -90,38 +95,70 @@ SCHEMA_VERSION = 1
 """Bumped whenever a table's columns change meaning; readers refuse other versions."""
 
 DEPTH_SCALE = 0.001
-"""Metres per unit of the stored 16-bit depth PNG (millimetres, so 65.535 m at most)."""
+"""Metres per unit of the stored 16-bit depth (millimetres, so 65.535 m at most)."""
 
 EXTRA_IMAGES = ("instance", "class")
 """Per-pixel label images a recording may carry (sample-world recordings do)."""
 
-VIEWS_SCHEMA = pa.schema(
-    [
-        pa.field("view_id", pa.int32(), nullable=False),
-        pa.field("stamp_ns", pa.int64(), nullable=False),
-        pa.field("width", pa.int32(), nullable=False),
-        pa.field("height", pa.int32(), nullable=False),
-        pa.field("K", pa.list_(pa.float64(), 9), nullable=False),
-        pa.field("cam_to_world", pa.list_(pa.float64(), 16), nullable=False),
-        pa.field("depth_scale", pa.float32(), nullable=False),
-        pa.field("rgb_jpeg", pa.binary(), nullable=False),
-        pa.field("depth_png", pa.binary(), nullable=False),
-        *(pa.field(f"{name}_png", pa.binary(), nullable=True) for name in EXTRA_IMAGES),
-    ],
-    metadata={SCHEMA_VERSION_KEY: str(SCHEMA_VERSION).encode()},
-)
 
-FEATURES_SCHEMA = pa.schema(
-    [
-        pa.field("view_id", pa.int32(), nullable=False),
-        pa.field("fh", pa.int16(), nullable=False),
-        pa.field("fw", pa.int16(), nullable=False),
-        pa.field("feature", pa.list_(pa.float16()), nullable=False),
-    ],
-    metadata={SCHEMA_VERSION_KEY: str(SCHEMA_VERSION).encode()},
-)
-"""``feature`` is the (fh, fw, d) map flattened row-major; pixel (u, v) of a W x H image
-falls in feature cell (v * fh // H, u * fw // W)."""
+def _views_schema(encoding: StoreEncoding) -> pa.Schema:
+    suffix = encoding.image_suffix
+    return pa.schema(
+        [
+            pa.field("view_id", pa.int32(), nullable=False),
+            pa.field("stamp_ns", pa.int64(), nullable=False),
+            pa.field("width", pa.int32(), nullable=False),
+            pa.field("height", pa.int32(), nullable=False),
+            pa.field("K", pa.list_(pa.float64(), 9), nullable=False),
+            pa.field("cam_to_world", pa.list_(pa.float64(), 16), nullable=False),
+            pa.field("depth_scale", pa.float32(), nullable=False),
+            pa.field("rgb_jpeg", pa.binary(), nullable=False),
+            pa.field(f"depth_{suffix}", pa.binary(), nullable=False),
+            *(pa.field(f"{name}_{suffix}", pa.binary(), nullable=True) for name in EXTRA_IMAGES),
+        ],
+        metadata={SCHEMA_VERSION_KEY: str(SCHEMA_VERSION).encode()},
+    )
+
+
+VIEWS_SCHEMA = _views_schema(StoreEncoding.RAW_ZSTD)
+"""``depth_zstd`` (and ``instance_zstd``, ``class_zstd``) hold a (height, width) ``uint16``
+image in :func:`care.codecs.encode_u16`'s zstd frame; ``rgb_jpeg`` a JPEG."""
+VIEWS_SCHEMA_PNG = _views_schema(StoreEncoding.PNG_LISTS)
+"""The 0.1 views table: the same images as 16-bit PNGs (``depth_png``, ...)."""
+
+
+def _features_schema(feature: pa.DataType) -> pa.Schema:
+    return pa.schema(
+        [
+            pa.field("view_id", pa.int32(), nullable=False),
+            pa.field("fh", pa.int16(), nullable=False),
+            pa.field("fw", pa.int16(), nullable=False),
+            pa.field("feature", feature, nullable=False),
+        ],
+        metadata={SCHEMA_VERSION_KEY: str(SCHEMA_VERSION).encode()},
+    )
+
+
+FEATURES_SCHEMA = _features_schema(pa.binary())
+"""``feature`` is the (fh, fw, d) map's little-endian ``float16`` bytes, row-major; pixel
+(u, v) of a W x H image falls in feature cell (v * fh // H, u * fw // W)."""
+FEATURES_SCHEMA_LISTS = _features_schema(pa.list_(pa.float16()))
+"""The 0.1 features table: the same map flattened into a Parquet ``float16`` list."""
+
+
+def views_encoding(schema: pa.Schema) -> StoreEncoding:
+    """The encoding of a views table, told by its depth column."""
+    if "depth_png" in schema.names:
+        return StoreEncoding.PNG_LISTS
+    return StoreEncoding.RAW_ZSTD
+
+
+def features_encoding(schema: pa.Schema) -> StoreEncoding:
+    """The encoding of a features table, told by its ``feature`` column's type."""
+    if pa.types.is_list(schema.field("feature").type):
+        return StoreEncoding.PNG_LISTS
+    return StoreEncoding.RAW_ZSTD
+
 
 TEXT_SCHEMA = pa.schema(
     [
@@ -160,32 +197,6 @@ class EncoderInfo:
         )
 
 
-def encode_png(image: np.ndarray) -> bytes:
-    """Lossless PNG bytes of a uint8 (H, W[, 3]) or uint16 (H, W) image."""
-    buf = io.BytesIO()
-    Image.fromarray(image).save(buf, format="PNG", compress_level=1)
-    return buf.getvalue()
-
-
-def decode_png(data: bytes) -> np.ndarray:
-    """Inverse of :func:`encode_png` (16-bit PNGs come back as uint16)."""
-    img = Image.open(io.BytesIO(data))
-    arr = np.asarray(img)
-    return arr.astype(np.uint16, copy=False) if img.mode.startswith("I") else arr
-
-
-def _encode_jpeg(rgb: np.ndarray) -> bytes:
-    buf = io.BytesIO()
-    Image.fromarray(rgb).save(buf, format="JPEG", quality=95, subsampling=0)
-    return buf.getvalue()
-
-
-def _decode_jpeg(data: bytes) -> np.ndarray:
-    img = Image.open(io.BytesIO(data))
-    # convert() copies even an RGB image (a sixth of the decode at 640x480)
-    return np.asarray(img if img.mode == "RGB" else img.convert("RGB"))
-
-
 def damaged_table(path: Path, err: BaseException | None = None) -> StoreError:
     """The one-line error of a table that cannot be read: what is wrong and what rebuilds it."""
     path = Path(path)
@@ -220,12 +231,20 @@ def _check_version(schema: pa.Schema, path: Path) -> None:
         raise StoreError(msg)
 
 
-def parquet_options(schema: pa.Schema) -> dict[str, Any]:
-    """Writer options of every table here: zstd, dictionary encoding for id-like columns only.
+CHECKED = {"page_checksum_verification": True}
+"""Reader options of every table here: each page's CRC (written by :func:`parquet_options`)
+checked as it is read, so damage inside a value is a damaged table, not wrong data."""
+
+
+def parquet_options(schema: pa.Schema, *, compress_binary: bool = False) -> dict[str, Any]:
+    """Writer options of every table here: zstd, dictionary encoding for id-like columns only,
+    and no Parquet compression of binary columns.
 
     Parquet tries a dictionary for every column by default and gives up only after filling
     it; on float features and PNG bytes that attempt took more than half of each write (the
-    sample's grid tables: 1.1 s -> 0.4 s, and a little smaller).
+    sample's grid tables: 1.1 s -> 0.4 s, and a little smaller). Binary columns hold
+    encoded images and raw feature bytes (:mod:`care.codecs`): compressing them again cost
+    a decompression per read and saved nothing on images, 8% on features.
     """
 
     def leaf(ty: pa.DataType) -> pa.DataType:
@@ -235,7 +254,29 @@ def parquet_options(schema: pa.Schema) -> dict[str, Any]:
 
     repetitive = (pa.types.is_integer, pa.types.is_boolean, pa.types.is_string)
     names = [f.name for f in schema if any(test(leaf(f.type)) for test in repetitive)]
-    return {"compression": "zstd", "use_dictionary": names}
+    # a CRC per page, checked on every read (:data:`CHECKED`): an image's zstd frame carries
+    # no checksum of its own, so a flipped byte inside one decoded into wrong depth, silently
+    checked = {"use_dictionary": names, "write_page_checksum": True}
+    if compress_binary or not any(pa.types.is_binary(f.type) for f in schema):
+        return {"compression": "zstd", **checked}
+    # per leaf column (a list column's leaf is `name.list.element`); Parquet's default for
+    # a column left out of the mapping is no compression, so every one is named
+    codecs = {
+        path: "none" if pa.types.is_binary(field.type) else "zstd"
+        for field in schema
+        for path in _leaf_paths(field)
+    }
+    # no min/max of image or feature bytes: meaningless, and a small one is stored twice more
+    stats = [path for path, codec in codecs.items() if codec == "zstd"]
+    return {"compression": codecs, "write_statistics": stats, **checked}
+
+
+def _leaf_paths(field: pa.Field) -> list[str]:
+    """Parquet's dotted paths of a field's leaf columns (``K.list.element`` for a list)."""
+    ty = field.type
+    if pa.types.is_list(ty) or pa.types.is_large_list(ty) or pa.types.is_fixed_size_list(ty):
+        return [f"{field.name}.list.element"]
+    return [field.name]
 
 
 _GROUP_LIST_VALUES = 1 << 22
@@ -260,9 +301,13 @@ def group_rows(table: pa.Table) -> int:
     return max(1, _GROUP_LIST_VALUES // per_row)
 
 
-def open_writer(path: Path, schema: pa.Schema) -> pq.ParquetWriter:
+def open_writer(
+    path: Path, schema: pa.Schema, *, compress_binary: bool = False
+) -> pq.ParquetWriter:
     """A streaming Parquet writer with this project's options (:func:`parquet_options`)."""
-    return pq.ParquetWriter(path, schema, **parquet_options(schema))
+    return pq.ParquetWriter(
+        path, schema, **parquet_options(schema, compress_binary=compress_binary)
+    )
 
 
 def append_rows(writer: pq.ParquetWriter, table: pa.Table) -> None:
@@ -320,7 +365,7 @@ def read_table(path: Path, columns: Sequence[str] | None = None) -> pa.Table:
     query needs on every call).
     """
     path = _readable(path)
-    with reading(path), pq.ParquetFile(path) as table:
+    with reading(path), pq.ParquetFile(path, **CHECKED) as table:
         # one file: ParquetFile, not pq.read_table and its dataset layer (slower to open)
         _check_version(table.schema_arrow, path)
         return table.read(columns=None if columns is None else list(columns))
@@ -336,7 +381,7 @@ def iter_batches(
     the end), so streaming a large store through it grew without bound. Reading row group
     by row group frees each before the next.
     """
-    pf = pq.ParquetFile(path)
+    pf = pq.ParquetFile(path, **CHECKED)
     for group in range(pf.num_row_groups):
         table = pf.read_row_group(group, columns=None if columns is None else list(columns))
         yield from table.to_batches(max_chunksize=batch_size)
@@ -495,11 +540,19 @@ class StoreWriter:
     """
 
     def __init__(
-        self, path: Path, encoder: EncoderInfo | None, *, rows_per_group: int = 16
+        self,
+        path: Path,
+        encoder: EncoderInfo | None,
+        *,
+        rows_per_group: int = 16,
+        encoding: StoreEncoding = StoreEncoding.RAW_ZSTD,
     ) -> None:
         self.path = Path(path)
         self.encoder = encoder
         self.rows_per_group = rows_per_group
+        self.encoding = StoreEncoding(encoding)
+        self.kept_jpeg = 0
+        """Views whose colour is the recording's own JPEG bytes (not encoded again)."""
         self.tmp = self.path.with_name(f".{self.path.name}.tmp-{os.getpid()}")
         self.num_views = 0
         self._views: list[dict[str, Any]] = []
@@ -511,11 +564,18 @@ class StoreWriter:
     def __enter__(self) -> StoreWriter:
         remove_path(self.tmp)
         self.tmp.mkdir(parents=True)
+        legacy = self.encoding is StoreEncoding.PNG_LISTS
+        views = VIEWS_SCHEMA_PNG if legacy else VIEWS_SCHEMA
+        features = FEATURES_SCHEMA_LISTS if legacy else FEATURES_SCHEMA
         try:
-            self._views_writer = open_writer(self.tmp / "views.parquet", VIEWS_SCHEMA)
+            self._views_writer = open_writer(
+                self.tmp / "views.parquet", views, compress_binary=legacy
+            )
             if self.encoder is not None:
-                schema = FEATURES_SCHEMA.with_metadata(self.encoder.metadata())
-                self._features_writer = open_writer(self.tmp / "features.parquet", schema)
+                schema = features.with_metadata(self.encoder.metadata())
+                self._features_writer = open_writer(
+                    self.tmp / "features.parquet", schema, compress_binary=legacy
+                )
         except BaseException:
             self.__exit__(None, None, None)
             raise
@@ -525,6 +585,7 @@ class StoreWriter:
         """Append one view (and its (fh, fw, d) feature map); returns its view id."""
         view_id = self.num_views
         depth_mm = np.clip(np.round(np.nan_to_num(frame.depth_m) / DEPTH_SCALE), 0, 65535)
+        suffix = self.encoding.image_suffix
         row: dict[str, Any] = {
             "view_id": view_id,
             "stamp_ns": int(frame.stamp_ns),
@@ -533,12 +594,14 @@ class StoreWriter:
             "K": np.asarray(frame.K, dtype=np.float64).ravel().tolist(),
             "cam_to_world": np.asarray(frame.cam_to_world, dtype=np.float64).ravel().tolist(),
             "depth_scale": DEPTH_SCALE,
-            "rgb_jpeg": _encode_jpeg(frame.rgb),
-            "depth_png": encode_png(depth_mm.astype(np.uint16)),
+            "rgb_jpeg": self._colour(frame),
+            f"depth_{suffix}": self.encoding.encode_image(depth_mm.astype(np.uint16)),
         }
         for name in EXTRA_IMAGES:
             extra = frame.extras.get(name)
-            row[f"{name}_png"] = None if extra is None else encode_png(extra.astype(np.uint16))
+            row[f"{name}_{suffix}"] = (
+                None if extra is None else self.encoding.encode_image(extra.astype(np.uint16))
+            )
         self._views.append(row)
         if features is not None:
             if self._features_writer is None or self.encoder is None:
@@ -563,6 +626,19 @@ class StoreWriter:
             self._flush()
         return view_id
 
+    def _colour(self, frame: Frame) -> bytes:
+        """The recording's own JPEG when the frame carries it (and its header agrees with
+        the image), else the image encoded once (:func:`care.codecs.encode_jpeg`)."""
+        own = frame.rgb_jpeg
+        if (
+            own is not None
+            and self.encoding is StoreEncoding.RAW_ZSTD
+            and jpeg_size(own) == (frame.width, frame.height)
+        ):
+            self.kept_jpeg += 1
+            return bytes(own)
+        return encode_jpeg(frame.rgb)
+
     def set_text(self, names: Sequence[str], embeddings: np.ndarray) -> None:
         """Cache the encoder's class-name embeddings (n, d) in the store."""
         self._text = pa.table(
@@ -577,21 +653,29 @@ class StoreWriter:
 
     def _flush(self) -> None:
         if self._views and self._views_writer is not None:
-            append_rows(self._views_writer, pa.Table.from_pylist(self._views, schema=VIEWS_SCHEMA))
+            table = pa.Table.from_pylist(self._views, schema=self._views_writer.schema)
+            append_rows(self._views_writer, table)
             self._views.clear()
         if self._features and self._features_writer is not None:
             rows = self._features
             # one flat buffer and its offsets: a list of per-view arrays would go through
             # Python objects value by value (half the ingest time, measured)
             sizes = np.array([r["feature"].size for r in rows], np.int64)
-            offsets = pa.array(np.concatenate([[0], np.cumsum(sizes)]).astype(np.int32))
-            flat = pa.array(np.concatenate([r["feature"] for r in rows]), pa.float16())
+            flat = np.concatenate([r["feature"] for r in rows]).astype("<f2", copy=False)
+            if self.encoding is StoreEncoding.PNG_LISTS:
+                offsets = pa.array(np.concatenate([[0], np.cumsum(sizes)]).astype(np.int32))
+                column = pa.ListArray.from_arrays(offsets, pa.array(flat, pa.float16()))
+            else:  # each view's bytes, laid end to end: one copy, no Python object per value
+                ends = np.concatenate([[0], np.cumsum(2 * sizes)]).astype(np.int32)
+                column = pa.BinaryArray.from_buffers(
+                    pa.binary(), len(rows), [None, pa.py_buffer(ends), pa.py_buffer(flat)]
+                )
             table = pa.table(
                 {
                     "view_id": pa.array([r["view_id"] for r in rows], pa.int32()),
                     "fh": pa.array([r["fh"] for r in rows], pa.int16()),
                     "fw": pa.array([r["fw"] for r in rows], pa.int16()),
-                    "feature": pa.ListArray.from_arrays(offsets, flat),
+                    "feature": column,
                 },
                 schema=self._features_writer.schema,
             )
@@ -739,6 +823,14 @@ class Store:
         frame = self.map_frame if in_map else None
         return poses if frame is None or frame.is_identity else frame.map_from_world @ poses
 
+    def first_position(self) -> tuple[float, float] | None:
+        """Where the recording starts: its first view's camera position on the floor (map
+        x, y), the default start of paths and walks; None for a store without views."""
+        if not self.table_path("views").is_file():
+            return None
+        poses = self.poses()
+        return (float(poses[0, 0, 3]), float(poses[0, 1, 3])) if len(poses) else None
+
     def intrinsics(self) -> np.ndarray:
         """(V, 3, 3) intrinsics in view order."""
         col = self.views(["K"]).column("K").combine_chunks()
@@ -756,33 +848,57 @@ class Store:
         ``view_ids`` when given: the others are not decoded); poses in the map frame
         (``in_map``) or the recording's world frame."""
         path = self.table_path("views")
-        with reading(path):
-            _check_version(pq.read_schema(path), path)
+        encoding = self.views_encoding
+        suffix = encoding.image_suffix
         frame = self.map_frame if in_map else MapFrame.identity()
         to_map = None if frame.is_identity else frame.map_from_world
         for batch in _batches(path, batch_size):
             if view_ids is not None:
                 batch = batch.filter(pa.array(np.isin(batch.column("view_id"), list(view_ids))))
             for row in batch.to_pylist():
+                w, h = row["width"], row["height"]
                 extra = {
-                    name: decode_png(row[f"{name}_png"])
+                    name: encoding.decode_image(row[f"{name}_{suffix}"], w, h)
                     for name in EXTRA_IMAGES
-                    if extras and row.get(f"{name}_png") is not None
+                    if extras and row.get(f"{name}_{suffix}") is not None
                 }
-                depth = decode_png(row["depth_png"]).astype(np.float32) * np.float32(
-                    row["depth_scale"]
-                )
+                depth = encoding.decode_image(row[f"depth_{suffix}"], w, h)
                 yield (
                     row["view_id"],
                     Frame(
                         stamp_ns=row["stamp_ns"],
-                        rgb=_decode_jpeg(row["rgb_jpeg"]),
-                        depth_m=depth,
+                        rgb=decode_jpeg(row["rgb_jpeg"]),
+                        depth_m=depth.astype(np.float32) * np.float32(row["depth_scale"]),
                         K=np.asarray(row["K"], dtype=np.float64).reshape(3, 3),
                         cam_to_world=_in_frame(to_map, row["cam_to_world"]),
                         extras=extra,
                     ),
                 )
+
+    @property
+    def views_encoding(self) -> StoreEncoding:
+        """How the views table's images are encoded (checked against the schema version)."""
+        path = self.table_path("views")
+        with reading(path):
+            schema = pq.read_schema(path)
+        _check_version(schema, path)
+        return views_encoding(schema)
+
+    def iter_depths(self, view_ids: set[int]) -> Iterator[EncodedDepth]:
+        """The encoded depth images of ``view_ids`` with what decodes them, in view order:
+        for a caller that decodes them on its own threads (:meth:`EncodedDepth.decode`)."""
+        encoding = self.views_encoding
+        column = f"depth_{encoding.image_suffix}"
+        names = ["view_id", "width", "height", "depth_scale", "K", column]
+        path = self.table_path("views")
+        for batch in _batches(path, BATCH_SIZE, columns=names):
+            for row in batch.to_pylist():
+                if row["view_id"] in view_ids:
+                    yield EncodedDepth(
+                        row["view_id"], row[column], row["width"], row["height"],
+                        row["depth_scale"], np.asarray(row["K"], np.float64).reshape(3, 3),
+                        encoding,
+                    )  # fmt: skip
 
     @property
     def encoder(self) -> EncoderInfo:
@@ -801,7 +917,9 @@ class Store:
         path = self.table_path("features")
         info = self.encoder
         with reading(path):
-            _check_version(pq.read_schema(path), path)
+            schema = pq.read_schema(path)
+        _check_version(schema, path)
+        lists = features_encoding(schema) is StoreEncoding.PNG_LISTS
         for batch in _batches(path, batch_size):
             if view_ids is not None:
                 batch = batch.filter(pa.array(np.isin(batch.column("view_id"), list(view_ids))))
@@ -811,8 +929,16 @@ class Store:
             # one zero-copy view of the batch's values, sliced per row: a per-row
             # `feats[i].values.to_numpy()` cost more than reading the row (30 ms a view)
             feats = batch.column("feature")
-            offsets = feats.offsets.to_numpy()
-            values = feats.values.to_numpy(zero_copy_only=False)
+            if lists:
+                offsets = feats.offsets.to_numpy()
+                values = feats.values.to_numpy(zero_copy_only=False)
+            else:  # the bytes themselves, read in place: offsets in bytes, 2 a value
+                _, ends, data = feats.buffers()
+                offsets = np.frombuffer(ends, np.int32)[
+                    feats.offset : feats.offset + len(feats) + 1
+                ]
+                offsets = offsets // 2
+                values = np.frombuffer(data, "<f2") if data is not None else np.zeros(0, "<f2")
             for i in range(batch.num_rows):
                 flat = values[offsets[i] : offsets[i + 1]]
                 if flat.size != int(fh[i]) * int(fw[i]) * info.dim:
@@ -841,11 +967,31 @@ class Store:
         return names, emb
 
 
-def _batches(path: Path, batch_size: int) -> Iterator[pa.RecordBatch]:
+@dataclass(frozen=True)
+class EncodedDepth:
+    """One view's depth as stored, with what decoding it needs (:meth:`Store.iter_depths`)."""
+
+    view_id: int
+    data: bytes
+    width: int
+    height: int
+    scale: float
+    K: np.ndarray
+    encoding: StoreEncoding
+
+    def decode(self) -> np.ndarray:
+        """(H, W) float32 metres, 0 where invalid."""
+        units = self.encoding.decode_image(self.data, self.width, self.height)
+        return units.astype(np.float32) * np.float32(self.scale)
+
+
+def _batches(
+    path: Path, batch_size: int, columns: Sequence[str] | None = None
+) -> Iterator[pa.RecordBatch]:
     """:func:`iter_batches` of ``path``, a damaged row group becoming one line (not a
     traceback)."""
     with reading(path):
-        it = iter_batches(path, batch_size)
+        it = iter_batches(path, batch_size, columns)
     while True:
         with reading(path):
             batch = next(it, None)

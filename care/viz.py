@@ -52,6 +52,10 @@ def open_recording(
     rrd_path = Path(rrd_path)
     rrd_path.parent.mkdir(parents=True, exist_ok=True)
     rec = rr.RecordingStream(app_id, recording_id=recording_id)
+    # the SDK keeps a thread's times per recording id, and every stage's file of a scene
+    # shares one: without this, a file opened after another in the same thread (a run that
+    # fuses and evaluates in one process) would log on the last one's timelines
+    rec.reset_time()
     rec.save(rrd_path)
     if name:
         rec.send_recording_name(name)

@@ -126,6 +126,15 @@ def _resolve(store: Path, kind: str, text: str, weights: Path | None = None) -> 
     return target
 
 
+AnswerRrdOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--rrd",
+        help="Also draw the answer in this Rerun file (open with `rerun FILE`): the start, "
+        "each attempt's goal and its way over the floor, coloured by order.",
+    ),
+]
+
 _BATCH = {
     "k": {"flags": ("-k",), "min": 1},
     "attempts": {"min": 1},
@@ -162,20 +171,25 @@ def query(
         Path | None,
         typer.Option(help="Parquet table of a --batch run (default: BATCH.answers.parquet)."),
     ] = None,
+    rrd: AnswerRrdOpt = None,
 ) -> None:
     """Rank a map's candidates by confidence for TEXT, with their uncertainty measures, a
     goal pose for each (``geometry_msgs/PoseStamped`` JSON with --json), its distance along
     free space from --from (default: the recording's first pose) and the path to the top
     one (``nav_msgs/Path``); with --batch, every query's ranking and each strategy's attempt
-    sequence as a Parquet table."""
+    sequence as a Parquet table, each row with its distance from the start. --rrd draws the
+    first --attempts attempts by max confidence, each driven from where the last ended."""
 
     from query import rank_by_confidence
 
     if (batch is None) == (text is None):
         _fail("give either TEXT or --batch FILE")
+    if batch is not None and rrd is not None:
+        _fail("--rrd draws one answer: give TEXT, not --batch")
+    _check_rrd(rrd, store)
     config, paths = settings.config(), path.config()
     if batch is not None:
-        _batch(store, kind, batch, out, weights, goal.config(), config)
+        _batch(store, kind, batch, out, weights, goal.config(), config, paths)
         return
     target = _resolve(store, kind, text, weights)
     cmap, match = target.cmap, target.match
@@ -199,6 +213,11 @@ def query(
         }
         for r, (c, g) in enumerate(zip(order, chosen, strict=True))
     ]
+    if rrd is not None:
+        from care_cli.answer_rrd import query_rrd
+
+        note = _no_path(travel, paths)
+        query_rrd(rrd, store, target, goals, travel, paths, config, rows, note)
     if as_json:
         top = _way(travel, chosen[0]) if chosen else _way(None, None)
         out = {"query": text, "class": match.names[0], "method": match.method}
@@ -244,21 +263,32 @@ def replan(
     goal: Options[GoalConfig] = None,  # type: ignore[assignment]
     path: Options[PathConfig] = None,  # type: ignore[assignment]
     weights: WeightsOpt = None,
+    rrd: AnswerRrdOpt = None,
 ) -> None:
     """The next candidate to try for TEXT after the --visited ones (JSON on stdout), with its
     goal pose (``geometry_msgs/PoseStamped`` in the map frame, facing the object) and the
-    path to it along free space from --from (``nav_msgs/Path``)."""
+    path to it along free space from --from (``nav_msgs/Path``). --rrd draws it, and the
+    goals of the visited candidates."""
     import dataclasses
 
     from replan import next_goal
+    from replan.strategies import get_strategy
 
+    _check_rrd(rrd, store)
     ids, places = _visited(visited or [])
     paths = path.config()
     target = _resolve(store, kind, text, weights)
     cmap, match = target.cmap, target.match
+    reach = goal.config().reach
     goals = _goal_maker(store, goal.config())
     config = settings.config()
-    choice = next_goal(cmap, target, ids, **dataclasses.asdict(config), visited_at=places)
+    travel = _travel(store, goals, paths)
+    distance = None
+    if get_strategy(config.strategy).travel:
+        distance = _candidate_distances(cmap, reach, travel, config.strategy)
+    choice = next_goal(
+        cmap, target, ids, **dataclasses.asdict(config), visited_at=places, distance=distance
+    )
     out = dataclasses.asdict(choice)
     found = choice.candidate >= 0
     out["position"] = [float(v) for v in cmap.positions[choice.candidate]] if found else None
@@ -266,9 +296,13 @@ def replan(
     out["goal"] = chosen.as_dict() if chosen else None
     out["class"] = match.names[0]
     out["method"] = match.method
-    travel = _travel(store, goals, paths) if found else None
+    travel = travel if found else None
     out.update(_way(travel, chosen))
     out["path_note"] = _no_path(travel, paths)
+    if rrd is not None:
+        from care_cli.answer_rrd import replan_rrd
+
+        replan_rrd(rrd, store, target, goals, ids, chosen, travel, out["path_note"])
     typer.echo(json.dumps(out))
 
 
@@ -280,8 +314,10 @@ def _batch(
     weights: Path | None,
     goal: GoalConfig,
     config: BatchConfig,
+    paths: PathConfig,
 ) -> None:
-    """``care query --batch``: read the queries, answer them all, write one table."""
+    """``care query --batch``: read the queries, answer them all, write one table (each
+    row's distance from the one start: one search for the whole batch)."""
     import time
 
     from care.outputs import check_file_output
@@ -296,9 +332,14 @@ def _batch(
     check_file_output(out, inputs=[store, batch], flag="--out", magic=(b"PAR1",))
     cmap = load_map(store, kind, weights=weights)  # type: ignore[arg-type]
     start = time.perf_counter()
-    table = plan_batch(cmap, queries, config, goals=_goal_maker(store, goal), progress=True)
+    goals = _goal_maker(store, goal)
+    travel = _travel(store, goals, paths)
+    table = plan_batch(cmap, queries, config, goals=goals, travel=travel, progress=True)
     elapsed = time.perf_counter() - start
     write_table_atomic(table, out)
+    note = _no_path(travel, paths)
+    if note is not None:
+        typer.echo(note)
     typer.echo(
         f"{len(queries)} queries over {cmap.num_candidates} {kind} candidates in {elapsed:.2f} s "
         f"({1000 * elapsed / len(queries):.2f} ms a query); wrote {table.num_rows} rows to {out}"
@@ -337,10 +378,29 @@ def _travel(store: Path, goals: Any, config: PathConfig) -> Any:
     from query.paths import Roadmap
 
     roadmap = Roadmap.for_goals(goals)
-    start = config.start or _first_pose(store)
+    start = config.start or _first_position(store)
     if roadmap is None or start is None:
         return None
     return roadmap.travel(start, config.start_reach)
+
+
+def _candidate_distances(cmap: Any, reach: float, travel: Any, strategy: str) -> Any:
+    """(N,) metres from the start to each candidate's approach point (inf: unreachable),
+    what a travel rule trades its measure against; one line and exit 1 without paths."""
+    import numpy as np
+
+    from query.travel import approach_cells
+
+    if travel is None or travel.source is None:
+        _fail(
+            f"--strategy {strategy} trades its measure against travel, but there are no paths "
+            "from the start (no grid map, or no free cell near it); give --from x,y in free "
+            "space or pick another strategy"
+        )
+    cells = approach_cells(travel.roadmap, cmap.positions[:, :2], reach)
+    out = np.full(len(cells), np.inf)
+    out[cells >= 0] = travel.distance[cells[cells >= 0]]
+    return out
 
 
 def _no_path(travel: Any, config: PathConfig) -> str | None:
@@ -355,15 +415,11 @@ def _no_path(travel: Any, config: PathConfig) -> str | None:
     )
 
 
-def _first_pose(store: Path) -> tuple[float, float] | None:
-    """Where the recording starts: its first view's camera position on the floor (map x, y);
-    None for a store without views."""
+def _first_position(store: Path) -> tuple[float, float] | None:
+    """The recording's first camera position (:meth:`care.store.Store.first_position`)."""
     from care.store import Store
 
-    if not (store / "views.parquet").is_file():
-        return None
-    poses = Store(store).poses()
-    return (float(poses[0, 0, 3]), float(poses[0, 1, 3])) if len(poses) else None
+    return Store(store).first_position()
 
 
 def _distance(travel: Any, goal: Any) -> float | None:
@@ -385,6 +441,14 @@ def _way(travel: Any, goal: Any) -> dict:
         "path_length": None if points is None else path_length(points),
         "start": None if travel is None else list(travel.start),
     }
+
+
+def _check_rrd(rrd: Path | None, store: Path) -> None:
+    """Refuse a --rrd that is not ours before any work."""
+    if rrd is not None:
+        from care.outputs import check_file_output
+
+        check_file_output(rrd, inputs=[store])
 
 
 def _fail(message: str) -> NoReturn:
@@ -455,7 +519,8 @@ _RUN = {
 }
 
 
-@config_options("evaluation", EvalConfig, only=("attempts", "seeds", "unknown_classes"),
+@config_options("evaluation", EvalConfig,
+                only=("attempts", "seeds", "unknown_classes", "travel_start"),
                 names=_GT_UNKNOWN)  # fmt: skip
 @config_options("run_options", Execution, only=("workers", "ray_address"),
                 extra={"workers": {"min": 1}, "ray_address": _RAY_ADDRESS})  # fmt: skip
@@ -516,6 +581,8 @@ def run(
         )
     if result.report is not None:
         typer.echo(result.report.tables.rstrip())
+        if result.report.travel:
+            typer.echo("\n" + result.report.travel.rstrip())
         typer.echo(f"\nfull report: {out / 'eval' / 'results.md'}")
     typer.echo(f"stores: {', '.join(str(p) for p in result.stores)}")
     typer.echo(f"open the maps and every decision in Rerun:\n  {result.rerun_command()}")

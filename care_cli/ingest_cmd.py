@@ -41,14 +41,14 @@ read_options = config_options(
 @config_options(
     "run",
     Execution,
-    only=("overwrite",),
+    only=("overwrite", "read_ahead"),
     names={"overwrite": "force"},
     extra={"overwrite": {"help": "Rebuild even if the store is up to date."}},
 )
 @config_options(
     "job",
     IngestConfig,
-    only=("encoder", "vocabulary", "rrd", "rrd_every"),
+    only=("encoder", "vocabulary", "rrd", "rrd_every", "store_encoding"),
     extra={
         "encoder": {"type": EncoderName},
         "rrd_every": {"min": 1},

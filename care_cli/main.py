@@ -76,9 +76,17 @@ app = typer.Typer(
 
 
 def _register() -> None:
-    from care_cli import check_cmd, eval_cmd, frame_cmd, fuse_cmd, ingest_cmd, sample_cmd
+    from care_cli import (
+        check_cmd,
+        eval_cmd,
+        explore_cmd,
+        frame_cmd,
+        fuse_cmd,
+        ingest_cmd,
+        sample_cmd,
+    )
 
-    for module in (ingest_cmd, sample_cmd, fuse_cmd, eval_cmd, frame_cmd, check_cmd):
+    for module in (ingest_cmd, sample_cmd, fuse_cmd, eval_cmd, explore_cmd, frame_cmd, check_cmd):
         module.register(app)
 
 

@@ -5,7 +5,7 @@ the whole pipeline) so the CLI can generate ``care eval``'s and ``care run``'s o
 them on every call. Each field's default and docstring are the one source of the option's
 default and help; the registries' names are enums (:class:`QueryProtocol` here,
 :class:`care.maps.MapKind`, :class:`replan.strategies.StrategyName`,
-:class:`replan.strategies.Criterion`).
+:class:`replan.strategies.Criterion`, :class:`TravelStart` here).
 """
 
 from __future__ import annotations
@@ -24,11 +24,12 @@ from evaluate.groundtruth import GtSource, UnknownClasses
 from fuse.config import GridConfig, InstanceConfig
 from ingest.select import FrameSelection
 from ingest.source import ReadOptions
+from query.goals import GoalConfig
 from replan.attempts import DEFAULT_ATTEMPTS, DEFAULT_EXCLUDE_RADIUS
 from replan.strategies import Criterion, StrategyName
 from truth.model import LABEL_DISTANCE
 
-__all__ = ["EvalConfig", "QueryProtocol", "RunConfig"]
+__all__ = ["EvalConfig", "QueryProtocol", "RunConfig", "TravelStart"]
 
 NO_CRITERION = "-"
 """The criterion column of the strategies that use no candidate set (their k is 0): a
@@ -47,6 +48,17 @@ class QueryProtocol(StrEnum):
     """One query per GT instance that must match that very instance (the paper's)."""
     CLASS = "class"
     """One query per class present; any instance of it succeeds (a robot's need)."""
+
+
+class TravelStart(StrEnum):
+    """Where each attempt sequence of the evaluation starts walking (``docs/evaluation.md``)."""
+
+    FIRST_POSE = "first_pose"
+    """The recording's first camera position, on the floor: where the robot was put down."""
+    FREE_SPACE = "free_space"
+    """A cell drawn per query (seeded) from the largest connected region of free space."""
+    OFF = "off"
+    """No walking: path length and SPL are left out (NaN)."""
 
 
 def _one(kind: type[Enum], value: object, option: str) -> Enum:
@@ -89,6 +101,12 @@ class EvalConfig:
     """Bootstrap resamples of the queries for the 95% confidence intervals."""
     unknown_classes: UnknownClasses = UnknownClasses.REFUSE
     """Ground-truth classes the map's vocabulary lacks: refuse the scene, or ignore them."""
+    travel_start: TravelStart = TravelStart.FIRST_POSE
+    """Where each attempt sequence starts walking (each attempt then from the goal before):
+    the recording's first pose, a seeded free-space cell per query, or off (no path length
+    and SPL)."""
+    clearance: float = GoalConfig.clearance
+    """The robot's radius (m): the walks keep it from every obstacle, as the goals do."""
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -97,6 +115,7 @@ class EvalConfig:
             "unknown_classes",
             _one(UnknownClasses, self.unknown_classes, "--gt-unknown-classes"),
         )
+        set_(self, "travel_start", _one(TravelStart, self.travel_start, "--travel-start"))
         for name, kind in (("maps", MapKind), ("strategies", StrategyName),
                            ("criteria", Criterion), ("protocols", QueryProtocol)):  # fmt: skip
             set_(self, name, tuple(_one(kind, v, f"--{name}") for v in getattr(self, name)))
@@ -105,7 +124,8 @@ class EvalConfig:
             "evaluation config",
             positive={"iou_threshold": self.iou_threshold, "success_radius": self.success_radius,
                       "label_distance": self.label_distance},
-            non_negative={"exclude_radius": self.exclude_radius, "bootstrap": self.bootstrap},
+            non_negative={"exclude_radius": self.exclude_radius, "bootstrap": self.bootstrap,
+                          "clearance": self.clearance},
         )  # fmt: skip
         bad = [f"k={k}" for k in (*self.k_grid, *self.k_instances) if not 1 <= k <= 32767]
         bad += [

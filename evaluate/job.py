@@ -6,6 +6,11 @@ process pool or as Ray tasks; each scene's attempts come back as one Arrow table
 driver caches as ``scenes/<name>.parquet`` (keyed by the config's fingerprint), so a re-run
 skips finished scenes. Every random draw is seeded from (config seed, scene, unit, strategy,
 criterion, k, seed index) alone, so results are bit-identical whichever way they ran.
+
+Every attempt sequence also walks (:mod:`evaluate.travel`): from the query's start
+(:class:`evaluate.config.TravelStart`) to the first goal, then from each goal reached to the
+next; each attempt row keeps its leg, the path so far and the query's shortest path to a
+success (:mod:`evaluate.spl`).
 """
 
 from __future__ import annotations
@@ -27,10 +32,12 @@ from care.fingerprint import content_digest, fingerprint
 from care.maps import MapKind
 from care.outputs import damaged, evaluation_output, read_marker
 from care.store import META_FILE, read_table, source_recording, write_table_atomic
-from evaluate.config import NO_CRITERION, EvalConfig
+from evaluate.config import NO_CRITERION, EvalConfig, TravelStart
 from evaluate.groundtruth import GtSource, check_ground_truth, gt_files
 from evaluate.report import Report, write_report
+from evaluate.spl import shortest_to_success
 from evaluate.success import QuerySet, grid_queries, instance_queries, scene_point_labels
+from evaluate.travel import SceneTravel, SceneWalks
 from query.confidence import confidence
 from query.map import MAP_TABLES, REPLAN_COLUMNS, load_map
 from replan.attempts import Attempts, run_attempts
@@ -76,11 +83,18 @@ ATTEMPT_SCHEMA = pa.schema(
         ("pwkl", pa.float32()),
         ("num_views", pa.int32()),
         ("expected", pa.float32()),
+        ("distance", pa.float32()),
+        ("walked", pa.float32()),
+        ("shortest", pa.float32()),
     ]
 )
 """One row per attempt made. ``candidate`` is the id in the scene's map table (-1: nothing
 left to choose); ``seed`` is -1 for deterministic strategies; ``expected`` is the closed-form
-success probability of the episode for the random strategies (NaN otherwise)."""
+success probability of the episode for the random strategies (NaN otherwise). Travel (NaN
+where the scene has none): ``distance`` the metres from where the robot stood to this
+attempt's goal (inf: unreachable), ``walked`` the episode's path so far (this attempt's leg
+included where it was reachable), ``shortest`` the query's shortest path to a success
+(:func:`evaluate.spl.shortest_to_success`; inf: none reachable)."""
 
 
 @dataclass(frozen=True)
@@ -181,12 +195,22 @@ def _empty_attempts(n_q: int, attempts: int) -> Attempts:
 
 
 def evaluate_queries(
-    qs: QuerySet, kind: str, protocol: str, scene: str, config: EvalConfig
+    qs: QuerySet,
+    kind: str,
+    protocol: str,
+    scene: str,
+    config: EvalConfig,
+    travel: SceneTravel | None = None,
 ) -> pa.Table:
-    """Every episode of one query set, as attempt rows (:data:`ATTEMPT_SCHEMA`)."""
+    """Every episode of one query set, as attempt rows (:data:`ATTEMPT_SCHEMA`); with
+    ``travel`` each walks."""
     cmap = qs.cmap
     n_q = len(qs.queries)
     grid = kind == MapKind.GRID
+    walk = travel.walk(qs, scene, kind, protocol) if travel and cmap.num_candidates else None
+    shortest = (
+        shortest_to_success(walk.start, qs.success) if walk is not None else np.full(n_q, np.nan)
+    )
     if cmap.num_candidates:
         conf = confidence(cmap, qs.class_ids)
         rank = (
@@ -215,7 +239,7 @@ def evaluate_queries(
             expected = np.zeros(n_q) if strategy.random else np.full(n_q, np.nan)
         else:
             rng = _seed_of(config, scene, kind, protocol, qs.unit, name, criterion, k, seed)
-            res = run_attempts(strategy, conf, qs.success, columns, rng=rng, **kw)
+            res = run_attempts(strategy, conf, qs.success, columns, rng=rng, walk=walk, **kw)
             if strategy.random and (name, criterion, k) not in expected_of:
                 expected_of[name, criterion, k] = expected_random_success(
                     strategy, conf, qs.success, **kw
@@ -226,7 +250,7 @@ def evaluate_queries(
         elif oracle is not None and (res.solved & ~oracle).any():
             msg = f"internal error: {name} beat the oracle in {scene}/{qs.unit}; please report"
             raise EvalError(msg)
-        rows.append(_attempt_rows(qs, res, conf, name, criterion, k, seed, expected))
+        rows.append(_attempt_rows(qs, res, conf, name, criterion, k, seed, expected, shortest))
     cols = {key: np.concatenate([r[key] for r in rows]) for key in rows[0]}
     n = len(cols["attempt"])
     const = {"scene": scene, "map": kind, "protocol": protocol, "unit": qs.unit}
@@ -244,9 +268,15 @@ def _attempt_rows(
     k: int,
     seed: int,
     expected: np.ndarray,
+    shortest: np.ndarray,
 ) -> dict[str, np.ndarray]:
     """Rows of the attempts actually made (attempt 1 always, later ones until success)."""
     made = res.candidate >= 0
+    if res.distance is None:
+        leg = walked = np.full(made.shape, np.nan)
+    else:
+        leg = res.distance
+        walked = np.cumsum(np.where(made & np.isfinite(leg), leg, 0.0), axis=1)
     made[:, 0] = True
     q, a = np.nonzero(made)
     local = res.candidate[q, a]
@@ -276,6 +306,9 @@ def _attempt_rows(
         "pwkl": col(qs.cmap.pwkl),
         "num_views": np.where(has, col(qs.cmap.num_views), 0),
         "expected": expected[q],
+        "distance": leg[q, a],
+        "walked": walked[q, a],
+        "shortest": shortest[q],
     }
 
 
@@ -296,11 +329,13 @@ def evaluate_scene(scene: Scene, config: EvalConfig) -> pa.Table:
 def _evaluate_scene(scene: Scene, config: EvalConfig) -> pa.Table:
     gt = scene.gt.load(scene.recording, scene.store)
     tables = []
+    walks = SceneWalks(scene.store, config)  # one roadmap for both maps
     for kind in config.maps:
         if not (scene.store / f"{MAP_TABLES[kind]}.parquet").is_file():
             msg = f"{scene.store}: no {MAP_TABLES[kind]}.parquet; run `care fuse` (or drop --maps {kind})"
             raise EvalError(msg)
         cmap = load_map(scene.store, kind)  # type: ignore[arg-type]
+        travel = walks.for_map(cmap)
         if kind == MapKind.INSTANCES:
             labels = scene_point_labels(scene.store, gt, config.label_distance)
             for protocol in config.protocols:
@@ -308,10 +343,14 @@ def _evaluate_scene(scene: Scene, config: EvalConfig) -> pa.Table:
                     cmap, gt, labels, protocol=protocol, rooms=config.rooms,
                     iou_threshold=config.iou_threshold,
                 )  # fmt: skip
-                tables += [evaluate_queries(qs, kind, protocol, scene.name, config) for qs in sets]
+                tables += [
+                    evaluate_queries(qs, kind, protocol, scene.name, config, travel) for qs in sets
+                ]
         else:
             sets = grid_queries(cmap, gt, rooms=config.rooms, radius=config.success_radius)
-            tables += [evaluate_queries(qs, kind, "class", scene.name, config) for qs in sets]
+            tables += [
+                evaluate_queries(qs, kind, "class", scene.name, config, travel) for qs in sets
+            ]
     if not tables:
         return ATTEMPT_SCHEMA.empty_table()
     return pa.concat_tables(tables)
@@ -321,7 +360,7 @@ def _cache_path(out: Path, scene: Scene) -> Path:
     return out / "scenes" / f"{scene.name}.parquet"
 
 
-EVAL_VERSION = 4
+EVAL_VERSION = 5
 """Raised whenever the attempts of an unchanged scene and config would change, so that cached
 attempts written by other code are computed again."""
 SCENE_KEY = b"care.eval.scene_key"
@@ -425,10 +464,24 @@ def describe(config: EvalConfig, scenes: Sequence[Scene], attempts: pa.Table) ->
             f"{config.iou_threshold}; grid success: floor distance <= {config.success_radius} m; "
             f"after a failed grid attempt cells within {config.exclude_radius} m are skipped",
             f"- random strategies: mean over {config.seeds} seeds, and the closed form S/U",
+            f"- travel: {_WALKS[config.travel_start]}"
+            + (
+                ""
+                if config.travel_start == TravelStart.OFF
+                else f"; robot radius {config.clearance} m, on the store's free space"
+            ),
             f"- ground truth: {_gt_summary(scenes)}",
             f"- config fingerprint `{config.fingerprint()}`\n",
         ]
     )
+
+
+_WALKS = {
+    TravelStart.FIRST_POSE: "each attempt sequence walks from the recording's first pose",
+    TravelStart.FREE_SPACE: "each attempt sequence walks from a seeded free-space cell per query",
+    TravelStart.OFF: "off (no path length or SPL)",
+}
+"""How the report's header says where the walks start."""
 
 
 def with_ground_truth(
@@ -523,8 +576,11 @@ def run_eval(
                 + "; ".join(f"{name}: {', '.join(classes)}" for name, classes in dropped.items())
                 + "\n"
             )
+        start = {TravelStart.FIRST_POSE: " from the recording's first pose",
+                 TravelStart.FREE_SPACE: " from a seeded free-space cell per query"}  # fmt: skip
         report = write_report(
-            attempts, staged, ks, bootstrap=config.bootstrap, header=header, runner=live
-        )
+            attempts, staged, ks, bootstrap=config.bootstrap, header=header, runner=live,
+            walk_from=start.get(config.travel_start, ""),
+        )  # fmt: skip
     paths = tuple(out / p.relative_to(staged) for p in report.paths)
     return dataclasses.replace(report, paths=paths)

@@ -13,6 +13,11 @@ resample whole groups; every random draw comes from the generator built by
 :func:`comparison_rng` from the base seed and the comparison's own name, so an interval does
 not depend on what else was compared or in what order. :func:`holm` adjusts a family of
 p-values.
+
+A continuous paired measure (SPL, :mod:`evaluate.spl`) gets :func:`compare_measure`: the same
+paired bootstrap interval of the mean difference, and the Wilcoxon signed-rank test
+(``scipy.stats.wilcoxon``) on the non-zero differences, as McNemar uses only the discordant
+queries (every query both rules solve with the same walk ties at zero).
 """
 
 from __future__ import annotations
@@ -24,11 +29,14 @@ import numpy as np
 
 __all__ = [
     "PairedComparison",
+    "PairedMeasure",
     "compare",
+    "compare_measure",
     "comparison_rng",
     "holm",
     "mcnemar_exact",
     "paired_bootstrap_ci",
+    "wilcoxon_signed_rank",
 ]
 
 
@@ -184,3 +192,74 @@ def holm(p_values: np.ndarray) -> np.ndarray:
         running = max(running, min(1.0, (m - rank) * p[i]))
         out[i] = running
     return out
+
+
+def wilcoxon_signed_rank(a: np.ndarray, b: np.ndarray) -> float:
+    """Two-sided Wilcoxon signed-rank p-value of ``a - b`` (``scipy.stats.wilcoxon`` with
+    ``zero_method="wilcox"``: zero differences dropped; the exact null distribution where
+    scipy uses it, the normal approximation with a tie correction otherwise); 1.0 when no
+    difference is non-zero, NaN without a pair."""
+    d = np.asarray(a, np.float64) - np.asarray(b, np.float64)
+    d = d[~np.isnan(d)]
+    if len(d) == 0:
+        return float("nan")
+    if not np.any(d != 0):
+        return 1.0
+    from scipy.stats import wilcoxon
+
+    return float(wilcoxon(d, zero_method="wilcox", alternative="two-sided").pvalue)
+
+
+@dataclass(frozen=True)
+class PairedMeasure:
+    """A continuous measure of rule ``a`` against ``b`` over the same ``n`` queries."""
+
+    n: int
+    mean_a: float
+    mean_b: float
+    diff: float
+    """``mean_a - mean_b``: the mean per-query difference."""
+    lo: float
+    hi: float
+    """Paired bootstrap interval of ``diff``."""
+    better: int
+    """Queries where ``a`` scored higher."""
+    worse: int
+    p_value: float
+    """Wilcoxon signed-rank p-value (:func:`wilcoxon_signed_rank`)."""
+
+
+def compare_measure(
+    a: np.ndarray,
+    b: np.ndarray,
+    *,
+    rng: np.random.Generator,
+    n_resamples: int = N_RESAMPLES,
+    confidence: float = CONFIDENCE,
+    groups: np.ndarray | None = None,
+) -> PairedMeasure:
+    """Everything a paired table reports for a continuous measure; pairs with a NaN side
+    (no travel known) are left out."""
+    a = np.asarray(a, np.float64)
+    b = np.asarray(b, np.float64)
+    if a.shape != b.shape:
+        msg = f"paired comparison needs aligned queries, got {a.shape} and {b.shape}"
+        raise ValueError(msg)
+    keep = ~(np.isnan(a) | np.isnan(b))
+    a, b = a[keep], b[keep]
+    lo, hi = paired_bootstrap_ci(
+        a, b, rng=rng, n_resamples=n_resamples, confidence=confidence,
+        groups=None if groups is None else np.asarray(groups)[keep],
+    )  # fmt: skip
+    empty = len(a) == 0
+    return PairedMeasure(
+        n=len(a),
+        mean_a=float("nan") if empty else float(a.mean()),
+        mean_b=float("nan") if empty else float(b.mean()),
+        diff=float("nan") if empty else float(np.mean(a - b)),
+        lo=lo,
+        hi=hi,
+        better=int(np.sum(a > b)),
+        worse=int(np.sum(a < b)),
+        p_value=wilcoxon_signed_rank(a, b),
+    )

@@ -17,7 +17,10 @@ protocols and rooms in turn), under ``world/eval``:
 
 The success rate of every (strategy, criterion) against k is drawn as a static 2D chart per
 map and protocol under ``eval/charts/<map>_<protocol>`` (one entity per series, with a legend),
-so the charts stay visible while the time cursor steps through queries.
+so the charts stay visible while the time cursor steps through queries. Where the scene's
+attempt sequences walked, the share of its queries solved at a goal reached within each
+distance travelled is a second chart, ``eval/charts/travel_<map>_<protocol>``, one step curve
+per rule of the report's travel plot (:func:`evaluate.report.travel.travel_curves`).
 """
 
 from __future__ import annotations
@@ -71,6 +74,10 @@ SHORT = {
     "max_pwkl": "max pwKL",
     "largest": "largest",
     "most_views": "most views",
+    "nearest_topk": "nearest",
+    "max_entropy_near": "max H near",
+    "min_stderr_near": "min SE near",
+    "min_pwkl_near": "min pwKL near",
 }
 """Short names of the replan rules for labels (the tables use the long ones)."""
 COLOURS = {
@@ -86,6 +93,10 @@ COLOURS = {
     "max_pwkl": (227, 119, 194),
     "largest": (140, 86, 75),
     "most_views": (23, 190, 207),
+    "nearest_topk": (100, 100, 220),
+    "max_entropy_near": (255, 187, 120),
+    "min_stderr_near": (152, 223, 138),
+    "min_pwkl_near": (255, 152, 150),
 }
 _SHOWN = ("max_confidence", "max_entropy", "min_stderr", "min_pwkl")
 """Rules whose choices the 3D view shows as it opens (the paper's); the others' entities are
@@ -394,7 +405,61 @@ def _log_chart(
         legend_y += 16.0
 
 
-def evaluation_blueprint(charts: Sequence[tuple[str, str]]) -> rrb.Blueprint:
+def _log_travel_chart(
+    rec: rr.RecordingStream, kind: str, protocol: str, lines: list[tuple]
+) -> None:
+    """One success-vs-distance chart: axes with metre and percent ticks, one step curve per
+    rule (``lines`` of :func:`evaluate.report.travel.travel_curves`), a legend."""
+    from evaluate.spl import success_within
+
+    base = f"{CHART_ENTITY}/{_travel_name(kind, protocol)}"
+    top = max((float(p.max()) for _, _, p, _, _ in lines if len(p)), default=1.0)
+    top = max(top, 1e-3) * 1.02
+
+    def xy(metres: np.ndarray, share: np.ndarray) -> np.ndarray:
+        return np.stack([_CHART_W * metres / top, _CHART_H * (1 - share)], axis=1)
+
+    frame = xy(np.array([0.0, 0.0, top]), np.array([1.0, 0.0, 0.0]))
+    grid = [xy(np.array([0.0, top]), np.array([v, v])) for v in (0.25, 0.5, 0.75, 1.0)]
+    rec.log(f"{base}/axes", rr.LineStrips2D([frame, *grid], colors=[(90, 90, 90)]), static=True)
+    ticks = np.linspace(0.0, top, 5)
+    rec.log(
+        f"{base}/axes/m",
+        rr.Points2D(
+            [(x, _CHART_H + 22.0) for x in xy(ticks, np.zeros(5))[:, 0]], radii=0.1,
+            labels=[f"{m:.3g} m" for m in ticks], colors=[(200, 200, 200)],
+        ),
+        static=True,
+    )  # fmt: skip
+    rec.log(
+        f"{base}/axes/y",
+        rr.Points2D(
+            [(-40.0, y) for y in xy(np.zeros(5), np.linspace(0, 1, 5))[:, 1]], radii=0.1,
+            labels=[f"{v:.0f}%" for v in np.linspace(0, 100, 5)], colors=[(200, 200, 200)],
+        ),
+        static=True,
+    )  # fmt: skip
+    for row, (strategy, label, path, solved, weight) in enumerate(lines):
+        stops = np.unique(np.r_[0.0, path, top])  # the share changes only at these
+        share = success_within(path, solved, stops, weight)
+        steps = xy(np.repeat(stops, 2)[1:], np.repeat(share, 2)[:-1])  # flat, then up
+        c = np.array(COLOURS.get(strategy, GREY), np.uint8)
+        entity = f"{base}/{strategy}"
+        rec.log(entity, rr.LineStrips2D([steps], colors=[c], radii=1.5), static=True)
+        rec.log(
+            f"{entity}/legend",
+            rr.Points2D([(_CHART_W + 130.0, 16.0 * row)], colors=[c], radii=5.0, labels=[label]),
+            static=True,
+        )
+
+
+def _travel_name(kind: str, protocol: str) -> str:
+    return f"travel_{kind}_{protocol}"
+
+
+def evaluation_blueprint(
+    charts: Sequence[tuple[str, str]], travel: Sequence[tuple[str, str]] = ()
+) -> rrb.Blueprint:
     """3D query context and the log left; the query's details and the charts right.
 
     The 3D view looks at the query's room: :data:`FOCUS_ENTITY` moves each room to the origin.
@@ -414,6 +479,16 @@ def evaluation_blueprint(charts: Sequence[tuple[str, str]]) -> rrb.Blueprint:
             ),
         )
         for kind, protocol in charts
+    ]
+    tabs += [
+        rrb.Spatial2DView(
+            origin=f"{CHART_ENTITY}/{_travel_name(kind, protocol)}",
+            name=f"success vs distance: {kind} / {protocol}",
+            visual_bounds=rrb.VisualBounds2D(
+                x_range=[-70.0, _CHART_W + 250.0], y_range=[-30.0, _CHART_H + 50.0]
+            ),
+        )
+        for kind, protocol in travel
     ]
     return rrb.Blueprint(
         rrb.Horizontal(
@@ -480,7 +555,20 @@ def log_evaluation(
         mine = [r for r in rates if r["map"] == kind and r["protocol"] == protocol]
         ks = sorted({r["k"] for r in mine if r["k"]})
         _log_chart(rec, kind, protocol, mine, ks or [0])
+    for (kind, protocol), lines in sorted(_scene_curves(attempts, summary, scene).items()):
+        if kind in maps:
+            _log_travel_chart(rec, kind, protocol, lines)
     return len(groups)
+
+
+def _scene_curves(attempts: pa.Table, summary: pa.Table, scene: str) -> dict:
+    """The scene's success-vs-distance curves (none where it did not walk)."""
+    from evaluate.report.travel import travel_curves
+
+    if "distance" not in attempts.column_names:
+        return {}
+    mine = attempts.filter(pc.equal(attempts.column("scene"), scene))
+    return {key: lines for key, lines in travel_curves(mine, summary).items() if lines}
 
 
 def write_evaluation_rrd(
@@ -509,8 +597,9 @@ def write_evaluation_rrd(
         rec = open_scene_recording(rrd, scene)
         rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)  # the 3D view's origin
     charts = sorted({(r["map"], r["protocol"]) for r in summary.to_pylist() if r["map"] in maps})
+    travel = sorted(k for k in _scene_curves(attempts, summary, scene) if k[0] in maps)
     if own:
-        rec.send_blueprint(evaluation_blueprint(charts))
+        rec.send_blueprint(evaluation_blueprint(charts, travel))
     log_evaluation(
         rec, attempts, summary, maps, scene=scene, gt=gt, scene_points=points,
         scene_colours=colours,

@@ -16,12 +16,11 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
-import pyarrow.parquet as pq
 
 from care.fingerprint import fingerprint
 from care.mapframe import MapFrame, UpAxis
 from care.outputs import atomic_write_text
-from care.store import MAP_FRAME_FILE, Store, decode_png
+from care.store import MAP_FRAME_FILE, EncodedDepth, Store
 from geometry.mapframe import estimate_map_frame
 from geometry.transforms import backproject, transform_points
 
@@ -73,28 +72,19 @@ _LAST_SAMPLE: list = []
 def _sample_points(store: Store, decoders: int) -> tuple[np.ndarray, np.ndarray]:
     poses = store.poses(in_map=False)
     keep = set(np.linspace(0, len(poses) - 1, min(len(poses), SAMPLE_VIEWS)).round().astype(int))
-    pf = pq.ParquetFile(store.table_path("views"))
 
-    def sampled() -> Iterator[tuple[int, bytes, float, list]]:
-        row = 0
-        for batch in pf.iter_batches(batch_size=16, columns=["depth_png", "depth_scale", "K"]):
-            for item in batch.to_pylist():
-                if row in keep:
-                    yield row, item["depth_png"], item["depth_scale"], item["K"]
-                row += 1
-
-    def points_of(view: tuple[int, bytes, float, list]) -> np.ndarray:
-        row, png, scale, K = view
-        depth = decode_png(png).astype(np.float32) * np.float32(scale)
+    def points_of(view: EncodedDepth) -> np.ndarray:
+        depth = view.decode()
         stride = max(1, min(depth.shape) // _PIXELS_ACROSS)
-        pts, _ = backproject(depth, np.asarray(K, np.float64).reshape(3, 3), stride=stride)
-        return transform_points(poses[row], pts)
+        pts, _ = backproject(depth, view.K, stride=stride)
+        return transform_points(poses[view.view_id], pts)
 
+    sampled = store.iter_depths({int(v) for v in keep})
     if decoders <= 1:
-        chunks = [points_of(view) for view in sampled()]
-    else:  # the PNG decoding (most of the time, and free of the GIL) on threads, in view order
+        chunks = [points_of(view) for view in sampled]
+    else:  # the depth decoding (free of the GIL) on threads, in view order
         with ThreadPoolExecutor(decoders, thread_name_prefix="care-sample") as pool:
-            chunks = list(pool.map(points_of, sampled()))
+            chunks = list(pool.map(points_of, sampled))
     points = np.concatenate(chunks) if chunks else np.zeros((0, 3))
     if len(points) > SAMPLE_POINTS:
         pick = np.random.default_rng(0).choice(len(points), SAMPLE_POINTS, replace=False)

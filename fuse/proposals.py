@@ -11,7 +11,7 @@ Proposals`` (``run``: how views are read, :class:`runtime.execution.Execution`):
   the sides of an object standing on the floor or against a wall stay. What is left is
   clustered with DBSCAN (open3d ``cluster_dbscan``); clusters too small or too large to be
   an object are dropped.
-- ``labels``: oracle masks from the recording's instance-id images (``instance_png``).
+- ``labels``: oracle masks from the recording's instance-id images (the views table's ``instance_zstd``).
   Every scene point is projected into every view it is visible in (the occlusion test of
   :mod:`fuse.views`) and takes the majority instance id of the pixels it lands on; id 0
   (structure) wins like any other id, and such points belong to no mask.
@@ -239,7 +239,7 @@ def label_proposals(
     bar.close()
     if not seen:
         msg = (
-            f"{store.path}: no view has an instance image (views.parquet column instance_png); "
+            f"{store.path}: no view has an instance image (views.parquet column instance_zstd); "
             "use proposals 'geometric' or ingest a recording with /camera/instance"
         )
         raise FuseError(msg)

@@ -26,6 +26,7 @@ __all__ = [
     "StampedTransform",
     "camera_info",
     "decode_colour",
+    "decode_colour_kept",
     "decode_depth",
     "decode_label",
     "distortion",
@@ -130,20 +131,29 @@ def _not_empty(image: np.ndarray, topic: str, what: str) -> np.ndarray:
 
 def decode_colour(msg: Any, topic: str) -> np.ndarray:
     """(H, W, 3) uint8 RGB from an Image (rgb8, bgr8, rgba8, bgra8, mono8) or a JPEG/PNG."""
-    return _not_empty(_decode_colour(msg, topic), topic, "colour")
+    return decode_colour_kept(msg, topic)[0]
 
 
-def _decode_colour(msg: Any, topic: str) -> np.ndarray:
+def decode_colour_kept(msg: Any, topic: str) -> tuple[np.ndarray, bytes | None]:
+    """:func:`decode_colour`, and the message's own bytes when they are a JPEG: the store
+    keeps those instead of encoding the image again (:attr:`care.frames.Frame.rgb_jpeg`)."""
+    rgb, jpeg = _decode_colour(msg, topic)
+    return _not_empty(rgb, topic, "colour"), jpeg
+
+
+def _decode_colour(msg: Any, topic: str) -> tuple[np.ndarray, bytes | None]:
     if _is_compressed(msg):
         fmt = str(msg.format)
-        img = _open_compressed(bytes(np.asarray(msg.data, np.uint8)), topic, fmt)
-        return np.asarray(img.convert("RGB"))
+        data = bytes(np.asarray(msg.data, np.uint8))
+        img = _open_compressed(data, topic, fmt)
+        # Pillow's decoding, the one the store reads JPEGs back with (care.codecs)
+        return np.asarray(img.convert("RGB")), data if img.format == "JPEG" else None
     arr, enc = _raw_array(msg, topic, COLOUR_ENCODINGS)
     if enc in ("bgr8", "bgra8"):
         arr = arr[..., 2::-1]
     elif enc == "mono8":
         arr = np.repeat(arr, 3, axis=2)
-    return np.ascontiguousarray(arr[..., :3])
+    return np.ascontiguousarray(arr[..., :3]), None
 
 
 def _compressed_depth(msg: Any, topic: str) -> np.ndarray:

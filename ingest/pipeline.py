@@ -18,6 +18,7 @@ shows a bar).
 from __future__ import annotations
 
 import os
+from contextlib import closing
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -26,6 +27,7 @@ import numpy as np
 from tqdm import tqdm
 
 from care.checks import check_numbers
+from care.codecs import StoreEncoding
 from care.encoders import Encoder, EncoderOptions, RecordingContext, make_encoder
 from care.encoders.record import RECORD_KEY, EncoderRecord
 from care.errors import IngestError, StoreError
@@ -46,6 +48,7 @@ from ingest.folders.frames import Frames, folder_identity, open_frames
 from ingest.select import FrameSelection, FrameSelector
 from ingest.source import ReadOptions
 from runtime.execution import DEFAULT_EXECUTION, Execution
+from runtime.readahead import read_ahead
 from runtime.threads import Work, threads_for
 
 __all__ = ["INGEST_VERSION", "IngestConfig", "fingerprint", "request_fingerprint", "run_ingest"]
@@ -59,7 +62,7 @@ itself is part of the source's identity (fingerprinted) and recorded under ``top
 whether it was detected or forced: a forced layout equal to the detected one leaves the
 store current, and stores of recordings keep their bytes."""
 
-INGEST_VERSION = "1"
+INGEST_VERSION = "2"
 """Bumped when ingest's output for the same input changes; part of the fingerprint."""
 
 
@@ -86,6 +89,9 @@ class IngestConfig:
     rrd_every: int | None = None
     """Log the back-projected point cloud of every Nth view; default every view of a short
     recording, else every 10th (:func:`ingest.viz.cloud_every`)."""
+    store_encoding: StoreEncoding = StoreEncoding.RAW_ZSTD
+    """How the store keeps images and features (:mod:`care.codecs`); ``png-lists`` is the
+    0.1 store, slower to write and read, kept to measure the default against."""
 
     def __post_init__(self) -> None:
         every = {} if self.rrd_every is None else {"rrd_every": self.rrd_every}
@@ -122,6 +128,7 @@ def _digest(config: IngestConfig, source: dict[str, Any], encoder_key: dict[str,
             "select": config.select,
             "encoder_options": options if encoder_key["encoder"] is not None else None,
             "vocabulary": config.vocabulary,
+            "store_encoding": config.store_encoding,
             **encoder_key,
         }
     )
@@ -335,7 +342,7 @@ def _build(
         disable=not job.run.progress,
     )
     try:
-        with StoreWriter(job.out, info) as writer:
+        with StoreWriter(job.out, info, encoding=config.store_encoding) as writer:
             selector = FrameSelector(config.select)
             _stream(
                 frames,
@@ -345,6 +352,7 @@ def _build(
                 logger,
                 bar,
                 selector,
+                job.run.read_ahead,
             )
             if text is not None:
                 writer.set_text(vocab, text)
@@ -375,7 +383,12 @@ def _stream(
     logger: Any,
     bar: tqdm,
     selector: FrameSelector,
+    depth: int,
 ) -> None:
+    """Frames to the store: read and decoded up to ``depth`` ahead on a background thread
+    (:func:`runtime.readahead.read_ahead`) while this thread encodes and writes them, so
+    the recording's decompression and the store's encoding share a machine's cores
+    (``--read-ahead 0``: all in one thread, the same store)."""
     batch: list[Frame] = []
 
     def flush() -> None:
@@ -388,17 +401,18 @@ def _stream(
             writer.add(frame, None if features is None else np.asarray(features[i]))
         batch.clear()
 
-    for frame in frames:
-        bar.update(1)
-        if not selector.keep(frame):
-            if selector.done:
-                break
-            continue
-        if logger is not None:
-            logger.log(writer.num_views + len(batch), frame)
-        batch.append(frame)
-        if len(batch) >= max(1, batch_size):
-            flush()
+    with closing(read_ahead(frames, depth)) as ahead:
+        for frame in ahead:
+            bar.update(1)
+            if not selector.keep(frame):
+                if selector.done:
+                    break
+                continue
+            if logger is not None:
+                logger.log(writer.num_views + len(batch), frame)
+            batch.append(frame)
+            if len(batch) >= max(1, batch_size):
+                flush()
     if batch:
         flush()
 

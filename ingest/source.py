@@ -556,7 +556,8 @@ class RecordingFrames:
     def _assemble_checked(self, match: Match) -> Frame | None:
         sel = self.selection
         assert sel is not None
-        rgb = decode.decode_colour(match.primary, sel.rgb)
+        decoded, jpeg = decode.decode_colour_kept(match.primary, sel.rgb)
+        rgb = decoded
         depth = decode.decode_depth(match.secondary["depth"], sel.depth)
         h, w = rgb.shape[:2]
         if depth.shape != (h, w):
@@ -581,7 +582,8 @@ class RecordingFrames:
                 msg_ = f"{self.path}: label images on {sel.extras[key]} are {label.shape[1]}x{label.shape[0]}, colour images {w}x{h}; they must match."
                 raise IngestError(msg_)
             extras[key] = undistort(label, K, lens, blend=False)
-        return Frame(match.stamp_ns, rgb, depth, K, pose, extras)
+        kept = jpeg if rgb is decoded else None  # undistorted: other pixels than those bytes
+        return Frame(match.stamp_ns, rgb, depth, K, pose, extras, rgb_jpeg=kept)
 
     def _intrinsics(self, t: int, w: int, h: int) -> tuple[np.ndarray, Distortion]:
         """K and lens distortion of the camera info nearest in time to ``t``."""

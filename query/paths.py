@@ -14,10 +14,18 @@ approach points keep) can follow, from a start to the goal's approach point:
   wall) joins the nearest one within :attr:`PathConfig.start_reach`, in a straight line.
 
 Distances come from one single-source Dijkstra over that graph (scipy's
-``csgraph.dijkstra``), so every candidate of a query costs one search. A goal the search
-does not reach, or that is the object itself (no approach point), is unreachable: its
-distance is ``inf``. A path is the list of cells back from a goal to the start, as
-``nav_msgs/Path`` JSON (:func:`nav_path`) in the goals' frame.
+``csgraph.dijkstra``), so every candidate of a query costs one search, and a roadmap keeps
+its last searches: a second query or a batch from the same place pays a look-up. A goal
+the search does not reach, or that is the object itself (no approach point), is
+unreachable: its distance is ``inf``. A path is the list of cells back from a goal to the
+start, as ``nav_msgs/Path`` JSON (:func:`nav_path`) in the goals' frame; :func:`walk`
+strings the attempts of a sequence together, each from where the one before ended (a
+search per place stood at).
+
+Why scipy's Dijkstra (``bench/paths.py`` times each on the same floor): python-igraph,
+networkit and rustworkx search the same graph 2-4.5 times slower at 1M cells;
+scikit-image's ``MCP_Geometric`` is twice as slow and cuts corners (it lets a diagonal step
+pass an obstacle's corner, so its distances come out shorter than a robot can drive).
 
 Math only: the start of a recording (its first pose) is read by the caller.
 """
@@ -25,6 +33,7 @@ Math only: the start of a recording (its first pose) is read by the caller.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -35,16 +44,21 @@ from fuse.layout import GridLayout
 from query.goals import FreeSpace, Goal, GoalMaker, stamped_poses
 
 __all__ = [
+    "Leg",
     "PathConfig",
     "Roadmap",
     "Travel",
     "nav_path",
     "passable_squared_distance",
     "path_length",
+    "walk",
 ]
 
 _STEPS = ((1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1))
 """The 8 moves from a cell, (dx, dy) in cells: four straight, then four diagonal."""
+_KEPT_SEARCHES = 2
+"""Searches a roadmap keeps (12 bytes a cell each: 24 MB at 1M cells): the start of a query
+and of its walk's first leg, a batch's start."""
 
 
 @dataclass(frozen=True)
@@ -168,8 +182,26 @@ class Roadmap:
 
     def travel(self, start: tuple[float, float], reach: float) -> Travel:
         """Shortest paths from ``start`` to every cell (``reach``: how far the first
-        passable cell may lie from it, :attr:`PathConfig.start_reach`)."""
+        passable cell may lie from it, :attr:`PathConfig.start_reach`). The last few
+        searches are kept: asking again from the same start costs nothing, and returns the
+        same :class:`Travel`, its arrays read-only."""
         start = (float(start[0]), float(start[1]))
+        key = (start, float(reach))
+        kept = self._searches.pop(key, None)
+        if kept is None:
+            kept = self._search(start, reach)
+            kept.distance.flags.writeable = kept.predecessor.flags.writeable = False  # shared
+        self._searches[key] = kept  # the newest last: the oldest goes first
+        while len(self._searches) > _KEPT_SEARCHES:
+            del self._searches[next(iter(self._searches))]
+        return kept
+
+    @cached_property
+    def _searches(self) -> dict[tuple[tuple[float, float], float], Travel]:
+        return {}
+
+    def _search(self, start: tuple[float, float], reach: float) -> Travel:
+        """One Dijkstra over :attr:`graph` from the cell ``start`` enters at."""
         source = self.entry(start, reach)
         n = self.passable.size
         if source is None:
@@ -206,6 +238,19 @@ class Travel:
         cell = self.cell(goal.position[:2]) if goal.approach else None
         return math.inf if cell is None else float(self.distance[cell])
 
+    def distances(self, goals: Sequence[Goal]) -> np.ndarray:
+        """(len(goals),) :meth:`distance_to` of each goal, in one look-up."""
+        xy = np.array([g.position[:2] for g in goals], np.float64).reshape(-1, 2)
+        size, (ox, oy) = self.roadmap.layout.cell_size, self.roadmap.layout.origin
+        nx, ny = self.roadmap.layout.shape
+        cx = np.floor((xy[:, 0] - ox) / size).astype(np.int64)
+        cy = np.floor((xy[:, 1] - oy) / size).astype(np.int64)
+        inside = (cx >= 0) & (cx < nx) & (cy >= 0) & (cy < ny)
+        inside &= np.array([g.approach for g in goals], bool)
+        out = np.full(len(xy), np.inf)
+        out[inside] = self.distance[cx[inside] * ny + cy[inside]]
+        return out
+
     def waypoints(self, goal: Goal) -> np.ndarray | None:
         """(M, 2) map (x, y) from the start to ``goal``'s approach point: the start, the
         centre of each cell on the way, the goal (None: unreachable)."""
@@ -216,6 +261,38 @@ class Travel:
             cells.append(int(self.predecessor[cells[-1]]))
         centres = self.roadmap.centres(np.array(cells[::-1]))
         return centres if np.allclose(centres[0], self.start) else np.vstack([self.start, centres])
+
+
+@dataclass(frozen=True)
+class Leg:
+    """One attempt's way: from where the robot stood to the attempt's goal."""
+
+    goal: Goal
+    start: tuple[float, float]
+    """Where the robot stood (map x, y): the walk's start, or the last goal it reached."""
+    waypoints: np.ndarray | None
+    """(M, 2) map (x, y) from ``start`` to the goal (None: unreachable from there)."""
+
+    @property
+    def length(self) -> float:
+        """Metres driven (inf: unreachable)."""
+        return math.inf if self.waypoints is None else path_length(self.waypoints)
+
+
+def walk(
+    roadmap: Roadmap, start: tuple[float, float], reach: float, goals: Sequence[Goal]
+) -> list[Leg]:
+    """The way of each attempt in turn, as a robot replanning after each failure drives it:
+    the first from ``start``, each later one from where the one before ended (its goal; an
+    unreachable goal leaves the robot where it stood). One search per place stood at."""
+    here = (float(start[0]), float(start[1]))
+    legs = []
+    for goal in goals:
+        points = roadmap.travel(here, reach).waypoints(goal)
+        legs.append(Leg(goal, here, points))
+        if points is not None:
+            here = (float(points[-1, 0]), float(points[-1, 1]))
+    return legs
 
 
 def path_length(waypoints: np.ndarray) -> float:

@@ -7,10 +7,17 @@ only the list of visited candidates.
 For the grid a failed attempt also excludes every cell within ``exclude_radius`` metres (floor
 plane) of it, so the agent does not try the same object again from the next cell; instances
 exclude only the visited instance.
+
+With a :class:`Walk` every episode also walks: from its start to the first goal, then from
+each goal reached to the next. An attempt at a goal the robot cannot reach (distance
+``inf``) still counts as one of the attempts, adds nothing to the path, and leaves the robot
+where it was. Travel rules (``nearest_topk``, ``*_near``) see the distances from where the
+robot stands.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,6 +46,7 @@ __all__ = [
     "Attempts",
     "Choice",
     "ReplanConfig",
+    "Walk",
     "available_after",
     "candidates_near",
     "next_goal",
@@ -101,11 +109,25 @@ class Attempts:
     """(Q, A) bool: the candidate set was empty and max confidence chose."""
     set_size: np.ndarray
     """(Q, A) int64 size of the candidate set the rule chose from (0 where not set-based)."""
+    distance: np.ndarray | None = None
+    """(Q, A) float64 metres walked to each attempt's goal from where the robot stood (inf:
+    unreachable, NaN: no attempt); None: played without a :class:`Walk`."""
 
     @property
     def solved(self) -> np.ndarray:
         """(Q,) bool: some attempt succeeded."""
         return self.success.any(axis=1)
+
+
+@dataclass(frozen=True)
+class Walk:
+    """Where each episode's robot starts and how far it is from one goal to the next."""
+
+    start: np.ndarray
+    """(Q, N) metres from each query's start to each candidate's goal (inf: unreachable)."""
+    legs: Callable[[np.ndarray], np.ndarray]
+    """Candidate ids (M,) -> (M, N) metres from each one's goal to every candidate's goal
+    (:meth:`query.travel.Legs.from_goals`)."""
 
 
 def candidates_near(cmap: CandidateMap, xy: np.ndarray, radius: float) -> np.ndarray:
@@ -166,9 +188,10 @@ def _step(
     rank: np.ndarray | None,
     rng: np.random.Generator | None,
     success: np.ndarray | None,
+    distance: np.ndarray | None = None,
 ) -> tuple[Pick, np.ndarray]:
     cset = candidate_set(criterion, conf, available, k, rank) if strategy.uses_set else available
-    situation = Situation(conf, available, cset, columns, rng, success)
+    situation = Situation(conf, available, cset, columns, rng, success, distance)
     if strategy.rule is None:
         msg = f"strategy {strategy.name!r} makes no further attempt"
         raise ReplanError(msg)
@@ -190,6 +213,7 @@ def run_attempts(
     exclude_radius: float = 0.0,
     rng: np.random.Generator | None = None,
     searched: np.ndarray | None = None,
+    walk: Walk | None = None,
 ) -> Attempts:
     """Play Q episodes: attempt 1 by max confidence, then ``strategy`` on what remains after
     each failure, up to ``attempts`` attempts; an episode stops at its first success.
@@ -198,7 +222,8 @@ def run_attempts(
     exclusion. ``no_replan`` makes one attempt whatever ``attempts`` says. ``searched``
     (Q, N) bool: candidates already searched before the episode (places the robot has been);
     a row with any is already replanning, so its attempt 1 is ``strategy``'s choice too (none
-    for ``no_replan``), as :func:`next_goal` answers after a visit.
+    for ``no_replan``), as :func:`next_goal` answers after a visit. ``walk``: the episodes
+    walk (module docstring); each attempt's leg length comes back in :attr:`Attempts.distance`.
     """
     strategy = get_strategy(strategy) if isinstance(strategy, str) else strategy
     if attempts < 1:
@@ -206,6 +231,8 @@ def run_attempts(
         raise ReplanError(msg)
     n_q, n_c = conf.shape
     shapes = {"success": success, "rank": rank, "searched": searched}
+    if walk is not None:
+        shapes["walk.start"] = walk.start
     bad = [
         f"{n} {np.shape(a)}"
         for n, a in shapes.items()
@@ -227,11 +254,13 @@ def run_attempts(
     first, found = best_of(conf, available, conf, maximise=True)
     chosen = np.where(found & ~replanning, first, -1)
     rows = np.arange(n_q)
+    here = None if walk is None else np.array(walk.start, np.float64)  # (Q, N) from the robot
+    legs = None if walk is None else np.full((n_q, attempts), np.nan)
     for a in range(n_a):
         if a == 0 and replanning.any() and strategy.rule is not None:
             pick, set_size = _step(
                 strategy, conf, available, columns,
-                criterion=criterion, k=k, rank=rank, rng=rng, success=success,
+                criterion=criterion, k=k, rank=rank, rng=rng, success=success, distance=here,
             )  # fmt: skip
             chosen = np.where(replanning, pick.candidate, chosen)
             value[:, 0] = np.where(replanning, pick.value, np.nan)
@@ -243,9 +272,11 @@ def run_attempts(
                 available, np.where(live, cand[:, a - 1], -1), positions, exclude_radius
             )
             available[~live] = False
+            if walk is not None:
+                here = _walk_on(walk, here, cand[:, a - 1], legs[:, a - 1], live)
             pick, set_size = _step(
                 strategy, conf, available, columns,
-                criterion=criterion, k=k, rank=rank, rng=rng, success=success,
+                criterion=criterion, k=k, rank=rank, rng=rng, success=success, distance=here,
             )  # fmt: skip
             chosen = np.where(live, pick.candidate, -1)
             value[:, a] = np.where(live, pick.value, np.nan)
@@ -256,7 +287,22 @@ def run_attempts(
             value[:, 0] = np.where(first_rows, conf[rows, np.maximum(chosen, 0)], value[:, 0])
         cand[:, a] = chosen
         ok[:, a] = (chosen >= 0) & success[rows, np.maximum(chosen, 0)]
-    return Attempts(cand, ok, value, fell, size)
+        if legs is not None:
+            legs[:, a] = np.where(chosen >= 0, here[rows, np.maximum(chosen, 0)], np.nan)
+    return Attempts(cand, ok, value, fell, size, legs)
+
+
+def _walk_on(
+    walk: Walk, here: np.ndarray, went: np.ndarray, leg: np.ndarray, live: np.ndarray
+) -> np.ndarray:
+    """The distances from where each live episode's robot stands after its last attempt:
+    at that attempt's goal where it could reach it, else still where it was."""
+    moved = np.flatnonzero(live & (went >= 0) & np.isfinite(leg))
+    if len(moved) == 0:
+        return here
+    here = here.copy()
+    here[moved] = walk.legs(went[moved])
+    return here
 
 
 @dataclass(frozen=True)
@@ -287,6 +333,7 @@ def next_goal(
     exclude_radius: float | None = None,
     seed: int = _REPLAN.seed,
     visited_at: np.ndarray | list[tuple[float, float]] = (),  # type: ignore[assignment]
+    distance: np.ndarray | list[float] | None = None,
 ) -> Choice:
     """The next candidate to try for ``query`` after the ``visited`` (failed) ones.
 
@@ -298,7 +345,10 @@ def next_goal(
     over ``criterion``'s top-k set among unvisited candidates. ``exclude_radius`` (grid only,
     default 1 m) also skips cells near failed ones. ``visited_at``: map positions (x, y) the
     robot went to without finding the object; the candidates within the exclusion radius of
-    one (1 m by default, for instances too) count as visited.
+    one (1 m by default, for instances too) count as visited. ``distance``: (N,) metres from
+    where the robot stands to each candidate's goal (inf: unreachable), which the travel rules
+    (``nearest_topk``, ``*_near``) trade against and the others ignore; a travel rule without
+    it is refused, not played as if every candidate were equally far.
     """
     if criterion not in CRITERIA:
         msg = f"unknown selection criterion {criterion!r}; choose one of {', '.join(CRITERIA)}"
@@ -330,6 +380,17 @@ def next_goal(
     chosen = get_strategy(strategy)
     # no_replan after a visit: _step says it makes no attempt
     first = visited_ids.size == 0 and not len(places)
+    here = None if distance is None else np.asarray(distance, np.float64).reshape(1, -1)
+    if here is not None and here.shape[1] != cmap.num_candidates:
+        msg = f"distance gives {here.shape[1]} values for {cmap.num_candidates} candidates"
+        raise ReplanError(msg)
+    if chosen.travel and here is None and not first:
+        msg = (
+            f"strategy {chosen.name!r} trades its measure against travel: give each "
+            "candidate's distance from where the robot stands (care replan finds them over "
+            "the grid's free space)"
+        )
+        raise ReplanError(msg)
     if first:
         cand, found = best_of(conf, available, conf, maximise=True)
         pick = Pick(
@@ -341,7 +402,7 @@ def next_goal(
         columns = {name: cmap.column(name) for name in REPLAN_COLUMNS}
         pick, size = _step(
             chosen, conf, available, columns, criterion=criterion, k=k, rank=rank,
-            rng=np.random.default_rng(seed), success=None,
+            rng=np.random.default_rng(seed), success=None, distance=here,
         )  # fmt: skip
     c = int(pick.candidate[0])
     fell = bool(pick.fell_back[0])

@@ -14,6 +14,13 @@ position) and per (query, strategy, criterion, attempt). With goals, its schema 
 names their frame (:data:`care.keys.GOAL_FRAME_KEY`): ``goal_x``, ``goal_y`` and ``goal_yaw``
 are in ``frame_id`` (the goal's height: 0 for an approach point, else the object's ``z``),
 and ``world_from_frame`` gives each goal in the recording's world frame.
+
+With a :class:`query.paths.Travel` (the shortest paths from the batch's one start, as
+``care query`` chooses it: ``--from`` or the recording's first pose), each row also says how
+far the robot drives from that start to the goal (``distance``) and whether it can get
+there at all (``reachable``): one search for the whole batch, every row a look-up, so a
+batch of thousands of queries pays for paths once. The start is in the metadata
+(``path_start``, map x, y; null without paths).
 """
 
 from __future__ import annotations
@@ -34,6 +41,7 @@ from query.confidence import rank_by_confidence
 from query.goals import Goal, GoalMaker
 from query.map import MEASURES, REPLAN_COLUMNS, CandidateMap
 from query.openvocab import open_queries
+from query.paths import Travel
 from replan.attempts import DEFAULT_EXCLUDE_RADIUS, ReplanConfig, candidates_near, run_attempts
 from replan.strategies import CRITERIA, STRATEGIES
 
@@ -74,9 +82,14 @@ BATCH_SCHEMA = pa.schema(
         ("goal_y", pa.float64()),
         ("goal_yaw", pa.float64()),
         ("goal_approach", pa.bool_()),
+        ("distance", pa.float64()),
+        ("reachable", pa.bool_()),
     ]
 )
-"""One row per listed candidate or attempt; ``candidate`` -1 where no attempt was left."""
+"""One row per listed candidate or attempt; ``candidate`` -1 where no attempt was left.
+``distance``: metres along free space from the batch's start to the goal, null where the
+goal is unreachable (or there are no paths: no grid, no start, no attempt); ``reachable``:
+null where there are no paths or no attempt."""
 
 
 @dataclass(frozen=True)
@@ -91,8 +104,11 @@ class BatchQuery:
 class BatchConfig:
     """What every query of a batch is answered with."""
 
-    strategies: tuple[str, ...] = tuple(s for s in STRATEGIES if not STRATEGIES[s].needs_truth)
-    """Replan strategies whose attempt sequences are listed (the oracle needs ground truth)."""
+    strategies: tuple[str, ...] = tuple(
+        s for s in STRATEGIES if not (STRATEGIES[s].needs_truth or STRATEGIES[s].travel)
+    )
+    """Replan strategies whose attempt sequences are listed (the oracle needs ground truth;
+    the travel rules a walk from each attempt's goal to the next, which ``care eval`` plays)."""
     criteria: tuple[str, ...] = tuple(CRITERIA)
     k: int = ReplanConfig.k
     """Size parameter of the candidate sets."""
@@ -118,6 +134,14 @@ class BatchConfig:
             raise ReplanError(msg)
         if any(STRATEGIES[s].needs_truth for s in self.strategies):
             msg = "the oracle needs ground truth; a batch without it cannot list its attempts"
+            raise ReplanError(msg)
+        travel = [s for s in self.strategies if STRATEGIES[s].travel]
+        if travel:
+            msg = (
+                f"{', '.join(travel)} trade their measure against travel from each attempt's "
+                "goal to the next, which a batch does not walk; `care eval` plays them, "
+                "`care replan --strategy` answers one query"
+            )
             raise ReplanError(msg)
         if min(self.k, self.attempts, self.top, self.chunk) < 1:
             msg = "k, attempts, top and chunk must each be at least 1"
@@ -203,11 +227,12 @@ def _rows(
     cache: dict[int, Goal],
     candidate: np.ndarray,
     conf: np.ndarray,
-) -> dict[str, np.ndarray]:
+    travel: Travel | None = None,
+) -> dict[str, np.ndarray | pa.Array]:
     """The per-candidate columns of rows listing ``candidate`` (-1: none)."""
     c = np.maximum(candidate, 0)
     has = candidate >= 0
-    cols: dict[str, np.ndarray] = {
+    cols: dict[str, np.ndarray | pa.Array] = {
         "candidate": candidate,
         "confidence": np.where(has, np.exp(conf), np.nan).astype(np.float32),
         **{m: np.where(has, cmap.column(m)[c], np.nan).astype(np.float32) for m in MEASURES},
@@ -219,6 +244,7 @@ def _rows(
     }
     gx, gy, yaw = (np.full(len(c), np.nan) for _ in range(3))
     approach = np.zeros(len(c), bool)
+    chosen: list[Goal] = []
     if goals is not None:
         for i, cand in enumerate(candidate):
             if cand < 0:
@@ -228,7 +254,15 @@ def _rows(
                 goal = cache[int(cand)] = goals.goal(cmap, int(cand))
             gx[i], gy[i], yaw[i] = goal.position[0], goal.position[1], goal.yaw
             approach[i] = goal.approach
+            chosen.append(goal)
     cols.update(goal_x=gx, goal_y=gy, goal_yaw=yaw, goal_approach=approach)
+    metres = np.full(len(c), np.inf)
+    known = has & (travel is not None)
+    if chosen and travel is not None:
+        metres[has] = travel.distances(chosen)
+    reach = np.isfinite(metres)
+    cols["distance"] = pa.array(np.where(reach, metres, 0.0), pa.float64(), mask=~reach)
+    cols["reachable"] = pa.array(reach, pa.bool_(), mask=~known)
     return cols
 
 
@@ -243,6 +277,7 @@ class _Chunk:
     res: _Resolved
     goals: GoalMaker | None
     cache: dict[int, Goal]
+    travel: Travel | None = None
 
     def table(
         self,
@@ -273,6 +308,7 @@ class _Chunk:
                     self.cache,
                     cand,
                     self.res.conf[rows, np.maximum(cand, 0)],
+                    self.travel,
                 ),
                 "fell_back": fell,
                 "set_size": size,
@@ -287,12 +323,18 @@ def plan_batch(
     config: BatchConfig | None = None,
     *,
     goals: GoalMaker | None = None,
+    travel: Travel | None = None,
     progress: bool = False,
 ) -> pa.Table:
-    """Every query's ranking and every strategy's attempt sequence, as :data:`BATCH_SCHEMA`."""
+    """Every query's ranking and every strategy's attempt sequence, as :data:`BATCH_SCHEMA`.
+
+    ``travel``: the shortest paths from the batch's start over ``goals``' free space (one
+    search, made by the caller), for each row's ``distance`` and ``reachable``."""
     from tqdm import tqdm
 
     config = config or BatchConfig()
+    if goals is None or travel is None or travel.source is None:
+        travel = None  # no paths: no grid, no start, or no free cell near it
     columns = {name: cmap.column(name) for name in REPLAN_COLUMNS}
     positions = cmap.positions if cmap.kind == MapKind.GRID else None
     radius = config.exclude_radius if cmap.kind == MapKind.GRID else 0.0
@@ -303,7 +345,7 @@ def plan_batch(
     for lo in range(0, len(queries), config.chunk):
         chunk = queries[lo : lo + config.chunk]
         res = _resolve(cmap, chunk, config)
-        part = _Chunk(cmap, chunk, lo, res, goals, cache)
+        part = _Chunk(cmap, chunk, lo, res, goals, cache, travel)
         top = min(config.top, cmap.num_candidates)
         order = rank_by_confidence(res.conf)[:, :top]
         rows = np.repeat(np.arange(len(chunk)), top)
@@ -338,5 +380,6 @@ def plan_batch(
         "frame_id": goals.frame_id,
         "world_frame": goals.world_frame,
         "world_from_frame": goals.world_from_frame().reshape(-1).tolist(),
+        "path_start": None if travel is None else list(travel.start),
     }
     return table.replace_schema_metadata({GOAL_FRAME_KEY: json.dumps(frame).encode()})

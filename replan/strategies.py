@@ -11,6 +11,22 @@ Selection criteria (:data:`CRITERIA`), among available candidates:
 - ``confidence``: the k candidates of highest confidence. After a failed first attempt this is
   ranks 2..k+1, as in the authors' code;
 - ``category``: every candidate whose k highest classes contain the target class.
+
+Travel (:attr:`Situation.distance`, metres from where the robot stands to each candidate's
+goal) adds a non-CARe baseline and a distance-aware variant of each CARe rule:
+
+- ``nearest_topk``: the nearest reachable candidate of the set (what a roboticist tries first);
+- ``max_entropy_near``, ``min_stderr_near``, ``min_pwkl_near``: the CARe rule traded against
+  travel by one rule (:func:`travel_score`): each set member scores
+  ``rank / (|S| - 1) + TRAVEL_WEIGHT * d / d_max``, its rank under the CARe rule (0: the
+  rule's own pick) and its distance over the farthest reachable member's; the lowest wins.
+
+An unreachable candidate (``inf``) is chosen only where no member of the set is reachable
+(then by confidence; that attempt cannot be walked). Without distances (``None``: an
+evaluated scene with no free space) every distance counts the same: ``nearest_topk`` is the
+most confident member of the set and each ``*_near`` rule its CARe rule. ``care replan``
+gives them the distances from ``--from`` (:func:`replan.attempts.next_goal` refuses a travel
+rule without them), and a batch, which walks no attempt, does not list them.
 """
 
 from __future__ import annotations
@@ -26,6 +42,7 @@ from care.errors import ReplanError
 __all__ = [
     "CRITERIA",
     "STRATEGIES",
+    "TRAVEL_WEIGHT",
     "Criterion",
     "Pick",
     "Situation",
@@ -36,8 +53,13 @@ __all__ = [
     "get_strategy",
     "topk_category",
     "topk_confidence",
+    "travel_score",
     "uniform_of",
 ]
+
+TRAVEL_WEIGHT = 1.0
+"""Weight of travel in the distance-aware rules (:func:`travel_score`): at 1 the rule's own
+pick at the farthest reachable distance ties with its last-ranked member next to the robot."""
 
 
 class StrategyName(StrEnum):
@@ -56,6 +78,10 @@ class StrategyName(StrEnum):
     MAX_PWKL = "max_pwkl"
     LARGEST = "largest"
     MOST_VIEWS = "most_views"
+    NEAREST_TOPK = "nearest_topk"
+    MAX_ENTROPY_NEAR = "max_entropy_near"
+    MIN_STDERR_NEAR = "min_stderr_near"
+    MIN_PWKL_NEAR = "min_pwkl_near"
 
 
 class Criterion(StrEnum):
@@ -83,6 +109,9 @@ class Situation:
     """Source of the random strategies' draws (seeded by the caller)."""
     success: np.ndarray | None = None
     """(Q, N) bool ground truth; only the oracle reads it."""
+    distance: np.ndarray | None = None
+    """(Q, N) metres from where each query's robot stands to each candidate's goal (inf:
+    unreachable); None: unknown, every distance counts the same. Only travel rules read it."""
 
 
 @dataclass(frozen=True)
@@ -312,6 +341,76 @@ def _most_views(s: Situation) -> Pick:
     return _pick(s, cand, found, values)
 
 
+def _distance(s: Situation) -> np.ndarray:
+    """(Q, N) metres to each candidate's goal; zeros where distances are unknown."""
+    if s.distance is None:
+        return np.zeros(s.available.shape)
+    return np.broadcast_to(np.asarray(s.distance, np.float64), s.available.shape)
+
+
+def _nearest_topk(s: Situation) -> Pick:
+    """Non-CARe baseline: the nearest candidate of the set (ties: higher confidence)."""
+    values = _distance(s)
+    cand, found = best_of(values, s.candidate_set, s.confidence, maximise=False)
+    return _pick(s, cand, found, values)
+
+
+def _rule_rank(
+    values: np.ndarray, mask: np.ndarray, confidence: np.ndarray, *, maximise: bool
+) -> np.ndarray:
+    """(Q, N) rank of each member of ``mask`` under a measure rule's order (0: its pick; by
+    value, then higher confidence, then lower id, as :func:`best_of`); -1 off the mask."""
+    n_c = mask.shape[1]
+    rows, cols = np.divmod(np.flatnonzero(mask), n_c)
+    rank = np.full(mask.shape, -1, np.int64)
+    if len(rows) == 0:
+        return rank
+    vals = np.asarray(values, np.float64)
+    vals = vals[cols] if vals.ndim == 1 else vals[rows, cols]
+    key = np.where(np.isnan(vals), np.inf, -vals if maximise else vals)
+    conf = np.broadcast_to(confidence, mask.shape)[rows, cols]
+    order = np.lexsort((cols, -conf, key, rows))
+    rows, cols = rows[order], cols[order]
+    starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1]])
+    rank[rows, cols] = np.arange(len(rows)) - np.repeat(starts, np.diff(np.r_[starts, len(rows)]))
+    return rank
+
+
+def travel_score(
+    rank: np.ndarray, distance: np.ndarray, weight: float = TRAVEL_WEIGHT
+) -> np.ndarray:
+    """(Q, N) the distance-aware rules' score of each member of a candidate set (lower wins):
+    ``rank / (|S| - 1) + weight * d / d_max``.
+
+    ``rank`` is the member's rank under the CARe rule (:func:`_rule_rank`: 0 its own pick,
+    -1 off the set), ``d`` its distance and ``d_max`` the farthest reachable member's. Both
+    terms run from 0 to 1 within a set whatever its size or the floor's, so one weight fits
+    every k and map; an unreachable member scores inf, off the set NaN.
+    """
+    member = rank >= 0
+    size = member.sum(axis=1, keepdims=True)
+    dist = np.where(member, distance, np.nan)
+    reach = member & np.isfinite(dist)
+    far = np.where(reach, dist, 0.0).max(axis=1, keepdims=True)
+    scaled = np.where(far > 0, np.where(reach, dist, 0.0) / np.where(far > 0, far, 1.0), 0.0)
+    score = rank / np.maximum(size - 1, 1) + weight * scaled
+    score = np.where(member & ~np.isfinite(dist), np.inf, score)
+    return np.where(member, score, np.nan)
+
+
+def _near(column: str, maximise: bool) -> Callable[[Situation], Pick]:
+    """The distance-aware variant of the CARe rule over ``column`` (:func:`travel_score`)."""
+
+    def rule(s: Situation) -> Pick:
+        rank = _rule_rank(s.columns[column], s.candidate_set, s.confidence, maximise=maximise)
+        score = travel_score(rank, _distance(s))
+        cand, found = best_of(score, s.candidate_set, s.confidence, maximise=False)
+        return _pick(s, cand, found, score)
+
+    rule.__name__ = f"{'max' if maximise else 'min'}_{column}_near"
+    return rule
+
+
 def _oracle(s: Situation) -> Pick:
     if s.success is None:
         msg = "the oracle needs ground truth; it exists only in evaluation (`care eval`)"
@@ -336,6 +435,8 @@ class Strategy:
     random: bool = False
     needs_truth: bool = False
     ablation: bool = False
+    travel: bool = False
+    """Chooses by the distance from the robot's place too (:attr:`Situation.distance`)."""
 
 
 STRATEGIES: dict[StrategyName, Strategy] = {
@@ -375,6 +476,38 @@ STRATEGIES: dict[StrategyName, Strategy] = {
         ),
         Strategy(StrategyName.LARGEST, "Largest candidate (baseline)", _largest, "size"),
         Strategy(StrategyName.MOST_VIEWS, "Most views (baseline)", _most_views, "num_views"),
+        Strategy(
+            StrategyName.NEAREST_TOPK,
+            "Nearest of top-k (baseline)",
+            _nearest_topk,
+            "distance",
+            uses_set=True,
+            travel=True,
+        ),
+        Strategy(
+            StrategyName.MAX_ENTROPY_NEAR,
+            "Max entropy, travel-aware",
+            _near("entropy", True),
+            "entropy",
+            uses_set=True,
+            travel=True,
+        ),
+        Strategy(
+            StrategyName.MIN_STDERR_NEAR,
+            "Min stderr, travel-aware",
+            _near("stderr", False),
+            "stderr",
+            uses_set=True,
+            travel=True,
+        ),
+        Strategy(
+            StrategyName.MIN_PWKL_NEAR,
+            "Min pwKL, travel-aware",
+            _near("pwkl", False),
+            "pwkl",
+            uses_set=True,
+            travel=True,
+        ),
     )
 }
 """Strategy name -> :class:`Strategy`, in the paper's row order; the CLI's choices."""

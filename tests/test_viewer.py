@@ -1,4 +1,5 @@
-"""The four recordings of ``care run`` on the sample, opened in the real Rerun viewer.
+"""The four recordings of ``care run`` on the sample, and the answer recordings of
+``care query`` and ``care replan`` on its store, opened in the real Rerun viewer.
 
 ``scripts/check_viewer.py`` drives the viewer shipped in rerun-sdk headless (software Vulkan:
 ``mesa-vulkan-drivers``, installed by ``scripts/install.sh``), shows every view, and reads the
@@ -99,6 +100,29 @@ def test_every_view_renders_without_errors(
     assert len(shots) == len(report)  # a screenshot per view
     assert all(_not_blank(p) for p in shots), [p.name for p in shots if not _not_blank(p)]
     assert _not_blank(tmp_path / f"scene_000.{stage}.png")
+
+
+@pytest.mark.parametrize("command", ["query", "replan"])
+def test_answer_recordings_render_without_errors(
+    viewer: None, sample_run: Path, tmp_path: Path, command: str
+) -> None:
+    """``--rrd`` of ``care query`` (three attempts, each from where the last ended) and of
+    ``care replan`` (a visited candidate, the way to the next) over the sample's grid."""
+    store = sample_run / "stores" / "scene_000"
+    rrd = tmp_path / f"scene_000.{command}.rrd"
+    extra = ["--visited", "0"] if command == "replan" else []
+    done = subprocess.run(
+        [sys.executable, "-m", "care_cli.main", command, str(store), "sofa", "--map",
+         "instances", *extra, "--rrd", str(rrd)],
+        capture_output=True, text=True, timeout=300, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    done = _check(rrd, "--shots", tmp_path, "--json", tmp_path / "report.json", timeout=300)
+    report = json.loads((tmp_path / "report.json").read_text())[str(rrd)]
+    assert done.returncode == 0, done.stdout + done.stderr[-2000:]
+    assert len(report) == 2, report
+    assert not {view: errs for view, errs in report.items() if errs}
+    assert _not_blank(tmp_path / f"scene_000.{command}.png")
 
 
 def test_checker_reports_a_view_error(viewer: None, tmp_path: Path) -> None:

@@ -2,8 +2,9 @@
 
 Its modules import one way: :mod:`~evaluate.report.rates` (success rates, AUROC, plots), then
 :mod:`~evaluate.report.paired` (paired comparisons and the per-query outcomes), then
-:mod:`~evaluate.report.preregistered` (the paper's settings fixed in advance), then
-:mod:`~evaluate.report.write`, which writes them all as one report.
+:mod:`~evaluate.report.travel` (path length, SPL and its paired tests, success against
+distance) and :mod:`~evaluate.report.preregistered` (the paper's settings fixed in advance),
+then :mod:`~evaluate.report.write`, which writes them all as one report.
 """
 
 from __future__ import annotations

@@ -18,9 +18,12 @@ from replan.strategies import STRATEGIES, Criterion, StrategyName
 __all__ = ["CARE_STRATEGIES", "Outcomes", "outcomes", "paired_markdown", "paired_table"]
 
 CARE_STRATEGIES = tuple(
-    name for name, s in STRATEGIES.items() if s.uses_set and not s.random and not s.needs_truth
+    name
+    for name, s in STRATEGIES.items()
+    if s.uses_set and not s.random and not s.needs_truth and not s.travel
 )
-"""The CARe rules: a measure chosen over a candidate set (ablations included)."""
+"""The CARe rules: a measure chosen over a candidate set (ablations included). The travel
+rules (``nearest_topk``, ``*_near``) are compared on SPL (:mod:`evaluate.report.travel`)."""
 
 
 Outcomes = tuple[dict, dict]

@@ -18,6 +18,7 @@ import pyarrow.compute as pc
 from care.maps import MapKind
 from care.outputs import write_atomic
 from evaluate.config import DEFAULT_BOOTSTRAP, NO_CRITERION
+from evaluate.spl import spl
 from fuse.measures import MEASURE_COLUMNS
 from replan.strategies import CRITERIA, STRATEGIES, StrategyName
 
@@ -27,6 +28,7 @@ __all__ = [
     "auroc",
     "auroc_table",
     "markdown_tables",
+    "per_episode",
     "per_query",
     "per_scene_markdown",
     "plot_success",
@@ -46,25 +48,58 @@ MAP_TITLES = {
 }
 
 
+def per_episode(attempts: pa.Table) -> pa.Table:
+    """One row per episode (query, strategy, criterion, k, seed): ``solved`` (some attempt
+    succeeded), ``expected_max`` and the walk (:mod:`evaluate.spl`; NaN without travel):
+    ``path`` (metres), ``reached`` (solved at a goal the robot reached) and ``spl``."""
+    attempts = _with_travel(attempts)
+    hit = pc.and_(attempts.column("success"), pc.is_finite(attempts.column("distance")))
+    aggregates = [("success", "max"), ("expected", "max"), ("hit", "max"), ("walked", "max"),
+                  ("shortest", "max")]  # fmt: skip
+    episodes = (
+        attempts.append_column("hit", hit)
+        .group_by([*QUERY_KEYS, *RULE_KEYS, "seed"], use_threads=False)
+        .aggregate(aggregates)
+    )
+    path = episodes.column("walked_max").to_numpy(zero_copy_only=False).astype(np.float64)
+    shortest = episodes.column("shortest_max").to_numpy(zero_copy_only=False).astype(np.float64)
+    reached = episodes.column("hit_max").to_numpy(zero_copy_only=False).astype(np.float64)
+    reached[np.isnan(shortest)] = np.nan
+    episodes = (
+        episodes.append_column("solved", pc.cast(episodes.column("success_max"), pa.float64()))
+        .append_column("path", pa.array(path))
+        .append_column("reached", pa.array(reached))
+        .append_column("spl", pa.array(spl(reached, shortest, path)))
+    )
+    return episodes.drop_columns(["success_max", "hit_max", "walked_max"])
+
+
 def per_query(attempts: pa.Table) -> pa.Table:
     """One row per (query, strategy, criterion, k): ``solved`` (mean over seeds of "some
-    attempt succeeded") and ``expected`` (closed form, random strategies only)."""
-    episodes = attempts.group_by([*QUERY_KEYS, *RULE_KEYS, "seed"], use_threads=False).aggregate(
-        [("success", "max"), ("expected", "max")]
-    )
-    episodes = episodes.append_column(
-        "solved", pc.cast(episodes.column("success_max"), pa.float64())
-    )
+    attempt succeeded"), ``expected`` (closed form, random strategies only) and the walk's
+    ``path``, ``reached`` and ``spl`` (:func:`per_episode`), means over seeds."""
+    episodes = per_episode(attempts)
     out = episodes.group_by([*QUERY_KEYS, *RULE_KEYS], use_threads=False).aggregate(
-        [("solved", "mean"), ("expected_max", "max")]
-    )
-    out = out.rename_columns(
-        [
-            {"solved_mean": "solved", "expected_max_max": "expected"}.get(n, n)
-            for n in out.column_names
-        ]
-    )
+        [("solved", "mean"), ("expected_max", "max"), ("path", "mean"), ("reached", "mean"),
+         ("spl", "mean")]
+    )  # fmt: skip
+    names = {"solved_mean": "solved", "expected_max_max": "expected", "path_mean": "path",
+             "reached_mean": "reached", "spl_mean": "spl"}  # fmt: skip
+    out = out.rename_columns([names.get(n, n) for n in out.column_names])
     return out.sort_by([(k, "ascending") for k in [*QUERY_KEYS, *RULE_KEYS]])
+
+
+TRAVEL_COLUMNS = ("distance", "walked", "shortest")
+"""The attempt rows' travel columns (:data:`evaluate.job.ATTEMPT_SCHEMA`)."""
+
+
+def _with_travel(attempts: pa.Table) -> pa.Table:
+    """``attempts`` with NaN travel columns where it has none (rows made without walks)."""
+    for name in TRAVEL_COLUMNS:
+        if name not in attempts.column_names:
+            nan = np.full(attempts.num_rows, np.nan, np.float32)
+            attempts = attempts.append_column(name, pa.array(nan))
+    return attempts
 
 
 def _bootstrap(values: np.ndarray, n: int, rng: np.random.Generator) -> tuple[float, float]:
@@ -109,13 +144,17 @@ def summarise(
 ) -> pa.Table:
     """Success rate (%) with a 95% bootstrap CI per (map, protocol, strategy, criterion, k)
     (and scene with ``by_scene``). ``closed_form`` tells the random strategies' expected
-    success (their own rows, from the ``expected`` column) from the measured one."""
+    success (their own rows, from the ``expected`` column) from the measured one. Measured
+    rows also give the walk over the ``n_travel`` queries that have one: mean ``path`` (m)
+    and ``spl`` (%); null without travel."""
     rows = []
     keys = ["map", "protocol", *RULE_KEYS] + (["scene"] if by_scene else [])
     rng = np.random.default_rng(seed)
     columns = {
         c: queries.column(c).to_numpy(zero_copy_only=False).astype(float)
-        for c in ("solved", "expected")
+        if c in queries.column_names
+        else np.full(queries.num_rows, np.nan)  # queries made without walks
+        for c in ("solved", "expected", "path", "spl")
     }
     for key, idx in _groups(queries, keys):
         for closed_form, column in ((False, "solved"), (True, "expected")):
@@ -125,6 +164,8 @@ def summarise(
                 continue
             values = values[~np.isnan(values)]
             lo, hi = _bootstrap(values, 0 if by_scene else bootstrap, rng)
+            walked = {c: columns[c][idx] for c in ("path", "spl")}
+            walks = ~np.isnan(walked["spl"]) & (not closed_form)
             rows.append(
                 {
                     **key,
@@ -133,9 +174,17 @@ def summarise(
                     "lo": 100 * lo,
                     "hi": 100 * hi,
                     "n_queries": len(values),
+                    "path": float(walked["path"][walks].mean()) if walks.any() else None,
+                    "spl": 100 * float(walked["spl"][walks].mean()) if walks.any() else None,
+                    "n_travel": int(walks.sum()),
                 }
             )
-    return pa.Table.from_pylist(rows)
+    out = pa.Table.from_pylist(rows)
+    for name in ("path", "spl"):  # null, not NaN, without walks: a typed float column
+        if name in out.column_names:
+            at = out.column_names.index(name)
+            out = out.set_column(at, name, out.column(name).cast(pa.float64()))
+    return out
 
 
 def auroc(score: np.ndarray, positive: np.ndarray) -> float:
@@ -363,8 +412,13 @@ _COLOURS = {
     StrategyName.MAX_PWKL: "tab:purple",
     StrategyName.LARGEST: "tab:cyan",
     StrategyName.MOST_VIEWS: "darkkhaki",
+    StrategyName.NEAREST_TOPK: "tab:blue",
+    StrategyName.MAX_ENTROPY_NEAR: "tab:orange",
+    StrategyName.MIN_STDERR_NEAR: "tab:green",
+    StrategyName.MIN_PWKL_NEAR: "tab:red",
 }
-"""Baselines dark or muted, the paper's three CARe measures strong, the ablations paler."""
+"""Baselines dark or muted, the paper's three CARe measures strong, the ablations paler; a
+travel-aware rule takes its CARe rule's colour (dashed in the travel plot)."""
 
 
 def plot_success(summary: pa.Table, ks: dict[str, Sequence[int]], out_dir: Path) -> list[Path]:

@@ -24,6 +24,7 @@ from evaluate.report.rates import (
     plot_success,
     summarise,
 )
+from evaluate.report.travel import plot_travel, spl_pairs, travel_curves, travel_markdown
 from runtime.parallel import Runner, start_task
 
 __all__ = ["Report", "write_report"]
@@ -40,6 +41,8 @@ class Report:
     summary: pa.Table
     auroc: pa.Table
     paths: tuple[Path, ...]
+    travel: str = ""
+    """Its travel section: path length, SPL and paired SPL tests (``care run`` prints it)."""
 
 
 def _auroc_markdown(table: pa.Table) -> str:
@@ -63,10 +66,13 @@ def write_report(
     bootstrap: int = DEFAULT_BOOTSTRAP,
     header: str = "",
     runner: Runner | None = None,
+    walk_from: str = "",
 ) -> Report:
     """Write ``attempts.parquet``, ``summary.parquet``, ``per_scene.parquet``,
-    ``auroc.parquet``, ``paired.parquet``, ``results.md`` and ``plots/*.png`` under ``out``;
-    the plots on ``runner`` (its open pool or Ray) while the tables are made here."""
+    ``auroc.parquet``, ``paired.parquet``, ``paired_spl.parquet``, ``results.md`` and
+    ``plots/*.png`` under ``out``; the plots on ``runner`` (its open pool or Ray) while the
+    tables are made here. ``walk_from``: where the walks start, for the travel
+    section's text (" from the recording's first pose")."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     queries = per_query(attempts)
@@ -74,20 +80,28 @@ def write_report(
     # the plots (matplotlib: about 4 s at 8 scenes) on another worker while the tables are
     # made here; without a pool or Ray they are drawn now, in this process
     plotting = start_task(plot_success, summary, ks, out / "plots", runner=runner or Runner())
+    drawing = None
     try:
         scenes = summarise(queries, by_scene=True)
         aucs = auroc_table(attempts)
         known = outcomes(attempts)  # once for the paired and the four pre-registered tables
         paired = paired_table(attempts, bootstrap=bootstrap, known=known)
+        pairs = spl_pairs(queries, summary, bootstrap=bootstrap)
         paths = [
             out / "attempts.parquet",
             out / "summary.parquet",
             out / "per_scene.parquet",
             out / "auroc.parquet",
             out / "paired.parquet",
+            out / "paired_spl.parquet",
         ]
-        for table, path in zip((attempts, summary, scenes, aucs, paired), paths, strict=True):
+        tables_out = (attempts, summary, scenes, aucs, paired, pairs)
+        for table, path in zip(tables_out, paths, strict=True):
             write_table_atomic(table, path)
+        travel = travel_markdown(summary, pairs, walk_from)
+        walked = any(r.get("n_travel") for r in summary.to_pylist())
+        curves = travel_curves(attempts, summary) if walked else {}
+        drawing = start_task(plot_travel, curves, out / "plots", runner=runner or Runner())
         tables = markdown_tables(summary, ks)
         prereg = preregistered.write_preregistered(
             attempts,
@@ -96,9 +110,11 @@ def write_report(
             known=known,
         )
     except Exception:
-        plotting.exception()  # a failed report writes nothing after its error
+        for task in (plotting, drawing):  # a failed report writes nothing after its error
+            if task is not None:
+                task.exception()
         raise
-    plots = plotting.result()
+    plots = [*plotting.result(), *drawing.result()]
     md = "\n".join(
         [
             header,
@@ -108,6 +124,7 @@ def write_report(
             "## 95% bootstrap confidence intervals (queries resampled)\n",
             markdown_tables(summary, ks, ci=True),
             paired_markdown(paired),
+            travel,
             prereg.markdown,
             _auroc_markdown(aucs),
             per_scene_markdown(summary, scenes),
@@ -116,4 +133,4 @@ def write_report(
     )
     md_path = out / "results.md"
     atomic_write_text(md_path, md)
-    return Report(md, tables, summary, aucs, (*paths, *prereg.paths, md_path, *plots))
+    return Report(md, tables, summary, aucs, (*paths, *prereg.paths, md_path, *plots), travel)

@@ -32,6 +32,7 @@ __all__ = [
     "numbers",
     "pose_from_tum",
     "read_colour",
+    "read_colour_kept",
     "read_depth",
     "stamp_ns",
     "table",
@@ -83,6 +84,15 @@ def read_colour(path: Path) -> np.ndarray:
     """(H, W, 3) uint8 RGB of a colour image file."""
     with _open(path) as image:
         return np.asarray(image.convert("RGB"))
+
+
+def read_colour_kept(path: Path) -> tuple[np.ndarray, bytes | None]:
+    """:func:`read_colour`, and the file's own bytes when it is a JPEG: the store keeps
+    those instead of encoding the image again (:attr:`care.frames.Frame.rgb_jpeg`)."""
+    with _open(path) as image:
+        rgb = np.asarray(image.convert("RGB"))
+        jpeg = image.format == "JPEG"
+    return rgb, path.read_bytes() if jpeg else None
 
 
 def read_depth(path: Path, scale: float) -> np.ndarray:

@@ -31,7 +31,7 @@ from ingest.folders.files import (
     json_file,
     numbers,
     pose_from_tum,
-    read_colour,
+    read_colour_kept,
     read_depth,
     stamp_ns,
     table,
@@ -114,10 +114,10 @@ class GenericLayout(FolderLayout):
 
     def load(self, view: FolderView) -> Frame:
         camera, scale = self._intrinsics()
-        rgb = read_colour(view.colour)
+        rgb, jpeg = read_colour_kept(view.colour)
         camera.check_size(rgb.shape[1], rgb.shape[0], view.colour, f"fix {INTRINSICS_FILE}")
         depth = read_depth(view.depth, scale)
-        return Frame(view.stamp_ns, rgb, depth, camera.K.copy(), view.cam_to_world)
+        return Frame(view.stamp_ns, rgb, depth, camera.K.copy(), view.cam_to_world, rgb_jpeg=jpeg)
 
     def describe(self) -> dict[str, Any]:
         camera, scale = self._intrinsics()

@@ -49,7 +49,7 @@ import numpy as np
 from care.errors import IngestError
 from care.frames import Frame
 from ingest.folders.base import DatasetLayout, FolderLayout, FolderView
-from ingest.folders.files import Intrinsics, numbers, read_colour, read_depth, table
+from ingest.folders.files import Intrinsics, numbers, read_colour_kept, read_depth, table
 
 __all__ = ["OPENGL_TO_OPTICAL", "MatterportLayout"]
 
@@ -201,14 +201,14 @@ class MatterportLayout(FolderLayout):
         if camera is None:
             msg = f"{view.colour}: no scan line of {self._conf()} lists this image."
             raise IngestError(msg)
-        rgb = read_colour(view.colour)
+        rgb, jpeg = read_colour_kept(view.colour)
         depth = read_depth(view.depth, DEPTH_QUARTER_MILLIMETRES)
         if depth.shape != rgb.shape[:2]:
             msg = f"{view.depth}: {depth.shape[1]}x{depth.shape[0]} depth for a {rgb.shape[1]}x{rgb.shape[0]} colour image {view.colour.name}; undistorted depth and colour share one size, re-copy the house."
             raise IngestError(msg)
         source = f"{self._conf().name} line {camera.line}"
         K = camera.on_image(rgb.shape[0], source).K
-        return Frame(view.stamp_ns, rgb, depth, K, view.cam_to_world)
+        return Frame(view.stamp_ns, rgb, depth, K, view.cam_to_world, rgb_jpeg=jpeg)
 
     def describe(self) -> dict[str, Any]:
         def relative(folder: Path) -> str:

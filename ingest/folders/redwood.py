@@ -36,7 +36,7 @@ from ingest.folders.files import (
     image_files,
     json_file,
     numbers,
-    read_colour,
+    read_colour_kept,
     read_depth,
     table,
 )
@@ -125,11 +125,11 @@ class RedwoodLayout(FolderLayout):
 
     def load(self, view: FolderView) -> Frame:
         camera = self._intrinsics()
-        rgb = read_colour(view.colour)
+        rgb, jpeg = read_colour_kept(view.colour)
         fix = f"give the camera in {self.path / INTRINSIC_FILE} (Open3D's PinholeCameraIntrinsic JSON)"
         camera.check_size(rgb.shape[1], rgb.shape[0], view.colour, fix)
         depth = read_depth(view.depth, DEPTH_MILLIMETRES)
-        return Frame(view.stamp_ns, rgb, depth, camera.K.copy(), view.cam_to_world)
+        return Frame(view.stamp_ns, rgb, depth, camera.K.copy(), view.cam_to_world, rgb_jpeg=jpeg)
 
     def describe(self) -> dict[str, Any]:
         return {

@@ -35,7 +35,7 @@ from ingest.folders.files import (
     image_files,
     json_file,
     numbers,
-    read_colour,
+    read_colour_kept,
     read_depth,
     table,
 )
@@ -119,11 +119,11 @@ class ReplicaLayout(FolderLayout):
 
     def load(self, view: FolderView) -> Frame:
         camera, scale = self._intrinsics()
-        rgb = read_colour(view.colour)
+        rgb, jpeg = read_colour_kept(view.colour)
         fix = f"give the camera of these renders in {self.path / CAM_PARAMS_FILE}"
         camera.check_size(rgb.shape[1], rgb.shape[0], view.colour, fix)
         depth = read_depth(view.depth, scale)
-        return Frame(view.stamp_ns, rgb, depth, camera.K.copy(), view.cam_to_world)
+        return Frame(view.stamp_ns, rgb, depth, camera.K.copy(), view.cam_to_world, rgb_jpeg=jpeg)
 
     def describe(self) -> dict[str, Any]:
         camera, scale = self._intrinsics()

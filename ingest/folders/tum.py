@@ -45,7 +45,7 @@ from ingest.folders.files import (
     Intrinsics,
     numbers,
     pose_from_tum,
-    read_colour,
+    read_colour_kept,
     read_depth,
     stamp_ns,
     table,
@@ -205,14 +205,16 @@ class TumLayout(FolderLayout):
 
     def load(self, view: FolderView) -> Frame:
         camera, lens, scale = self._calibration()
-        rgb = read_colour(view.colour)
+        decoded, jpeg = read_colour_kept(view.colour)
+        rgb = decoded
         fix = f"give the camera in {self.path / INTRINSICS_FILE} (docs/inputs.md)"
         camera.check_size(rgb.shape[1], rgb.shape[0], view.colour, fix)
         depth = read_depth(view.depth, scale)
         if depth.shape == rgb.shape[:2]:
             rgb = undistort(rgb, camera.K, lens, blend=True)
             depth = undistort(depth, camera.K, lens, blend=False)
-        return Frame(view.stamp_ns, rgb, depth, camera.K.copy(), view.cam_to_world)
+        kept = jpeg if rgb is decoded else None  # undistorted: other pixels than the file's
+        return Frame(view.stamp_ns, rgb, depth, camera.K.copy(), view.cam_to_world, rgb_jpeg=kept)
 
     def describe(self) -> dict[str, Any]:
         camera, lens, scale = self._calibration()

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import io
+from pathlib import Path
 
 import numpy as np
+import rerun as rr
 from PIL import Image
 
 from care.viz import APP_ID, depth_png, jpeg, open_scene_recording, overview_eye
@@ -55,3 +57,25 @@ def test_overview_eye_looks_at_the_middle_from_above() -> None:
     np.testing.assert_allclose(target, [5.0, 2.0, 1.25])
     assert position[2] > target[2] + 5.0  # above
     assert position[1] < target[1]  # south
+
+
+def test_a_stage_recording_starts_on_no_other_stages_timelines(tmp_path: Path) -> None:
+    """Every stage's file of a scene shares one recording id, and the SDK keeps a thread's
+    times per id: the second file opened in a thread must not log on the first's times."""
+    from rerun.chunk import RrdReader
+
+    first = open_scene_recording(tmp_path / "a.rrd", "scene_000")
+    first.set_time("instance", sequence=34)
+    first.log("world/a", rr.Points3D([[0.0, 0.0, 0.0]]))
+    second = open_scene_recording(tmp_path / "b.rrd", "scene_000")
+    second.log("world/b", rr.Points3D([[1.0, 0.0, 0.0]]))
+    first.flush()
+    second.flush()
+    names = {
+        name
+        for chunk in RrdReader(tmp_path / "b.rrd").stream()
+        if chunk.entity_path == "/world/b"
+        for name in chunk.to_record_batch().schema.names
+    }
+    assert "Points3D:positions" in names
+    assert "instance" not in names

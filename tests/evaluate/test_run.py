@@ -37,6 +37,8 @@ def test_care_run_on_the_bundled_sample(tmp_path: Path) -> None:
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-2000:]
     assert "| Min stderr | confidence |" in done.stdout
+    assert "## Travel: path length and SPL" in done.stdout  # every rule's SPL, paired tests
+    assert (out / "eval" / "plots" / "travel_grid_class.png").is_file()
     assert "protocol `instance` (29 queries)" in done.stdout  # one query per GT instance
     assert "rerun " in done.stdout
     assert (out / "eval" / "results.md").is_file()
@@ -46,6 +48,7 @@ def test_care_run_on_the_bundled_sample(tmp_path: Path) -> None:
     assert counts[("/world/eval/target/boxes", "Boxes3D:half_sizes")] == 29 + 23 + 23
     for chart in ("grid_class", "instances_class", "instances_instance"):
         assert counts[(f"/eval/charts/{chart}/min_stderr/confidence", "LineStrips2D:strips")]
+        assert counts[(f"/eval/charts/travel_{chart}/max_confidence", "LineStrips2D:strips")]
     for stage in ("ingest", "grid", "instances"):
         assert sum(rrd_entity_counts(out / f"scene_000.{stage}.rrd").values()) > 0
     assert done.stdout.count(".rrd") == 4

@@ -222,7 +222,7 @@ def test_labels_without_instance_images_is_one_clear_error(tmp_path: Path) -> No
     cloud = fuse_scene_points(
         Store(tmp_path / "s"), voxel_size=0.1, stride=2, max_depth=8.0, run=QUIET
     )
-    with pytest.raises(FuseError, match="instance_png"):
+    with pytest.raises(FuseError, match="instance_zstd"):
         label_proposals(cloud, Store(tmp_path / "s"), CONFIG, run=QUIET)
 
 

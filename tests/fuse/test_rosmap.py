@@ -135,6 +135,16 @@ def test_cli_query_and_replan_return_goal_poses(tmp_path: Path) -> None:
     out = json.loads(r.stdout)
     assert out["strategy"] in {"min_stderr", "max_confidence"}
     assert np.hypot(out["position"][0] - x, out["position"][1] - y) > 1.0  # excluded around it
+    # the nearest of the same top-k set, by the distances along free space from the start
+    near = subprocess.run(
+        [*run, "replan", str(store), "chair", "--map", "grid", "--visited", f"{x},{y}",
+         "--strategy", "nearest_topk"],
+        capture_output=True, text=True, check=True,
+    )  # fmt: skip
+    nearest = json.loads(near.stdout)
+    assert nearest["strategy"] == "nearest_topk"
+    if out["strategy"] == "min_stderr" and out["distance"] is not None:
+        assert nearest["distance"] <= out["distance"] + 1e-9
     bad = subprocess.run(
         [*run, "replan", str(store), "chair", "--visited", "1,2,3"], capture_output=True, text=True
     )

@@ -17,9 +17,17 @@ from rosbags.typesys import Stores, get_typestore
 from scipy import ndimage
 
 from care.errors import QueryError
+from care.keys import GOAL_FRAME_KEY
 from fuse.layout import GridLayout
 from query.goals import FreeSpace, Goal, GoalConfig, GoalMaker
-from query.paths import PathConfig, Roadmap, nav_path, passable_squared_distance, path_length
+from query.paths import (
+    PathConfig,
+    Roadmap,
+    nav_path,
+    passable_squared_distance,
+    path_length,
+    walk,
+)
 
 STORE = get_typestore(Stores.ROS2_HUMBLE)
 CELL = 0.1
@@ -335,3 +343,161 @@ def _candidates(store: Path):
     from query import load_map
 
     return load_map(store, "grid")
+
+
+def test_distances_look_up_what_distance_to_gives() -> None:
+    """Every goal at once: inside, outside the grid, and without an approach point."""
+    space = _space(_rooms())
+    travel = Roadmap.from_free_space(space, 0.0).travel(_centre(space, (3, 3)), 0.0)
+    goals = [_goal_at(space, cell) for cell in [(5, 5), (25, 5), (25, 16), (0, 0)]]
+    goals.append(Goal(0, "map", 5, (0.0, 0.0, 0.5), (0.0, 0.0, 0.5), 0.0, False, None))
+    goals.append(Goal(0, "map", 5, (90.0, 0.0, 0.5), (90.0, 0.0, 0.0), 0.0, True, 1.0))
+    want = [travel.distance_to(g) for g in goals]
+    np.testing.assert_array_equal(travel.distances(goals), want)
+    assert math.isinf(want[2])  # the closed room
+    assert math.isinf(want[-1])  # off the grid
+    assert travel.distances([]).shape == (0,)
+
+
+def test_a_roadmap_keeps_its_last_searches(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The same start asks no second search; newer starts let the oldest go."""
+    roadmap = Roadmap.from_free_space(_space(_rooms()), 0.0)
+    searched = []
+    search = Roadmap._search
+    monkeypatch.setattr(
+        Roadmap, "_search", lambda self, s, r: searched.append(s) or search(self, s, r)
+    )
+    first = roadmap.travel((0.0, 2.5), 0.5)
+    assert roadmap.travel((0.0, 2.5), 0.5) is first
+    assert len(searched) == 1
+    with pytest.raises(ValueError, match="read-only"):  # shared: no caller changes it
+        first.distance[0] = 0.0
+    for x in (0.2, 0.4, 0.6, 0.8):
+        roadmap.travel((x, 2.5), 0.5)
+    assert roadmap.travel((0.0, 2.5), 0.5) is not first
+    assert len(searched) == 6
+
+
+def test_a_walk_drives_each_attempt_from_where_the_last_ended() -> None:
+    """Against networkx: the first leg from the start, an unreachable attempt leaves the
+    robot where it stood, the next leg starts at the last goal it reached."""
+    space = _space(_rooms())
+    graph, ok = _networkx(space, 0.0)
+    roadmap = Roadmap.from_free_space(space, 0.0)
+    cells = [(25, 5), (25, 16), (5, 15)]  # the far room, the closed room, back
+    legs = walk(roadmap, _centre(space, (3, 3)), 0.0, [_goal_at(space, c) for c in cells])
+    assert [leg.goal.position[:2] for leg in legs] == [_centre(space, c) for c in cells]
+    near = nx.single_source_dijkstra_path_length(graph, (3, 3))
+    assert legs[0].start == _centre(space, (3, 3))
+    assert legs[0].length == pytest.approx(near[(25, 5)], abs=1e-9)
+    assert legs[1].waypoints is None
+    assert math.isinf(legs[1].length)
+    assert legs[1].start == legs[2].start == pytest.approx(_centre(space, (25, 5)))
+    back = nx.single_source_dijkstra_path_length(graph, (25, 5))
+    assert legs[2].length == pytest.approx(back[(5, 15)], abs=1e-9)
+    _assert_moves(space, ok, legs[2].waypoints)
+    assert walk(roadmap, (0.0, 2.5), 0.0, []) == []
+
+
+def _batch_answers(tmp_path: Path, run_cli, *start: str) -> tuple[object, str]:
+    import pyarrow.parquet as pq
+
+    store = tmp_path / "s" if (tmp_path / "s").is_dir() else _fused_store(tmp_path / "s")
+    queries = tmp_path / "q.txt"
+    queries.write_text("chair\ntable\nchair\n")
+    out = tmp_path / f"a{len(list(tmp_path.glob('a*.parquet')))}.parquet"
+    code, printed, err = run_cli(
+        "query", store, "--map", "grid", "--batch", queries, "--out", out, "-k", "2",
+        "--clearance", "0.2", *start,
+    )  # fmt: skip
+    assert code == 0, err
+    return pq.read_table(out), printed
+
+
+def test_cli_batch_gives_each_rows_distance_from_one_search(
+    tmp_path: Path, run_cli, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    searches = []
+    search = Roadmap._search
+    monkeypatch.setattr(
+        Roadmap, "_search", lambda self, s, r: searches.append(s) or search(self, s, r)
+    )
+    table, _ = _batch_answers(tmp_path, run_cli, "--from", "-0.4,-0.5")
+    assert searches == [(-0.4, -0.5)]  # one search for the whole batch
+    frame = json.loads(table.schema.metadata[GOAL_FRAME_KEY])
+    assert frame["path_start"] == [-0.4, -0.5]
+    store = tmp_path / "s"
+    goals = GoalMaker.from_store(store, GoalConfig(clearance=0.2))
+    travel = Roadmap.for_goals(goals).travel((-0.4, -0.5), PathConfig().start_reach)
+    cmap = _candidates(store)
+    rows = table.to_pylist()
+    assert any(r["reachable"] for r in rows)
+    for row in rows:
+        if row["candidate"] < 0:
+            assert row["distance"] is None
+            assert row["reachable"] is None
+            continue
+        want = travel.distance_to(goals.goal(cmap, row["candidate"]))
+        assert row["reachable"] == math.isfinite(want)
+        assert row["distance"] == (pytest.approx(want) if math.isfinite(want) else None)
+
+
+def test_cli_batch_without_a_start_on_free_space_has_no_distances(tmp_path: Path, run_cli) -> None:
+    table, printed = _batch_answers(tmp_path, run_cli, "--from", "50,50")
+    assert "no paths" in printed
+    assert set(table.column("distance").to_pylist()) == {None}
+    assert set(table.column("reachable").to_pylist()) == {None}
+    assert json.loads(table.schema.metadata[GOAL_FRAME_KEY])["path_start"] is None
+
+
+def _strips(rrd: Path) -> dict[str, list]:
+    """Each attempt's way in ``rrd``: entity path to its points."""
+    from rerun.chunk import RrdReader
+
+    out = {}
+    for chunk in RrdReader(rrd).stream():
+        batch = chunk.to_record_batch()
+        if "LineStrips3D:strips" in batch.schema.names:
+            out[str(chunk.entity_path)] = batch.column("LineStrips3D:strips").to_pylist()[0][0]
+    return out
+
+
+def test_cli_query_and_replan_draw_each_attempts_way(tmp_path: Path, run_cli) -> None:
+    from care.viz import rrd_entity_counts
+    from query.viz import ANSWER_ENTITY, attempt_entity
+
+    store = _fused_store(tmp_path / "s")
+    args = ("--map", "grid", "--clearance", "0.2", "--from", "-0.4,-0.5")
+    code, out, err = run_cli(
+        "query", store, "chair", *args, "--json", "--attempts", "2", "--rrd", tmp_path / "q.rrd"
+    )
+    assert code == 0, err
+    answer = json.loads(out)  # stdout stays JSON: the file is named on stderr
+    assert "q.rrd" in err
+    strips = _strips(tmp_path / "q.rrd")
+    first = strips[f"/{attempt_entity(1)}"]
+    path = [
+        (p["pose"]["position"]["x"], p["pose"]["position"]["y"]) for p in answer["path"]["poses"]
+    ]
+    np.testing.assert_allclose(np.array(first)[:, :2], path, atol=1e-5)  # the JSON's way
+    assert set(strips) <= {f"/{attempt_entity(k)}" for k in (1, 2)}
+    counts = rrd_entity_counts(tmp_path / "q.rrd")
+    assert counts[(f"/{ANSWER_ENTITY}/goals", "Arrows3D:origins")] == 1
+    assert counts[(f"/{ANSWER_ENTITY}/start", "Points3D:positions")] == 1
+    assert counts[("/answer", "TextDocument:text")] == 1
+
+    code, out, err = run_cli(
+        "replan", store, "chair", *args, "--visited", str(answer["candidates"][0]["candidate"]),
+        "--rrd", tmp_path / "r.rrd",
+    )  # fmt: skip
+    assert code == 0, err
+    chosen = json.loads(out)
+    strips = _strips(tmp_path / "r.rrd")
+    assert set(strips) == {f"/{attempt_entity(2)}"}  # the visited one's way is not known
+    path = [
+        (p["pose"]["position"]["x"], p["pose"]["position"]["y"]) for p in chosen["path"]["poses"]
+    ]
+    np.testing.assert_allclose(np.array(strips[f"/{attempt_entity(2)}"])[:, :2], path, atol=1e-5)
+    code, _, err = run_cli("query", store, "--batch", tmp_path / "x.txt", "--rrd", "a.rrd")
+    assert code == 1
+    assert "--rrd" in err

@@ -125,3 +125,7 @@ def test_query_files(tmp_path) -> None:
         read_queries(tmp_path / "bad.csv")
     with pytest.raises(ReplanError, match="oracle"):
         BatchConfig(strategies=("oracle",))
+    # the travel rules need each attempt walked from the last goal: care eval plays them
+    with pytest.raises(ReplanError, match="a batch does not walk"):
+        BatchConfig(strategies=("max_confidence", "nearest_topk"))
+    assert not any(STRATEGIES[s].travel for s in BatchConfig().strategies)

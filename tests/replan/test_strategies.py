@@ -227,6 +227,23 @@ def test_next_goal_live_api() -> None:
         next_goal(cmap, "chair", [0], strategy="best")
 
 
+def test_next_goal_travel_rules_take_the_distances() -> None:
+    """``nearest_topk`` picks the set's nearest member by the distances given (here by hand);
+    a travel rule without them is refused, not played as if every candidate were as far."""
+    cmap = _tiny_map()
+    # nothing excluded around the failed 0: the top-2 chair set is {1, 2}
+    ask = {"strategy": "nearest_topk", "k": 2, "exclude_radius": 0}
+    near = next_goal(cmap, "chair", [0], **ask, distance=[0.0, 9.0, 1.0, 2.0])
+    assert (near.candidate, near.strategy, near.set_size) == (2, "nearest_topk", 2)
+    assert next_goal(cmap, "chair", [0], **ask, distance=[0.0, 1.0, 9.0, 0.5]).candidate == 1
+    first = next_goal(cmap, "chair", [], **ask)  # the first attempt needs no distance
+    assert first.candidate == 0
+    with pytest.raises(ReplanError, match="trades its measure against travel"):
+        next_goal(cmap, "chair", [0], **ask)
+    with pytest.raises(ReplanError, match="3 values for 4 candidates"):
+        next_goal(cmap, "chair", [0], **ask, distance=[1.0, 2.0, 3.0])
+
+
 def _best_reference(values, mask, conf, maximise):
     """Python loop: sort each row's members by (value, confidence, -id)."""
     out = []

@@ -1,5 +1,6 @@
 """The research code: the sweep's settings and options, the first-attempt rates of a dataset,
-and the entry points in ``scripts/`` that run them."""
+the re-exploration experiment (its sign-flip test, a tiny run end to end), and the entry
+points in ``scripts/`` that run them."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from research.dataset_stats import first_attempt_rates
+from research.explore import sign_flip_p
 from research.sweep import SWEEP_KNOBS, SweepConfig, settings_of, sweep_settings
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -57,7 +59,7 @@ def test_first_attempt_rates_keep_no_replan_and_put_the_grid_last() -> None:
     ]
 
 
-@pytest.mark.parametrize("name", ["sweep", "reproduce", "perception_breakdown"])
+@pytest.mark.parametrize("name", ["sweep", "reproduce", "perception_breakdown", "explore"])
 def test_scripts_and_modules_share_one_command_line(name: str) -> None:
     """``scripts/<name>.py`` is an entry point of ``research.<name>``: both print one help."""
     script = subprocess.run(
@@ -70,3 +72,29 @@ def test_scripts_and_modules_share_one_command_line(name: str) -> None:
     )  # fmt: skip
     # past the usage lines, which name the program as it was started
     assert script.stdout.split("\n\n", 1)[1] == module.stdout.split("\n\n", 1)[1]
+
+
+def test_sign_flip_p_enumerates_every_sign_pattern() -> None:
+    """Four scenes all one way: 2 of the 16 patterns reach it (both signs), p = 1/8."""
+    assert sign_flip_p([0.1, 0.2, 0.05, 0.3]) == pytest.approx(2 / 16)
+    assert sign_flip_p([0.1, -0.1]) == 1.0
+    assert sign_flip_p([0.0, 0.0, 0.0]) == 1.0
+    # one scene against three: |0.3 - 0.1 - 0.1 - 0.1| = 0 is reached by every pattern
+    assert sign_flip_p([0.3, -0.1, -0.1, -0.1]) == 1.0
+
+
+@pytest.mark.slow
+def test_the_explore_experiment_runs_end_to_end_at_a_tiny_size(tmp_path: Path) -> None:
+    """One room at 48x36 with two new views: every condition is made, fused and compared."""
+    from research.explore import Condition, ExperimentConfig, run_experiment
+
+    config = ExperimentConfig(scenes=1, views=2, width=48, height=36, rooms=1)
+    report = run_experiment(tmp_path, config)
+    assert "## first attempt" in report
+    assert "## two attempts, max confidence" in report
+    assert "| explore vs random |" in report
+    assert "run time:" in report
+    stores = tmp_path / "stores" / "scene_000"
+    for condition in Condition:
+        name = condition if condition == Condition.BEFORE else f"{condition}-2"
+        assert (stores / name / "cells.parquet").is_file(), name
