@@ -29,7 +29,7 @@ from replan.attempts import DEFAULT_ATTEMPTS, DEFAULT_EXCLUDE_RADIUS
 from replan.strategies import Criterion, StrategyName
 from truth.model import LABEL_DISTANCE
 
-__all__ = ["EvalConfig", "QueryProtocol", "RunConfig", "TravelStart"]
+__all__ = ["EvalConfig", "QueryProtocol", "RunConfig", "TravelStart", "grid_protocol"]
 
 NO_CRITERION = "-"
 """The criterion column of the strategies that use no candidate set (their k is 0): a
@@ -61,6 +61,12 @@ class TravelStart(StrEnum):
     """No walking: path length and SPL are left out (NaN)."""
 
 
+def grid_protocol(radius: float) -> str:
+    """The protocol name of a grid evaluation with exclusion ``radius`` (m), as every table
+    shows it: ``next-cell`` for 0 (the paper's literal rule), else ``exclude-<r>m``."""
+    return "next-cell" if radius == 0 else f"exclude-{radius:g}m"
+
+
 def _one(kind: type[Enum], value: object, option: str) -> Enum:
     return member(kind, value, EvalError, f"invalid evaluation config: {option}")
 
@@ -87,8 +93,9 @@ class EvalConfig:
     """An instance attempt succeeds when its mask's point IoU with the GT mask exceeds this."""
     success_radius: float = 1.0
     """A grid attempt succeeds within this floor-plane distance (m) of an object of the class."""
-    exclude_radius: float = DEFAULT_EXCLUDE_RADIUS
-    """After a failed grid attempt, cells within this distance (m) of it are skipped."""
+    exclude_radii: tuple[float, ...] = (0.0, DEFAULT_EXCLUDE_RADIUS)
+    """Grid protocols: after a failed grid attempt, cells within this distance (m) of it are
+    skipped, each radius its own protocol in every table (0: the paper's next unvisited cell)."""
     rooms: bool = True
     """Evaluate room by room (each room its own candidate set) where the GT has rooms."""
     seeds: int = 10
@@ -124,13 +131,19 @@ class EvalConfig:
             "evaluation config",
             positive={"iou_threshold": self.iou_threshold, "success_radius": self.success_radius,
                       "label_distance": self.label_distance},
-            non_negative={"exclude_radius": self.exclude_radius, "bootstrap": self.bootstrap,
-                          "clearance": self.clearance},
+            non_negative={"bootstrap": self.bootstrap, "clearance": self.clearance,
+                          **{f"exclude_radii[{i}]": r for i, r in enumerate(self.exclude_radii)}},
         )  # fmt: skip
+        set_(self, "exclude_radii", tuple(float(r) for r in self.exclude_radii))
+        if len(set(map(grid_protocol, self.exclude_radii))) < len(self.exclude_radii):
+            msg = (
+                f"invalid evaluation config: --exclude-radii {self.exclude_radii} repeats a radius"
+            )
+            raise EvalError(msg)
         bad = [f"k={k}" for k in (*self.k_grid, *self.k_instances) if not 1 <= k <= 32767]
         bad += [
             name
-            for name in ("strategies", "maps", "protocols", "criteria")
+            for name in ("strategies", "maps", "protocols", "criteria", "exclude_radii")
             if not getattr(self, name)
         ]
         if bad or self.attempts < 1 or self.seeds < 1:

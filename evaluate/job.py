@@ -32,17 +32,17 @@ from care.fingerprint import content_digest, fingerprint
 from care.maps import MapKind
 from care.outputs import damaged, evaluation_output, read_marker
 from care.store import META_FILE, read_table, source_recording, write_table_atomic
-from evaluate.config import NO_CRITERION, EvalConfig, TravelStart
+from evaluate.config import NO_CRITERION, EvalConfig, TravelStart, grid_protocol
 from evaluate.groundtruth import GtSource, check_ground_truth, gt_files
 from evaluate.report import Report, write_report
 from evaluate.spl import shortest_to_success
 from evaluate.success import QuerySet, grid_queries, instance_queries, scene_point_labels
 from evaluate.travel import SceneTravel, SceneWalks
-from query.confidence import confidence
+from query.confidence import log_confidence
 from query.map import MAP_TABLES, REPLAN_COLUMNS, load_map
 from replan.attempts import Attempts, run_attempts
 from replan.expected import expected_random_success
-from replan.strategies import STRATEGIES
+from replan.strategies import STRATEGIES, Strategy
 from runtime.execution import DEFAULT_EXECUTION, Execution
 from runtime.parallel import Runner, open_runner, run_tasks
 from truth.dataset_index import INDEX_NAME, read_index
@@ -201,9 +201,11 @@ def evaluate_queries(
     scene: str,
     config: EvalConfig,
     travel: SceneTravel | None = None,
+    exclude_radius: float = 0.0,
 ) -> pa.Table:
     """Every episode of one query set, as attempt rows (:data:`ATTEMPT_SCHEMA`); with
-    ``travel`` each walks."""
+    ``travel`` each walks; on the grid a failed attempt skips the cells within
+    ``exclude_radius`` of it (the protocol's)."""
     cmap = qs.cmap
     n_q = len(qs.queries)
     grid = kind == MapKind.GRID
@@ -212,7 +214,9 @@ def evaluate_queries(
         shortest_to_success(walk.start, qs.success) if walk is not None else np.full(n_q, np.nan)
     )
     if cmap.num_candidates:
-        conf = confidence(cmap, qs.class_ids)
+        # ranked by log-confidence (method.md): float32 probabilities tie at 1.0 and let the
+        # lowest id win; the rows report P itself
+        conf = log_confidence(cmap, qs.class_ids)
         rank = (
             cmap.class_rank(qs.class_ids, limit=max(config.ks(kind)))
             if "category" in config.criteria
@@ -232,14 +236,17 @@ def evaluate_queries(
             "attempts": config.attempts,
             "rank": rank,
             "positions": cmap.positions if grid else None,
-            "exclude_radius": config.exclude_radius if grid else 0.0,
+            "exclude_radius": exclude_radius if grid else 0.0,
         }
         if conf is None:
             res = _empty_attempts(n_q, 1)
             expected = np.zeros(n_q) if strategy.random else np.full(n_q, np.nan)
         else:
             rng = _seed_of(config, scene, kind, protocol, qs.unit, name, criterion, k, seed)
-            res = run_attempts(strategy, conf, qs.success, columns, rng=rng, walk=walk, **kw)
+            res = _as_probability(
+                run_attempts(strategy, conf, qs.success, columns, rng=rng, walk=walk, **kw),
+                strategy,
+            )
             if strategy.random and (name, criterion, k) not in expected_of:
                 expected_of[name, criterion, k] = expected_random_success(
                     strategy, conf, qs.success, **kw
@@ -257,6 +264,17 @@ def evaluate_queries(
     arrays = {key: pa.array([value] * n, pa.string()) for key, value in const.items()}
     arrays.update({key: pa.array(v, ATTEMPT_SCHEMA.field(key).type) for key, v in cols.items()})
     return pa.table([arrays[f.name] for f in ATTEMPT_SCHEMA], schema=ATTEMPT_SCHEMA)
+
+
+def _as_probability(res: Attempts, strategy: Strategy) -> Attempts:
+    """``res`` with the values chosen by log-confidence (first attempts, fallbacks and
+    confidence rules) turned back into the probability P_c[y] the tables report."""
+    by_conf = res.fell_back.copy()
+    by_conf[:, 0] = True
+    if strategy.measure == "confidence":
+        by_conf[:] = True
+    value = np.where(by_conf, np.exp(res.value), res.value)
+    return dataclasses.replace(res, value=value)
 
 
 def _attempt_rows(
@@ -300,7 +318,11 @@ def _attempt_rows(
         "fell_back": res.fell_back[q, a],
         "set_size": res.set_size[q, a],
         "value": res.value[q, a],
-        "confidence": nothing if conf is None else np.where(has, conf[q, safe], np.nan),
+        "confidence": (
+            nothing
+            if conf is None
+            else np.where(has, np.exp(conf[q, safe].astype(np.float64)), np.nan)
+        ),
         "entropy": col(qs.cmap.entropy),
         "stderr": col(qs.cmap.stderr),
         "pwkl": col(qs.cmap.pwkl),
@@ -349,7 +371,11 @@ def _evaluate_scene(scene: Scene, config: EvalConfig) -> pa.Table:
         else:
             sets = grid_queries(cmap, gt, rooms=config.rooms, radius=config.success_radius)
             tables += [
-                evaluate_queries(qs, kind, "class", scene.name, config, travel) for qs in sets
+                evaluate_queries(
+                    qs, kind, grid_protocol(r), scene.name, config, travel, exclude_radius=r
+                )
+                for r in config.exclude_radii
+                for qs in sets
             ]
     if not tables:
         return ATTEMPT_SCHEMA.empty_table()
@@ -462,7 +488,8 @@ def describe(config: EvalConfig, scenes: Sequence[Scene], attempts: pa.Table) ->
             f"- evaluated {rooms}",
             f"- success within {config.attempts} attempt(s); instance success: point IoU > "
             f"{config.iou_threshold}; grid success: floor distance <= {config.success_radius} m; "
-            f"after a failed grid attempt cells within {config.exclude_radius} m are skipped",
+            "grid protocols (after a failed grid attempt, cells within the radius are skipped): "
+            + ", ".join(f"`{grid_protocol(r)}` ({r:g} m)" for r in config.exclude_radii),
             f"- random strategies: mean over {config.seeds} seeds, and the closed form S/U",
             f"- travel: {_WALKS[config.travel_start]}"
             + (

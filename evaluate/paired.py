@@ -27,6 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from evaluate.scene_test import scene_signflip
+
 __all__ = [
     "PairedComparison",
     "PairedMeasure",
@@ -36,6 +38,7 @@ __all__ = [
     "holm",
     "mcnemar_exact",
     "paired_bootstrap_ci",
+    "paired_interval",
     "wilcoxon_signed_rank",
 ]
 
@@ -125,7 +128,8 @@ class PairedComparison:
     """``rate_a - rate_b``: the mean per-query difference."""
     lo: float
     hi: float
-    """Paired bootstrap interval of ``diff``."""
+    """95% interval of ``diff`` (:func:`paired_interval`); NaN where it does not hold (fewer
+    than :data:`evaluate.scene_test.MIN_SCENES` scenes)."""
     only_a: float
     """Queries only ``a`` solved (McNemar's b; fractional when a side is seed-averaged)."""
     only_b: float
@@ -135,6 +139,10 @@ class PairedComparison:
     """Queries both solved at the first attempt (they share it): ties by construction."""
     p_value: float
     """Exact McNemar p-value; NaN when a side is not 0/1 per query (seed-averaged)."""
+    scene_p: float = float("nan")
+    """Scene-level sign-flip p-value (:mod:`evaluate.scene_test`); NaN without ``groups``."""
+    scenes: int = 0
+    """Scenes (groups) compared; 0 without ``groups``."""
 
 
 def compare(
@@ -155,7 +163,7 @@ def compare(
     if a.shape != b.shape:
         msg = f"paired comparison needs aligned queries, got {a.shape} and {b.shape}"
         raise ValueError(msg)
-    lo, hi = paired_bootstrap_ci(
+    lo, hi, scene_p, scenes = paired_interval(
         a, b, rng=rng, n_resamples=n_resamples, confidence=confidence, groups=groups
     )
     binary = bool(np.isin(a, (0.0, 1.0)).all() and np.isin(b, (0.0, 1.0)).all())
@@ -177,7 +185,36 @@ def compare(
         neither=float(np.sum((1 - a) * (1 - b))),
         first_ties=ties,
         p_value=mcnemar_exact(round(only_a), round(only_b)) if binary else float("nan"),
+        scene_p=scene_p,
+        scenes=scenes,
     )
+
+
+def paired_interval(
+    a: np.ndarray,
+    b: np.ndarray,
+    *,
+    rng: np.random.Generator,
+    n_resamples: int = N_RESAMPLES,
+    confidence: float = CONFIDENCE,
+    groups: np.ndarray | None = None,
+) -> tuple[float, float, float, int]:
+    """``(lo, hi, scene_p, scenes)``: the interval of ``mean(a - b)`` a report prints.
+
+    With ``groups`` (the scene of each query: queries of one scene share a map and are not
+    independent) the scene-level sign-flip test and its inverted interval
+    (:func:`evaluate.scene_test.scene_signflip`), which hold with few scenes; below
+    :data:`evaluate.scene_test.MIN_SCENES` scenes the interval is ``(nan, nan)``, as the
+    test cannot reject there. Without ``groups`` the queries are the units: the paired
+    percentile bootstrap, no scene p-value (NaN) and 0 scenes.
+    """
+    if groups is None:
+        lo, hi = paired_bootstrap_ci(a, b, rng=rng, n_resamples=n_resamples, confidence=confidence)
+        return lo, hi, float("nan"), 0
+    test = scene_signflip(a, b, np.asarray(groups), rng=rng, alpha=1 - confidence)
+    if test.low is None or test.high is None:
+        return float("nan"), float("nan"), test.p_value, test.scenes
+    return float(test.low), float(test.high), test.p_value, test.scenes
 
 
 def holm(p_values: np.ndarray) -> np.ndarray:
@@ -221,12 +258,15 @@ class PairedMeasure:
     """``mean_a - mean_b``: the mean per-query difference."""
     lo: float
     hi: float
-    """Paired bootstrap interval of ``diff``."""
+    """95% interval of ``diff`` (:func:`paired_interval`)."""
     better: int
     """Queries where ``a`` scored higher."""
     worse: int
     p_value: float
     """Wilcoxon signed-rank p-value (:func:`wilcoxon_signed_rank`)."""
+    scene_p: float = float("nan")
+    """Scene-level sign-flip p-value; NaN without ``groups``."""
+    scenes: int = 0
 
 
 def compare_measure(
@@ -247,7 +287,7 @@ def compare_measure(
         raise ValueError(msg)
     keep = ~(np.isnan(a) | np.isnan(b))
     a, b = a[keep], b[keep]
-    lo, hi = paired_bootstrap_ci(
+    lo, hi, scene_p, scenes = paired_interval(
         a, b, rng=rng, n_resamples=n_resamples, confidence=confidence,
         groups=None if groups is None else np.asarray(groups)[keep],
     )  # fmt: skip
@@ -262,4 +302,6 @@ def compare_measure(
         better=int(np.sum(a > b)),
         worse=int(np.sum(a < b)),
         p_value=wilcoxon_signed_rank(a, b),
+        scene_p=scene_p,
+        scenes=scenes,
     )

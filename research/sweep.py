@@ -36,6 +36,7 @@ from care.maps import MapKind
 from care.store import write_table_atomic
 from evaluate.config import DEFAULT_BOOTSTRAP
 from evaluate.job import EvalConfig, run_eval
+from evaluate.paired import holm
 from evaluate.report.preregistered import PAPER_SETTINGS, headline_table
 from replan.strategies import StrategyName
 from research.dataset_stats import MeasureConfig, map_dataset
@@ -178,6 +179,9 @@ def run_sweep(
                     "n_queries": r["n_queries"],
                 }
             )
+    adjusted = holm(np.array([r["mcnemar_p"] for r in rows], np.float64))
+    for r, h in zip(rows, adjusted, strict=True):
+        r["holm_p"] = float(h)  # one family: every (setting, map, protocol, measure) compared
     result = pa.Table.from_pylist(rows)
     write_table_atomic(result, out / "sweep.parquet")
     plot_sweep(result, out / "sweep.png", config)
@@ -194,7 +198,9 @@ def plot_sweep(table: pa.Table, path: Path, config: SweepConfig | None = None) -
 
     config = config or SweepConfig()
     rows = table.to_pylist()
-    maps = [m for m in (MapKind.INSTANCES, MapKind.GRID) if any(r["map"] == m for r in rows)]
+    panels = sorted(
+        {(r["map"], r["protocol"]) for r in rows}, key=lambda mp: (mp[0] == MapKind.GRID, mp)
+    )
     centre = {k: getattr(config, k)[0] for k in SWEEP_KNOBS}
     colours = {
         StrategyName.MAX_ENTROPY: "tab:orange",
@@ -202,9 +208,9 @@ def plot_sweep(table: pa.Table, path: Path, config: SweepConfig | None = None) -
         StrategyName.MIN_PWKL: "tab:purple",
     }
     fig, axes = plt.subplots(
-        len(maps), len(SWEEP_KNOBS), figsize=(14, 3.3 * len(maps)), squeeze=False, sharey="row"
+        len(panels), len(SWEEP_KNOBS), figsize=(14, 3.3 * len(panels)), squeeze=False, sharey="row"
     )
-    for i, kind in enumerate(maps):
+    for i, (kind, protocol) in enumerate(panels):
         for j, knob in enumerate(SWEEP_KNOBS):
             ax = axes[i][j]
             others = [k for k in SWEEP_KNOBS if k != knob]
@@ -212,7 +218,7 @@ def plot_sweep(table: pa.Table, path: Path, config: SweepConfig | None = None) -
                 pts = sorted(
                     (r[knob], r["gain"], r["lo"], r["hi"])
                     for r in rows
-                    if r["map"] == kind
+                    if (r["map"], r["protocol"]) == (kind, protocol)
                     and r["measure"] == measure
                     and all(np.isclose(r[o], centre[o]) for o in others)
                 )
@@ -226,7 +232,7 @@ def plot_sweep(table: pa.Table, path: Path, config: SweepConfig | None = None) -
             ax.set_xlabel(knob)
             ax.grid(alpha=0.3)
             if j == 0:
-                ax.set_ylabel(f"{kind}: gain over max conf. (pp)")
+                ax.set_ylabel(f"{kind} ({protocol}):\ngain over max conf. (pp)")
     handles, labels = axes[0][0].get_legend_handles_labels()
     fig.legend(
         handles, labels, loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=3, frameon=False

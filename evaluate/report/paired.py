@@ -13,9 +13,18 @@ import pyarrow.compute as pc
 from evaluate.config import NO_CRITERION
 from evaluate.paired import compare, comparison_rng
 from evaluate.report.rates import QUERY_KEYS, RULE_KEYS, per_query
+from evaluate.scene_test import MIN_SCENES
 from replan.strategies import STRATEGIES, Criterion, StrategyName
 
-__all__ = ["CARE_STRATEGIES", "Outcomes", "outcomes", "paired_markdown", "paired_table"]
+__all__ = [
+    "CARE_STRATEGIES",
+    "INTERVAL_NOTE",
+    "Outcomes",
+    "difference_text",
+    "outcomes",
+    "paired_markdown",
+    "paired_table",
+]
 
 CARE_STRATEGIES = tuple(
     name
@@ -104,7 +113,7 @@ def paired_table(
                     rng=comparison_rng(seed, kind, protocol, *rule, *base),
                     first_a=np.array([first[kind, protocol][rule][q] for q in qs], bool),
                     first_b=np.array([first[kind, protocol][base][q] for q in qs], bool),
-                    n_resamples=bootstrap,
+                    n_resamples=bootstrap, groups=np.array([q[0] for q in qs], dtype=object),
                 )  # fmt: skip
                 rows.append(
                     {
@@ -116,6 +125,7 @@ def paired_table(
                         "lo": 100 * res.lo, "hi": 100 * res.hi, "only_strategy": res.only_a,
                         "only_baseline": res.only_b, "both": res.both, "neither": res.neither,
                         "first_ties": res.first_ties, "mcnemar_p": res.p_value,
+                        "scene_p": res.scene_p, "scenes": res.scenes,
                     }
                 )  # fmt: skip
     return pa.Table.from_pylist(rows)
@@ -123,6 +133,25 @@ def paired_table(
 
 def _fmt(value: float, spec: str = ".0f") -> str:
     return "" if value is None or np.isnan(value) else format(value, spec)
+
+
+def difference_text(row: dict) -> str:
+    """``+1.2 [-0.4, +2.9]``: a row's difference and its 95% interval, or, where the interval
+    does not hold (fewer scenes than :data:`evaluate.scene_test.MIN_SCENES`), the words."""
+    diff = f"{row['diff']:+.1f}"
+    lo, hi = row.get("lo"), row.get("hi")
+    if lo is None or hi is None or np.isnan(lo) or np.isnan(hi):
+        scenes = row.get("scenes") or 0
+        return f"{diff} [no interval: {scenes} scene(s), it holds from {MIN_SCENES}]"
+    return f"{diff} [{lo:+.1f}, {hi:+.1f}]"
+
+
+INTERVAL_NOTE = (
+    "95% intervals: the scene-level sign-flip test inverted (scenes are the units: queries of "
+    f"one scene share a map), valid with few scenes and printed from {MIN_SCENES} scenes on; "
+    "scene p: that test at 0"
+)
+"""How every paired table's interval is made, as its caption says it."""
 
 
 def paired_markdown(table: pa.Table) -> str:
@@ -133,9 +162,8 @@ def paired_markdown(table: pa.Table) -> str:
     out = [
         "## Paired comparisons (same queries)\n",
         "Difference in success (percentage points) of each CARe rule at its best k against max "
-        "confidence and the best random top-k, over the same queries: 95% paired bootstrap "
-        "interval (queries resampled as pairs, percentile method, one seeded generator per "
-        "comparison), the discordant queries (only CARe / only the baseline solved them; "
+        f"confidence and the best random top-k, over the same queries ({INTERVAL_NOTE}), "
+        "the discordant queries (only CARe / only the baseline solved them; "
         "fractional where the random baseline is averaged over seeds), the queries both solved "
         "at the first attempt (which every strategy shares: ties by construction), and the "
         "exact McNemar p-value (deterministic pairs only). Every k: `paired.parquet`.\n",
@@ -147,9 +175,9 @@ def paired_markdown(table: pa.Table) -> str:
         out.append(f"### {kind}, protocol `{protocol}` ({here[0]['n_queries']} queries)\n")
         out.append(
             "| CARe rule | criterion | k | vs | success | baseline | difference [95% CI] "
-            "| only CARe | only baseline | first-attempt ties | McNemar p |"
+            "| only CARe | only baseline | first-attempt ties | McNemar p | scene p |"
         )
-        out.append("|---|---|---:|---|---:|---:|---|---:|---:|---:|---:|")
+        out.append("|---|---|---:|---|---:|---:|---|---:|---:|---:|---:|---:|")
         for strategy in shown:
             for criterion in (Criterion.CONFIDENCE, Criterion.CATEGORY):
                 mine = [
@@ -165,9 +193,10 @@ def paired_markdown(table: pa.Table) -> str:
                     out.append(
                         f"| {STRATEGIES[strategy].label} | {criterion} | {r['k']} | {base} "
                         f"| {r['rate']:.1f} | {r['baseline_rate']:.1f} "
-                        f"| {r['diff']:+.1f} [{_fmt(r['lo'], '+.1f')}, {_fmt(r['hi'], '+.1f')}] "
+                        f"| {difference_text(r)} "
                         f"| {_fmt(r['only_strategy'], '.4g')} | {_fmt(r['only_baseline'], '.4g')} "
-                        f"| {r['first_ties']} | {_fmt(r['mcnemar_p'], '.3g')} |"
+                        f"| {r['first_ties']} | {_fmt(r['mcnemar_p'], '.3g')} "
+                        f"| {_fmt(r['scene_p'], '.3g')} |"
                     )
         out.append("")
     return "\n".join(out)

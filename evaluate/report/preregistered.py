@@ -32,7 +32,13 @@ from care.maps import MapKind
 from care.store import write_table_atomic
 from evaluate.config import NO_CRITERION
 from evaluate.paired import compare, comparison_rng, holm, mcnemar_exact
-from evaluate.report.paired import CARE_STRATEGIES, Outcomes, outcomes
+from evaluate.report.paired import (
+    CARE_STRATEGIES,
+    INTERVAL_NOTE,
+    Outcomes,
+    difference_text,
+    outcomes,
+)
 from evaluate.report.rates import QUERY_KEYS
 from replan.strategies import STRATEGIES, Criterion, StrategyName
 
@@ -106,7 +112,7 @@ def _compare(rules: dict, first: dict, rule: Rule, base: Rule, *, bootstrap: int
         first_a=np.array([first[rule][q] for q in queries], bool),
         first_b=np.array([first[base][q] for q in queries], bool),
         n_resamples=bootstrap,
-        groups=scenes if len(set(scenes)) > 1 else None,
+        groups=scenes,
     )
 
 
@@ -132,6 +138,8 @@ def _row(kind: str, protocol: str, rule: Rule, base: Rule, res, family: str) -> 
         "only_baseline": res.only_b,
         "mcnemar_p": p,
         "mcnemar_approx": approx,
+        "scene_p": res.scene_p,
+        "scenes": res.scenes,
     }
 
 
@@ -304,17 +312,16 @@ def _fmt(v: float, spec: str) -> str:
 def _comparison_lines(rows: list[dict], title: str) -> list[str]:
     out = [
         title,
-        "| map | protocol | rule | vs | success | baseline | difference [95% CI] | McNemar p | Holm p |",
-        "|---|---|---|---|---:|---:|---|---:|---:|",
+        "| map | protocol | rule | vs | success | baseline | difference [95% CI] | McNemar p | Holm p | scene p |",
+        "|---|---|---|---|---:|---:|---|---:|---:|---:|",
     ]
     for r in rows:
         rule = _label((r["strategy"], r["criterion"], r["k"]))
         mark = "*" if r["mcnemar_approx"] else ""
         out.append(
             f"| {r['map']} | {r['protocol']} | {rule} | {r['baseline']} | {r['rate']:.1f} "
-            f"| {r['baseline_rate']:.1f} | {r['diff']:+.1f} [{_fmt(r['lo'], '+.1f')}, "
-            f"{_fmt(r['hi'], '+.1f')}] | {_fmt(r['mcnemar_p'], '.3g')}{mark} "
-            f"| {_fmt(r['holm_p'], '.3g')}{mark} |"
+            f"| {r['baseline_rate']:.1f} | {difference_text(r)} | {_fmt(r['mcnemar_p'], '.3g')}{mark} "
+            f"| {_fmt(r['holm_p'], '.3g')}{mark} | {_fmt(r['scene_p'], '.3g')} |"
         )
     return [*out, ""]
 
@@ -326,7 +333,7 @@ def preregistered_markdown(
     queries; every class in ``by_class.parquet``)."""
     out = [
         "## Pre-registered comparison (the paper's settings, fixed in advance)\n",
-        "Paired over the same queries; 95% intervals from a scene-clustered bootstrap; exact "
+        f"Paired over the same queries; {INTERVAL_NOTE}; exact "
         "McNemar p (* against a random baseline: on its seed-averaged discordant counts, "
         "rounded); Holm over the pre-registered rules of each map, protocol and baseline.\n",
     ]

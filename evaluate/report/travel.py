@@ -19,6 +19,7 @@ import pyarrow as pa
 from care.outputs import write_atomic
 from evaluate.config import NO_CRITERION
 from evaluate.paired import compare_measure, comparison_rng
+from evaluate.report.paired import difference_text
 from evaluate.report.rates import MAP_TITLES, QUERY_KEYS, RULE_KEYS, _label, per_episode
 from evaluate.spl import success_within
 from replan.strategies import STRATEGIES, StrategyName
@@ -107,6 +108,7 @@ def spl_pairs(queries: pa.Table, summary: pa.Table, *, bootstrap: int, seed: int
                     np.array([rules[base][q] for q in keys], np.float64),
                     rng=comparison_rng(seed, "spl", kind, protocol, *rule, *base),
                     n_resamples=bootstrap,
+                    groups=np.array([q[0] for q in keys], dtype=object),
                 )
                 rows.append(
                     {
@@ -117,6 +119,7 @@ def spl_pairs(queries: pa.Table, summary: pa.Table, *, bootstrap: int, seed: int
                         "baseline_spl": 100 * res.mean_b, "diff": 100 * res.diff,
                         "lo": 100 * res.lo, "hi": 100 * res.hi, "better": res.better,
                         "worse": res.worse, "wilcoxon_p": res.p_value,
+                        "scene_p": res.scene_p, "scenes": res.scenes,
                     }
                 )  # fmt: skip
     return pa.Table.from_pylist(rows)
@@ -182,7 +185,7 @@ def travel_markdown(summary: pa.Table, pairs: pa.Table, start: str = "") -> str:
                     continue
                 m = match[0]
                 cells += [
-                    f"{m['diff']:+.1f} [{_fmt(m['lo'], '+.1f')}, {_fmt(m['hi'], '+.1f')}]",
+                    difference_text(m),
                     _fmt(m["wilcoxon_p"], ".3g"),
                 ]
             k = str(r["k"]) if STRATEGIES[r["strategy"]].uses_set else ""

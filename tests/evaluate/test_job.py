@@ -114,7 +114,8 @@ def test_run_resumes_and_writes_every_output(dataset, tmp_path) -> None:
         assert (out / name).is_file(), name
     pngs = sorted((out / "plots").glob("*.png"))
     assert [p.name for p in pngs] == [
-        "success_grid_class.png",
+        "success_grid_exclude-1m.png",
+        "success_grid_next-cell.png",
         "success_instances_class.png",
         "success_instances_instance.png",
     ]

@@ -3,13 +3,14 @@ difference by hand, statsmodels' McNemar and Holm, a plain scene-resampling loop
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pyarrow as pa
 import pytest
 from statsmodels.stats.contingency_tables import mcnemar
 from statsmodels.stats.multitest import multipletests
 
-from evaluate.paired import comparison_rng
 from evaluate.report.preregistered import (
     PAPER_SETTINGS,
     best_of_k_table,
@@ -18,7 +19,7 @@ from evaluate.report.preregistered import (
     query_breakdown,
 )
 
-SCENES, PER_SCENE = 5, 12
+SCENES, PER_SCENE = 8, 12
 RULES = [
     ("no_replan", "-", 0),
     ("oracle", "-", 0),
@@ -59,14 +60,13 @@ def _attempts(seed: int = 3) -> tuple[pa.Table, dict]:
     return table, solved
 
 
-def _loop_ci(a: np.ndarray, b: np.ndarray, scenes: np.ndarray, rng, n: int) -> tuple[float, float]:
+def _signflip_p(a: np.ndarray, b: np.ndarray, scenes: np.ndarray, d: float) -> float:
+    """The scene sign-flip p-value of ``H0: difference = d``, every pattern written out."""
     names = np.unique(scenes)
-    stats = []
-    for _ in range(n):
-        picked = rng.integers(0, len(names), len(names))
-        d = np.concatenate([(a - b)[scenes == names[g]] for g in picked])
-        stats.append(d.mean())
-    return tuple(np.percentile(stats, [2.5, 97.5]))
+    z = [((a - b)[scenes == g] - d).sum() for g in names]
+    observed = abs(sum(z))
+    patterns = list(itertools.product((1, -1), repeat=len(z)))
+    return sum(abs(np.dot(s, z)) >= observed - 1e-9 for s in patterns) / len(patterns)
 
 
 def test_headline_against_statsmodels_and_a_resampling_loop() -> None:
@@ -88,9 +88,14 @@ def test_headline_against_statsmodels_and_a_resampling_loop() -> None:
             [np.sum(b * (1 - a)), np.sum((1 - a) * (1 - b))],
         ]
         assert r["mcnemar_p"] == pytest.approx(mcnemar(table2, exact=True).pvalue)
-        rng = comparison_rng(0, "prereg", *rule, "max_confidence", "-", 0)
-        lo, hi = _loop_ci(a, b, scenes, rng, 300)
-        assert (r["lo"], r["hi"]) == pytest.approx((100 * lo, 100 * hi))
+        # the interval is the set of differences the scene sign-flip test keeps: just inside
+        # each end it keeps, just outside it rejects
+        assert r["scene_p"] == pytest.approx(_signflip_p(a, b, scenes, 0.0))
+        lo, hi = r["lo"] / 100, r["hi"] / 100
+        assert lo <= r["diff"] / 100 <= hi
+        for end, outward in ((lo, -1e-6), (hi, 1e-6)):
+            assert _signflip_p(a, b, scenes, end - outward) > 0.05
+            assert _signflip_p(a, b, scenes, end + outward) <= 0.05
     family = [r for r in vs_max if r["family"] == "pre-registered"]
     expected = multipletests([r["mcnemar_p"] for r in family], method="holm")[1]
     np.testing.assert_allclose([r["holm_p"] for r in family], expected)

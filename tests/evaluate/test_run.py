@@ -38,15 +38,17 @@ def test_care_run_on_the_bundled_sample(tmp_path: Path) -> None:
     assert done.returncode == 0, done.stderr[-2000:]
     assert "| Min stderr | confidence |" in done.stdout
     assert "## Travel: path length and SPL" in done.stdout  # every rule's SPL, paired tests
-    assert (out / "eval" / "plots" / "travel_grid_class.png").is_file()
+    assert (out / "eval" / "plots" / "travel_grid_exclude-1m.png").is_file()
     assert "protocol `instance` (29 queries)" in done.stdout  # one query per GT instance
     assert "rerun " in done.stdout
     assert (out / "eval" / "results.md").is_file()
     counts = rrd_entity_counts(out / "scene_000.eval.rrd")
-    assert counts[("/eval/log", "TextLog:text")] == 29 + 23 + 23  # every query, grid included
-    assert counts[("/world/eval/first", "Points3D:positions")] >= 29 + 23 + 23
-    assert counts[("/world/eval/target/boxes", "Boxes3D:half_sizes")] == 29 + 23 + 23
-    for chart in ("grid_class", "instances_class", "instances_instance"):
+    assert (
+        counts[("/eval/log", "TextLog:text")] == 29 + 23 + 2 * 23
+    )  # every query, the grid in both protocols
+    assert counts[("/world/eval/first", "Points3D:positions")] >= 29 + 23 + 2 * 23
+    assert counts[("/world/eval/target/boxes", "Boxes3D:half_sizes")] == 29 + 23 + 2 * 23
+    for chart in ("grid_next-cell", "grid_exclude-1m", "instances_class", "instances_instance"):
         assert counts[(f"/eval/charts/{chart}/min_stderr/confidence", "LineStrips2D:strips")]
         assert counts[(f"/eval/charts/travel_{chart}/max_confidence", "LineStrips2D:strips")]
     for stage in ("ingest", "grid", "instances"):

@@ -259,7 +259,7 @@ def test_a_small_evaluation_walks_as_networkx_says(dataset, tmp_path: Path, run_
     report = run_eval(store, config, tmp_path / "eval", run=Execution(workers=1, progress=False))
     assert "## Travel: path length and SPL" in report.markdown
     assert "Min stderr, travel-aware" in report.travel
-    assert (tmp_path / "eval" / "plots" / "travel_grid_class.png").is_file()
+    assert (tmp_path / "eval" / "plots" / "travel_grid_exclude-1m.png").is_file()
     pairs = pq.read_table(tmp_path / "eval" / "paired_spl.parquet").to_pylist()
     assert pairs
     assert all(0 <= r["wilcoxon_p"] <= 1 for r in pairs)

@@ -398,7 +398,7 @@ def test_check_verifies_an_evaluation(
     code, stdout, err = care("check", out)
     assert (code, err) == (0, "")
     assert stdout.strip() == f"{out}: ok ({files} files verified)"
-    for damage in ("summary.parquet", "scenes/store.parquet", "plots/success_grid_class.png"):
+    for damage in ("summary.parquet", "scenes/store.parquet", "plots/success_grid_exclude-1m.png"):
         path = out / damage
         kept = path.read_bytes()
         if damage.endswith(".png"):
