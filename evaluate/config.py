@@ -38,7 +38,7 @@ report's rule key, never parsed out of a display string."""
 IOU_THRESHOLD = 0.25
 """An instance attempt succeeds when its mask's point IoU with the ground truth exceeds this."""
 DEFAULT_BOOTSTRAP = 1000
-"""Resamples of a report's 95% bootstrap intervals when none is given."""
+"""Resamples of a report's 95% intervals when none is given (:attr:`EvalConfig.bootstrap`)."""
 
 
 class QueryProtocol(StrEnum):
@@ -105,7 +105,8 @@ class EvalConfig:
     label_distance: float = LABEL_DISTANCE
     """Scene points farther than this (m) from every GT point get no GT label."""
     bootstrap: int = DEFAULT_BOOTSTRAP
-    """Bootstrap resamples of the queries for the 95% confidence intervals."""
+    """Resamples of the 95% intervals: random sign patterns of the scene-level test above 16
+    scenes (every pattern below); 0: no intervals."""
     unknown_classes: UnknownClasses = UnknownClasses.REFUSE
     """Ground-truth classes the map's vocabulary lacks: refuse the scene, or ignore them."""
     travel_start: TravelStart = TravelStart.FIRST_POSE

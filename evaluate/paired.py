@@ -8,11 +8,12 @@ of the per-query difference can, and McNemar's test uses only the discordant que
 
 Design for reuse: every function takes the per-query outcomes ``a`` and ``b`` (aligned
 arrays, 1 = success; fractions where a random strategy is averaged over seeds) and an
-optional ``groups`` array (e.g. the scene of each query) so that a clustered bootstrap can
-resample whole groups; every random draw comes from the generator built by
-:func:`comparison_rng` from the base seed and the comparison's own name, so an interval does
-not depend on what else was compared or in what order. :func:`holm` adjusts a family of
-p-values.
+optional ``groups`` array (the scene of each query): with it the interval treats scenes as
+the units, by the scene-level sign-flip test of :mod:`evaluate.scene_test`, which holds with
+few scenes where a bootstrap over them does not (:func:`paired_interval`); every random draw
+comes from the generator built by :func:`comparison_rng` from the base seed and the
+comparison's own name, so an interval does not depend on what else was compared or in what
+order. :func:`holm` adjusts a family of p-values.
 
 A continuous paired measure (SPL, :mod:`evaluate.spl`) gets :func:`compare_measure`: the same
 paired bootstrap interval of the mean difference, and the Wilcoxon signed-rank test
@@ -206,12 +207,18 @@ def paired_interval(
     (:func:`evaluate.scene_test.scene_signflip`), which hold with few scenes; below
     :data:`evaluate.scene_test.MIN_SCENES` scenes the interval is ``(nan, nan)``, as the
     test cannot reject there. Without ``groups`` the queries are the units: the paired
-    percentile bootstrap, no scene p-value (NaN) and 0 scenes.
+    percentile bootstrap, no scene p-value (NaN) and 0 scenes. ``n_resamples``: bootstrap
+    resamples, or the random sign patterns above
+    :data:`evaluate.scene_test.EXACT_MAX_SCENES` scenes (all of them below); 0: no interval.
     """
     if groups is None:
         lo, hi = paired_bootstrap_ci(a, b, rng=rng, n_resamples=n_resamples, confidence=confidence)
         return lo, hi, float("nan"), 0
-    test = scene_signflip(a, b, np.asarray(groups), rng=rng, alpha=1 - confidence)
+    if n_resamples <= 0:
+        return float("nan"), float("nan"), float("nan"), len(np.unique(np.asarray(groups)))
+    test = scene_signflip(
+        a, b, np.asarray(groups), rng=rng, alpha=1 - confidence, resamples=n_resamples
+    )
     if test.low is None or test.high is None:
         return float("nan"), float("nan"), test.p_value, test.scenes
     return float(test.low), float(test.high), test.p_value, test.scenes

@@ -165,7 +165,15 @@ def main() -> None:
     datasets = {}
     for world in args.worlds:
         ds = out / f"{world}-{EVAL_SEED}"
-        timed(f"{world}: make and map {args.scenes} scenes", make, ds, world, args.scenes, EVAL_SEED, True)
+        timed(
+            f"{world}: make and map {args.scenes} scenes",
+            make,
+            ds,
+            world,
+            args.scenes,
+            EVAL_SEED,
+            True,
+        )
         timed(f"{world}: evaluate", evaluate, ds)
         timed(f"{world}: AUROC", discriminate, ds)
         datasets[world] = ds

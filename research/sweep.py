@@ -7,8 +7,8 @@ viewpoint (view-dependent bias, view noise) is what the per-view spread can see.
 module re-encodes the same recordings under each setting of a grid over (bias rate, bias
 noise scale, view-dependent bias, view noise), builds both maps, plays the pre-registered
 rules (:data:`evaluate.report.preregistered.PAPER_SETTINGS`) and max confidence, and
-reports each measure's paired gain over max confidence with its scene-clustered 95%
-interval (``sweep.parquet``) and a figure of it (``sweep.png``): the figure the paper lacks.
+reports each measure's paired gain over max confidence with its scene-level 95%
+interval (Holm over every comparison of the sweep) (``sweep.parquet``) and a figure of it (``sweep.png``): the figure the paper lacks.
 
 Every setting is a perception override of the dataset's recorded model
 (``EncoderOptions.perception = "default:key=value,..."``), so the scenes and the
@@ -79,7 +79,7 @@ class SweepConfig:
     design: SweepDesign = SweepDesign.OAT
     """Which settings are run (:class:`SweepDesign`)."""
     bootstrap: int = DEFAULT_BOOTSTRAP
-    """Scene-clustered bootstrap resamples of each interval."""
+    """Random sign patterns of each interval above 16 scenes (every pattern below)."""
     workers: int = 1
     """Evaluation processes."""
     measure: MeasureConfig = field(default_factory=MeasureConfig)
@@ -238,7 +238,7 @@ def plot_sweep(table: pa.Table, path: Path, config: SweepConfig | None = None) -
         handles, labels, loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=3, frameon=False
     )
     fig.suptitle(
-        "When CARe helps: paired gain of each measure (paper's settings), 95% scene-clustered CI",
+        "When CARe helps: paired gain of each measure (paper's settings), 95% scene-level CI",
         y=1.06,
     )
     fig.tight_layout()

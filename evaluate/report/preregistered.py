@@ -6,9 +6,10 @@ settings the paper highlights (:data:`PAPER_SETTINGS`, fixed before any of our r
 were seen) and corrects for those few comparisons (Holm); the best setting over k is
 reported in its own table, Holm-corrected over every setting tried.
 
-Every comparison is paired (the same queries) and clustered by scene: the bootstrap
-resamples whole scenes (queries of one room share a map and a perception draw), the exact
-McNemar test uses the discordant queries (:mod:`evaluate.paired`). Baselines: max
+Every comparison is paired (the same queries) with scenes as the units of its interval: the
+scene-level sign-flip test, inverted (queries of one scene share a map and a perception
+draw; no interval below 6 scenes), beside the exact McNemar test over the discordant
+queries (:mod:`evaluate.paired`, :mod:`evaluate.scene_test`). Baselines: max
 confidence, the best random top-k (the criterion and k where random choice did best), and
 two non-CARe rules, the largest candidate and the candidate seen in the most views.
 
@@ -57,7 +58,7 @@ __all__ = [
 ]
 
 PREREGISTERED_BOOTSTRAP = 2000
-"""Scene-clustered bootstrap resamples of each pre-registered interval."""
+"""Random sign patterns of each pre-registered interval above 16 scenes (every pattern below)."""
 TABLE_NAMES = ("preregistered", "best_of_k", "by_class", "query_breakdown")
 """The tables :func:`write_preregistered` writes, each as ``<name>.parquet``, in order."""
 
@@ -100,7 +101,7 @@ def _best_random(rules: dict) -> Rule | None:
 
 
 def _compare(rules: dict, first: dict, rule: Rule, base: Rule, *, bootstrap: int, seed: int):
-    """Paired, scene-clustered comparison of ``rule`` against ``base`` over shared queries."""
+    """Paired comparison of ``rule`` against ``base`` over shared queries, scenes as units."""
     queries = sorted(q for q in rules[rule] if q in rules[base])
     a = np.array([rules[rule][q] for q in queries], np.float64)
     b = np.array([rules[base][q] for q in queries], np.float64)

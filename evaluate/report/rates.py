@@ -1,4 +1,4 @@
-"""From attempt rows to the paper's tables: success rates, bootstrap CIs, per scene, AUROC, plots.
+"""From attempt rows to the paper's tables: success rates, their scene-level CIs, per scene, AUROC, plots.
 
 Success of a query under a strategy is "some attempt succeeded" (within the configured number
 of attempts); random strategies average it over seeds first, and their closed-form
@@ -18,6 +18,8 @@ import pyarrow.compute as pc
 from care.maps import MapKind
 from care.outputs import write_atomic
 from evaluate.config import DEFAULT_BOOTSTRAP, NO_CRITERION
+from evaluate.paired import comparison_rng, paired_interval
+from evaluate.scene_test import MIN_SCENES
 from evaluate.spl import spl
 from fuse.measures import MEASURE_COLUMNS
 from replan.strategies import CRITERIA, STRATEGIES, StrategyName
@@ -102,20 +104,20 @@ def _with_travel(attempts: pa.Table) -> pa.Table:
     return attempts
 
 
-def _bootstrap(values: np.ndarray, n: int, rng: np.random.Generator) -> tuple[float, float]:
-    """95% percentile interval of the mean (``scipy.stats.bootstrap``, ``n`` resamples drawn
-    from ``rng``: the same generator state gives the same interval)."""
+def _interval(
+    values: np.ndarray, scenes: np.ndarray, n: int, seed: int, key: dict
+) -> tuple[float, float]:
+    """95% interval of a success rate with scenes as the units: the scene-level sign-flip
+    test inverted (:func:`evaluate.paired.paired_interval` against zero), NaN below
+    :data:`evaluate.scene_test.MIN_SCENES` scenes, where no interval holds, or with ``n``
+    (the report's resamples) 0. The generator is the row's own (:func:`comparison_rng`)."""
     if len(values) == 0 or n <= 0:
         return float("nan"), float("nan")
-    if np.all(values == values[0]):  # every resample has the same mean
-        return float(values[0]), float(values[0])
-    from scipy.stats import bootstrap  # here: scipy.stats costs every scene worker ~2 s
-
-    ci = bootstrap(
-        (values,), np.mean, n_resamples=n, confidence_level=0.95, method="percentile",
-        vectorized=True, batch=max(1, 2_000_000 // len(values)), random_state=rng,
-    ).confidence_interval  # fmt: skip
-    return float(ci.low), float(ci.high)
+    rng = comparison_rng(seed, "rate", *key.values())
+    lo, hi, _, _ = paired_interval(
+        values, np.zeros_like(values), rng=rng, groups=scenes, n_resamples=n
+    )
+    return lo, hi
 
 
 def _groups(table: pa.Table, keys: Sequence[str]) -> Iterator[tuple[dict, np.ndarray]]:
@@ -142,14 +144,14 @@ def _groups(table: pa.Table, keys: Sequence[str]) -> Iterator[tuple[dict, np.nda
 def summarise(
     queries: pa.Table, *, bootstrap: int = DEFAULT_BOOTSTRAP, seed: int = 0, by_scene: bool = False
 ) -> pa.Table:
-    """Success rate (%) with a 95% bootstrap CI per (map, protocol, strategy, criterion, k)
+    """Success rate (%) with a 95% interval (scenes as units, :func:`_interval`) per (map, protocol, strategy, criterion, k)
     (and scene with ``by_scene``). ``closed_form`` tells the random strategies' expected
     success (their own rows, from the ``expected`` column) from the measured one. Measured
     rows also give the walk over the ``n_travel`` queries that have one: mean ``path`` (m)
     and ``spl`` (%); null without travel."""
     rows = []
     keys = ["map", "protocol", *RULE_KEYS] + (["scene"] if by_scene else [])
-    rng = np.random.default_rng(seed)
+    scenes = queries.column("scene").to_numpy(zero_copy_only=False)
     columns = {
         c: queries.column(c).to_numpy(zero_copy_only=False).astype(float)
         if c in queries.column_names
@@ -162,8 +164,12 @@ def summarise(
             random = STRATEGIES[key["strategy"]].random
             if closed_form and (not random or np.isnan(values).all()):
                 continue
-            values = values[~np.isnan(values)]
-            lo, hi = _bootstrap(values, 0 if by_scene else bootstrap, rng)
+            known = ~np.isnan(values)
+            lo, hi = _interval(
+                values[known], scenes[idx][known], 0 if by_scene else bootstrap, seed,
+                {**key, "closed_form": closed_form},
+            )  # fmt: skip
+            values = values[known]
             walked = {c: columns[c][idx] for c in ("path", "spl")}
             walks = ~np.isnan(walked["spl"]) & (not closed_form)
             rows.append(
@@ -277,6 +283,15 @@ def _criterion_cell(strategy: str, criterion: str) -> str:
     return criterion if _uses_set(strategy) else NO_CRITERION
 
 
+def _ci_cell(row: dict | None) -> str:
+    """A rate's interval, or why there is none (too few scenes for one to hold)."""
+    if row is None:
+        return ""
+    if np.isnan(row["lo"]) or np.isnan(row["hi"]):
+        return f"– (< {MIN_SCENES} scenes)"
+    return f"[{row['lo']:.1f}, {row['hi']:.1f}]"
+
+
 def markdown_tables(summary: pa.Table, ks: dict[str, Sequence[int]], *, ci: bool = False) -> str:
     """Tables laid out like the paper's Tables 1 and 2: rows strategy x criterion, columns k.
 
@@ -310,10 +325,8 @@ def markdown_tables(summary: pa.Table, ks: dict[str, Sequence[int]], *, ci: bool
             ),
             default=0,
         )
-        title = MAP_TITLES.get(kind, kind) + (
-            f", protocol `{protocol}`" if kind == MapKind.INSTANCES else ""
-        )
-        out.append(f"### {title}{' — 95% bootstrap CI' if ci else ''} ({n_q} queries)\n")
+        title = f"{MAP_TITLES.get(kind, kind)}, protocol `{protocol}`"
+        out.append(f"### {title}{' — 95% CI, scenes as units' if ci else ''} ({n_q} queries)\n")
         out.append(
             "| Replan strategy | Selection criteria | " + " | ".join(f"k={k}" for k in kvals) + " |"
         )
@@ -326,7 +339,7 @@ def markdown_tables(summary: pa.Table, ks: dict[str, Sequence[int]], *, ci: bool
                     r = lookup.get(
                         (kind, protocol, strategy, closed, criterion, _k_of(strategy, k))
                     )
-                    cells.append("" if r is None else f"[{r['lo']:.1f}, {r['hi']:.1f}]")
+                    cells.append(_ci_cell(r))
                     continue
                 text = "" if np.isnan(value) else f"{value:.2f}"
                 if i in ranked and _uses_set(strategy) and value == np.nanmax(grid[i]):
