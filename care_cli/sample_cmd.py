@@ -47,7 +47,8 @@ def _format(value: str) -> RecordingFormat:
         "compressed_rgb": {"flags": ("--jpeg/--raw",)},
         "preset": {"help": "World and perception preset: default (the sample world), "
                    "matterport-like (229 classes, ~25 instances per room, first attempts near "
-                   "the paper's), ideal."},
+                   "the paper's), matterport-clip (the same with CLIP-like image-text "
+                   "similarities), ideal."},
     },
 )  # fmt: skip
 def make(
@@ -77,6 +78,15 @@ def make(
             "of each map (minutes; written to index.json and printed).",
         ),
     ] = False,
+    likeness: Annotated[
+        bool,
+        typer.Option(
+            "--likeness/--no-likeness",
+            help="Measure how CLIP-like the simulated features are on a few views of the "
+            "first scene, against published targets (seconds; written to index.json and "
+            "printed as a table).",
+        ),
+    ] = True,
 ) -> None:
     """Generate scenes, render an exploration of each, write recordings + ground truth + index.json."""
     from world.presets import PRESETS, with_sets
@@ -112,6 +122,16 @@ def make(
 
         measure_first_attempts(index.parent, workers=config.workers)
     typer.echo(_statistics_line(index))
+    if likeness:
+        from world.perception.likeness import likeness_table, record_likeness
+
+        entry = record_likeness(index.parent)
+        typer.echo(
+            f"CLIP likeness of {entry['recording']} ({entry['views']} views, "
+            f"{entry['measured'].get('object_views', 0)} object segments, "
+            f"{entry['seconds']:.1f} s):"
+        )
+        typer.echo(likeness_table(entry["measured"], markdown=False))
     typer.echo(f"wrote {index}")
 
 

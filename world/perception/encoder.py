@@ -20,7 +20,12 @@ from care.errors import EncoderError
 from care.frames import Frame
 from care.vocab import STRUCTURE_NAMES
 from world.perception.counters import gaussian, uniform
-from world.perception.model import PerceptionModel, perception_model, recorded_perception
+from world.perception.model import (
+    PerceptionModel,
+    SimilarityModel,
+    perception_model,
+    recorded_perception,
+)
 
 __all__ = ["LabelsEncoder"]
 
@@ -114,6 +119,29 @@ class LabelsEncoder(Encoder):
         n_biased = round(self.model.class_bias_rate * int(pool.sum()))
         self.class_biased = np.zeros(n, bool)
         self.class_biased[order[:n_biased]] = True
+        if self.model.similarity_model is SimilarityModel.CLIP_LIKE:
+            self._clip_geometry()
+
+    def _clip_geometry(self) -> None:
+        """The fixed directions of the CLIP-like similarity: an orthonormal basis of the
+        class texts' span, the modality-gap direction (a seeded random unit vector with that
+        span projected out) and the common text direction (the normalised mean text)."""
+        text = np.asarray(self.text, np.float64)
+        basis, _ = np.linalg.qr(text.T)
+        rank = int(np.linalg.matrix_rank(text))
+        self.text_basis = basis[:, :rank]
+        zero = np.zeros(1, np.uint64)
+        self.gap = self._off_text(gaussian(self.seed, zero, zero, 41, DIM))[0]
+        mean = text.mean(0)
+        self.common = mean / max(float(np.linalg.norm(mean)), 1e-12)
+
+    def _off_text(self, vectors: np.ndarray) -> np.ndarray:
+        """``vectors`` with the span of the class texts projected out, unit length (a
+        vector inside the span, which only a vocabulary of ``DIM`` or more names allows,
+        is kept as it is, normalised)."""
+        off = vectors - (vectors @ self.text_basis) @ self.text_basis.T
+        small = np.linalg.norm(off, axis=-1) < 1e-6 * np.linalg.norm(vectors, axis=-1)
+        return l2_normalise(np.where(small[:, None], vectors, off))
 
     # -- persistent bias -----------------------------------------------------------------
 
@@ -298,7 +326,26 @@ class LabelsEncoder(Encoder):
         if m.segment_noise > 0:
             gauss = gaussian(self.seed, stamp, ids, 23, DIM)
             vec = vec + (m.segment_noise * level)[:, None] * gauss / np.sqrt(DIM)
-        return l2_normalise(vec)
+        vec = l2_normalise(vec)
+        if m.similarity_model is SimilarityModel.CLIP_LIKE:
+            vec = self._clip_like(vec, ids, stamp)
+        return vec
+
+    def _clip_like(self, vec: np.ndarray, ids: np.ndarray, stamp: np.ndarray) -> np.ndarray:
+        """(S, d) CLIP-like image features of segments whose text mixtures are ``vec``:
+        the gap direction, a small share of the mixture and of the common text direction,
+        the segment's own direction (off the text span, the same in every view) and
+        isotropic noise per view, normalised (:class:`SimilarityModel`)."""
+        m = self.model
+        out = m.clip_gap_weight * self.gap + m.clip_text_weight * vec
+        out = out + m.clip_common_weight * self.common
+        if m.clip_instance_weight > 0:
+            own = self._off_text(gaussian(self.seed, ids, np.zeros_like(ids), 43, DIM))
+            out = out + m.clip_instance_weight * own
+        if m.clip_noise > 0:
+            noise = gaussian(self.seed, stamp, ids, 45, DIM) / np.sqrt(DIM)
+            out = out + m.clip_noise * noise
+        return l2_normalise(out)
 
     def _view_bias(
         self,

@@ -18,12 +18,28 @@ import numpy as np
 from care.errors import EncoderError
 
 __all__ = [
+    "CLIP_LIKE_KNOBS",
     "PERCEPTION_PRESETS",
     "PerceptionModel",
     "PerceptionPreset",
+    "SimilarityModel",
     "perception_model",
     "recorded_perception",
 ]
+
+
+class SimilarityModel(StrEnum):
+    """How a segment's perceived text mixture becomes its image feature."""
+
+    DIRECT = "direct"
+    """The feature is the (noisy) text mixture itself: cosine near 1 to the perceived
+    class, so at logit scale 100 nearly every view puts all its mass on one class. The
+    model of every release before ``clip_like``; unchanged bit for bit."""
+    CLIP_LIKE = "clip_like"
+    """CLIP's geometry: the feature is mostly a direction orthogonal to every class text
+    (the modality gap) plus a small share of the text mixture and of the vocabulary's
+    common direction, so cosines to class texts sit near 0.3 with small margins
+    (:mod:`world.perception.likeness` holds the published targets and measures them)."""
 
 
 @dataclass(frozen=True)
@@ -82,6 +98,28 @@ class PerceptionModel:
     """A segment's weight in a cell is its pixel count there over its area to this power."""
     stride: int = 8
     """Pixels per feature-map cell side."""
+    similarity_model: SimilarityModel = SimilarityModel.DIRECT
+    """``direct`` (the text mixture is the feature) or ``clip_like`` (CLIP-like
+    image-text similarities; the ``clip_*`` knobs below apply only to it). Each segment's
+    feature becomes ``normalise(clip_gap_weight * gap + clip_text_weight * mixture +
+    clip_common_weight * common + clip_instance_weight * own + clip_noise * noise)``."""
+    clip_gap_weight: float = 0.65
+    """Weight of the modality-gap direction: one unit vector per encoder seed, orthogonal
+    to every class text of the recording, shared by every segment."""
+    clip_text_weight: float = 0.2
+    """Weight of the segment's text mixture (today's feature: perceived class, confuser,
+    segment noise). Margins between classes scale with it: ``clip_text_weight * (1 -
+    text similarity)`` before noise."""
+    clip_common_weight: float = 0.3
+    """Weight of the vocabulary's common text direction (the normalised mean of the class
+    texts): it raises every class's cosine alike, more for classes near the centroid."""
+    clip_instance_weight: float = 0.55
+    """Weight of a direction particular to each instance (or structure class), orthogonal
+    to every class text and the same in every view: what an image holds beyond its class
+    name, so different objects' features are not all alike."""
+    clip_noise: float = 0.4
+    """Norm of the isotropic noise added per segment and view: jitter of every class's
+    similarity (about ``clip_noise / sqrt(d)`` in cosine) and view-to-view spread."""
 
     @classmethod
     def ideal(cls) -> PerceptionModel:
@@ -96,7 +134,7 @@ class PerceptionModel:
     def with_values(self, values: Mapping[str, Any]) -> PerceptionModel:
         """This model with ``values`` (field name -> value, strings parsed by the field's
         type); an unknown name or a bad value is one :class:`EncoderError` naming it."""
-        types = {f.name: type(f.default) for f in fields(self)}
+        types: dict[str, type] = {f.name: type(f.default) for f in fields(self)}
         out = {}
         for key, value in values.items():
             if key not in types:
@@ -106,8 +144,24 @@ class PerceptionModel:
         return replace(self, **out)
 
 
+CLIP_LIKE_KNOBS: tuple[str, ...] = (
+    "similarity_model",
+    *(f.name for f in fields(PerceptionModel) if f.name.startswith("clip_")),
+)
+"""The knobs of the CLIP-like similarity (recorded only where it is chosen: a dataset of
+the direct model records what it always did)."""
+
+
 def _parse(key: str, value: Any, kind: type) -> Any:
-    """``value`` as a ``kind`` (bool, int or float), from a string or a number."""
+    """``value`` as a ``kind`` (bool, int, float or a string enum), from a string or a
+    number."""
+    if issubclass(kind, StrEnum):
+        try:
+            return kind(str(value).strip())
+        except ValueError as err:
+            choices = ", ".join(c.value for c in kind)  # type: ignore[attr-defined]
+            msg = f"perception knob {key}={value!r}: choose one of {choices}"
+            raise EncoderError(msg) from err
     try:
         if kind is bool:
             if isinstance(value, bool):
