@@ -33,6 +33,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pyarrow.parquet as pq
 
 from care.store import write_table_atomic
@@ -52,6 +53,8 @@ WORLDS = ("matterport-like", "matterport-clip")
 """Today's perception (the preset tuned on seeds 20 and 77) and the CLIP-like one."""
 SWEEP_WORLD = "matterport-clip"
 """The world the sweep varies (its error mechanisms, with CLIP-like similarities)."""
+LIKENESS_VIEWS = 40
+"""Views of a world's first scene its CLIP-likeness is measured on."""
 SCENES = 20
 SWEEP_SCENES = 8
 SIZE = ["--width", "160", "--height", "120", "--jpeg"]
@@ -112,15 +115,36 @@ def _datasets_table(datasets: dict[str, Path]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _likeness(datasets: dict[str, Path]) -> str:
-    """The CLIP-likeness tables the generator printed (``statistics.clip_likeness``)."""
-    out = []
-    for world, ds in datasets.items():
-        st = json.loads((ds / "index.json").read_text())["statistics"]
-        table = st.get("clip_likeness_markdown")
-        if table:
-            out += [f"#### {world}\n", table, ""]
-    return "\n".join(out)
+def _likeness(datasets: dict[str, Path], views: int = LIKENESS_VIEWS) -> str:
+    """Each CLIP-likeness target, its source, and what each world measures on ``views`` views
+    of its first scene (:mod:`world.perception.likeness`)."""
+    from world.perception.likeness import TARGETS, measure_recording
+
+    measured = {
+        world: measure_recording(read_index(ds)[0].recording, views=views)
+        for world, ds in datasets.items()
+    }
+    worlds = list(measured)
+    lines = [
+        "| statistic | target | source | " + " | ".join(worlds) + " |",
+        "|---|---|---|" + "---:|" * len(worlds),
+    ]
+    for t in TARGETS:
+        cells = []
+        for world in worlds:
+            value = measured[world].get(t.name)
+            if value is None or not np.isfinite(value):
+                cells.append("–")
+                continue
+            mark = "" if not t.checked else (" ok" if t.holds(value) else " **off**")
+            cells.append(f"{value:.3g}{mark}")
+        target = t.range_text() + ("" if t.checked else " (not checked)")
+        lines.append(f"| {t.label} | {target} | {t.source} | " + " | ".join(cells) + " |")
+    n = {world: int(m.get("object_views", 0)) for world, m in measured.items()}
+    return (
+        "\n".join(lines)
+        + f"\n\nMeasured on {views} views of each world's first scene ({n} object segments).\n"
+    )
 
 
 def section(datasets: dict[str, Path], coverage: str, sweep_png: Path | None) -> str:
