@@ -20,6 +20,7 @@ from enum import StrEnum
 
 from care.checks import check_numbers
 from care.config import member
+from care.encoders.base import CLIP_LOGIT_SCALE
 from care.errors import FuseError
 from care.fingerprint import config_json, fingerprint
 
@@ -32,7 +33,7 @@ __all__ = [
     "ProposalMethod",
 ]
 
-DEFAULT_LOGIT_SCALE = 100.0
+DEFAULT_LOGIT_SCALE = CLIP_LOGIT_SCALE
 """CLIP's learned logit scale: the default s of softmax(s * f . t) of both maps."""
 DEFAULT_STRIDE = 2
 """Depth pixels used by both maps: every second one in both image directions."""

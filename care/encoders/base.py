@@ -18,7 +18,18 @@ from care.errors import EncoderError
 from care.frames import Frame
 from care.store import BATCH_SIZE, EncoderInfo
 
-__all__ = ["DEFAULT_PERCEPTION", "Encoder", "EncoderOptions", "RecordingContext", "l2_normalise"]
+__all__ = [
+    "CLIP_LOGIT_SCALE",
+    "DEFAULT_PERCEPTION",
+    "Encoder",
+    "EncoderOptions",
+    "RecordingContext",
+    "l2_normalise",
+]
+
+CLIP_LOGIT_SCALE = 100.0
+"""CLIP's learned logit scale (clipped at 100 in training, Radford et al. 2021): the ``s`` of
+softmax(s * f . t) that the maps use by default and the sample world is measured at."""
 
 
 DEFAULT_PERCEPTION = "default"

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 from scipy.stats import rankdata
 
+from care.encoders.base import CLIP_LOGIT_SCALE
 from care.frames import Frame
 from care.vocab import STRUCTURE_NAMES
 
@@ -45,8 +46,10 @@ __all__ = [
     "record_likeness",
 ]
 
-LOGIT_SCALE = 100.0
-"""CLIP's logit scale (the maps' default, ``fuse.config.DEFAULT_LOGIT_SCALE``)."""
+LIKENESS_VIEWS = 12
+"""Views spread over a recording that its likeness is measured on (``care sample make``)."""
+LOGIT_SCALE = CLIP_LOGIT_SCALE
+"""The logit scale the statistics are measured at: CLIP's, the maps' default."""
 MIN_PIXELS = 20
 """Object segments on fewer pixels in a view are left out (their pooled feature is mostly
 their neighbours' bleed)."""
@@ -323,7 +326,7 @@ def measure_features(
 def measure_recording(
     path: Path,
     *,
-    views: int = 12,
+    views: int = LIKENESS_VIEWS,
     seed: int = 0,
     weights: str | None = None,
     perception: str = "default",
@@ -389,7 +392,7 @@ def _json_number(value: float) -> float | int | None:
     return round(float(value), 6) if np.isfinite(value) else None
 
 
-def record_likeness(dataset: Path, *, views: int = 12, seed: int = 0) -> dict[str, Any]:
+def record_likeness(dataset: Path, *, views: int = LIKENESS_VIEWS, seed: int = 0) -> dict[str, Any]:
     """Measure the first recording of a ``care sample make`` dataset and keep the result in
     its ``index.json`` under ``statistics.likeness`` (the statistics, which targets are
     missed, the views measured and the seconds it took); returns that entry."""
