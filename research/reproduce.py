@@ -53,6 +53,8 @@ WORLDS = ("matterport-like", "matterport-clip")
 """Today's perception (the preset tuned on seeds 20 and 77) and the CLIP-like one."""
 SWEEP_WORLD = "matterport-clip"
 """The world the sweep varies (its error mechanisms, with CLIP-like similarities)."""
+PAPER_VOCABULARY = 1658
+"""Raw Matterport3D categories of the paper's vocabulary (its k = 40 is a share of these)."""
 LIKENESS_VIEWS = 40
 """Views of a world's first scene its CLIP-likeness is measured on."""
 SCENES = 20
@@ -105,13 +107,20 @@ def _datasets_table(datasets: dict[str, Path]) -> str:
         st = doc["statistics"]
         fa = st.get("first_attempt", {})
         per = st["instances_per_room"]
-        vocab = len(doc.get("vocabulary") or []) or st.get("vocabulary", "")
+        first = scenes_of(ds)[0].store / "meta.json"
+        vocab = len(json.loads(first.read_text())["vocabulary"])
         lines.append(
             f"| {world} | {EVAL_SEED} | {st['scenes']} | {st['rooms']} | {st['instances']} "
             f"({per['mean']}, {per['min']}-{per['max']}) | {st['classes']} | {vocab} "
             f"| {fa.get('instances/instance', float('nan')):.1f} "
             f"| {fa.get('instances/class', float('nan')):.1f} | {fa.get('grid', float('nan')):.1f} |"
         )
+    k = max(EvalConfig().k_instances)
+    lines.append(
+        f"\nThe vocabulary is what a store scores against; k = {k} is {100 * k / vocab:.0f}% of it "
+        f"here, against {100 * k / PAPER_VOCABULARY:.1f}% of the paper's {PAPER_VOCABULARY} raw "
+        "Matterport3D categories."
+    )
     return "\n".join(lines) + "\n"
 
 
