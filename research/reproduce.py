@@ -148,11 +148,12 @@ def _likeness(datasets: dict[str, Path], views: int = LIKENESS_VIEWS) -> str:
             mark = "" if not t.checked else (" ok" if t.holds(value) else " **off**")
             cells.append(f"{value:.3g}{mark}")
         target = t.range_text() + ("" if t.checked else " (not checked)")
-        lines.append(f"| {t.label} | {target} | {t.source} | " + " | ".join(cells) + " |")
-    n = {world: int(m.get("object_views", 0)) for world, m in measured.items()}
+        label = t.label.replace("|", "\\|")  # a norm's bars are not the table's
+        lines.append(f"| {label} | {target} | {t.source} | " + " | ".join(cells) + " |")
+    segments = ", ".join(f"{w}: {int(m.get('object_views', 0))}" for w, m in measured.items())
     return (
         "\n".join(lines)
-        + f"\n\nMeasured on {views} views of each world's first scene ({n} object segments).\n"
+        + f"\n\nMeasured on {views} views of each world's first scene (object segments: {segments}).\n"
     )
 
 
@@ -160,7 +161,7 @@ def section(datasets: dict[str, Path], coverage: str, sweep_png: Path | None) ->
     """The tables of docs/results.md."""
     out = ["### The datasets\n", _datasets_table(datasets)]
     out += ["### CLIP-likeness: targets, sources, measured\n", _likeness(datasets)]
-    out += ["### The paired intervals in a null simulation\n", coverage]
+    out += ["### The paired intervals in a null simulation\n", coverage, ""]
     for world, ds in datasets.items():
         ev = ds / "eval"
         tables = [pq.read_table(ev / f"{n}.parquet") for n in TABLE_NAMES]
