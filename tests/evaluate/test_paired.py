@@ -167,5 +167,5 @@ def test_an_interval_does_not_depend_on_what_else_ran(dataset: Path, tmp_path: P
     shared = [k for k in b if k[2] == "min_stderr" and k[5] == "max_confidence"]
     assert shared
     for key in shared:
-        assert a[key] == b[key]
+        np.testing.assert_equal(a[key], b[key])  # NaN (too few scenes) equals NaN here
     assert paired_table(pq.read_table(attempts_full), bootstrap=100).num_rows == len(a)

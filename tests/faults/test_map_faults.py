@@ -389,12 +389,21 @@ def test_eval_out_is_a_store(care, fx, copy_good, good: Path) -> None:
     [
         (("--k-grid", "0"), r"k=0", 1),
         (("--k-grid", "4,x"), r"--k-grid: '4,x': expected comma-separated int values", 2),
-        (("--exclude-radius", "nan"), r"'--exclude-radius'.*nan is not a finite number", 2),
+        (("--exclude-radii", "0,nan"), r"'--exclude-radii'.*nan is not a finite number", 2),
+        (("--exclude-radii", "1,1"), r"--exclude-radii \(1.0, 1.0\) repeats a radius", 1),
         (("--strategies", "psychic"), r"'psychic'.*choose from no_replan, oracle, ", 2),
         (("--maps", "voxels"), r"'voxels'.*choose from instances, grid", 2),
         (("--attempts", "0"), r"attempts=0", 1),
     ],
-    ids=["k-0", "k-not-int", "exclude-nan", "strategy-unknown", "map-unknown", "attempts-0"],
+    ids=[
+        "k-0",
+        "k-not-int",
+        "exclude-nan",
+        "exclude-repeated",
+        "strategy-unknown",
+        "map-unknown",
+        "attempts-0",
+    ],
 )
 def test_eval_bad_option(
     care, fx, good: Path, tmp_path: Path, flags, pattern: str, exit_code: int

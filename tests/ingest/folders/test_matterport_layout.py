@@ -301,4 +301,4 @@ def test_care_run_evaluates_a_matterport_house(
     assert "no ground truth" not in out
     results = (tmp_path / "out" / "eval" / "results.md").read_text()
     assert "ground truth: matterport" in results
-    assert "subgoal success (%) (2 queries)" in results
+    assert "subgoal success (%), protocol `exclude-1m` (2 queries)" in results

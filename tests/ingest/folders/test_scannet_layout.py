@@ -300,5 +300,7 @@ def test_care_run_evaluates_a_scannet_scene_folder(
     assert "no ground truth" not in out
     results = (tmp_path / "out" / "eval" / "results.md").read_text()
     assert "ground truth: scannet" in results
-    assert "subgoal success (%) (2 queries)" in results  # chair and sofa, in the map frame
+    assert (
+        "subgoal success (%), protocol `exclude-1m` (2 queries)" in results
+    )  # chair and sofa, in the map frame
     assert Store(tmp_path / "out" / "stores" / SCENE).meta.topics["layout"] == "scannet"
