@@ -24,6 +24,7 @@ import dataclasses
 import json
 import os
 from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from types import TracebackType
@@ -532,6 +533,17 @@ def source_recording(store: Path, meta: StoreMeta | None = None) -> Path | None:
     return (meta or StoreMeta.read(store)).source.resolve(store)
 
 
+def depth_millimetres(depth_m: np.ndarray) -> np.ndarray:
+    """``uint16`` depth in units of :data:`DEPTH_SCALE` (rounded half to even, clipped to
+    0..65535): NaN and -inf become 0 (no depth), +inf 65535. In place on one float array: the
+    step of every ingested view that touches each pixel the most often."""
+    scaled = np.divide(depth_m, DEPTH_SCALE)
+    np.rint(scaled, out=scaled)
+    np.clip(scaled, 0, 65535, out=scaled)
+    scaled[np.isnan(scaled)] = 0
+    return scaled.astype(np.uint16)
+
+
 class StoreWriter:
     """Streams views and features into a new store, committing it atomically on success.
 
@@ -560,6 +572,8 @@ class StoreWriter:
         self._views_writer: pq.ParquetWriter | None = None
         self._features_writer: pq.ParquetWriter | None = None
         self._text: pa.Table | None = None
+        self._pool: ThreadPoolExecutor | None = None
+        self._pending: list[Future[dict[str, Any]]] = []
 
     def __enter__(self) -> StoreWriter:
         remove_path(self.tmp)
@@ -582,10 +596,14 @@ class StoreWriter:
         return self
 
     def add(self, frame: Frame, features: np.ndarray | None = None) -> int:
-        """Append one view (and its (fh, fw, d) feature map); returns its view id."""
+        """Append one view (and its (fh, fw, d) feature map); returns its view id.
+
+        The view's images are encoded in one background thread while the caller reads and
+        decodes the next frame (JPEG, zstd and the depth conversion release the GIL: on two
+        cores this is most of an encoder-less ingest's own time); rows are written in order,
+        each when its images are done (:meth:`_flush`). ``frame``'s arrays must not change
+        after this call."""
         view_id = self.num_views
-        depth_mm = np.clip(np.round(np.nan_to_num(frame.depth_m) / DEPTH_SCALE), 0, 65535)
-        suffix = self.encoding.image_suffix
         row: dict[str, Any] = {
             "view_id": view_id,
             "stamp_ns": int(frame.stamp_ns),
@@ -594,14 +612,11 @@ class StoreWriter:
             "K": np.asarray(frame.K, dtype=np.float64).ravel().tolist(),
             "cam_to_world": np.asarray(frame.cam_to_world, dtype=np.float64).ravel().tolist(),
             "depth_scale": DEPTH_SCALE,
-            "rgb_jpeg": self._colour(frame),
-            f"depth_{suffix}": self.encoding.encode_image(depth_mm.astype(np.uint16)),
         }
-        for name in EXTRA_IMAGES:
-            extra = frame.extras.get(name)
-            row[f"{name}_{suffix}"] = (
-                None if extra is None else self.encoding.encode_image(extra.astype(np.uint16))
-            )
+        own = self._own_jpeg(frame)
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="store-encode")
+        self._pending.append(self._pool.submit(self._images, frame, own))
         self._views.append(row)
         if features is not None:
             if self._features_writer is None or self.encoder is None:
@@ -626,9 +641,10 @@ class StoreWriter:
             self._flush()
         return view_id
 
-    def _colour(self, frame: Frame) -> bytes:
-        """The recording's own JPEG when the frame carries it (and its header agrees with
-        the image), else the image encoded once (:func:`care.codecs.encode_jpeg`)."""
+    def _own_jpeg(self, frame: Frame) -> bytes | None:
+        """The recording's own JPEG when the frame carries it and its header agrees with
+        the image (the store keeps those bytes), else None (the image is encoded once,
+        :func:`care.codecs.encode_jpeg`)."""
         own = frame.rgb_jpeg
         if (
             own is not None
@@ -637,7 +653,21 @@ class StoreWriter:
         ):
             self.kept_jpeg += 1
             return bytes(own)
-        return encode_jpeg(frame.rgb)
+        return None
+
+    def _images(self, frame: Frame, own: bytes | None) -> dict[str, Any]:
+        """A view's encoded images (colour, depth in mm, label images), by column."""
+        suffix = self.encoding.image_suffix
+        out: dict[str, Any] = {
+            "rgb_jpeg": own if own is not None else encode_jpeg(frame.rgb),
+            f"depth_{suffix}": self.encoding.encode_image(depth_millimetres(frame.depth_m)),
+        }
+        for name in EXTRA_IMAGES:
+            extra = frame.extras.get(name)
+            out[f"{name}_{suffix}"] = (
+                None if extra is None else self.encoding.encode_image(extra.astype(np.uint16))
+            )
+        return out
 
     def set_text(self, names: Sequence[str], embeddings: np.ndarray) -> None:
         """Cache the encoder's class-name embeddings (n, d) in the store."""
@@ -652,6 +682,9 @@ class StoreWriter:
         )
 
     def _flush(self) -> None:
+        for row, images in zip(self._views, self._pending, strict=True):
+            row.update(images.result())  # in order; an encoding error is raised here
+        self._pending.clear()
         if self._views and self._views_writer is not None:
             table = pa.Table.from_pylist(self._views, schema=self._views_writer.schema)
             append_rows(self._views_writer, table)
@@ -720,6 +753,10 @@ class StoreWriter:
         # temporary must go all the same (else it keeps the disk full for the next run)
         written = 0
         try:
+            if self._pool is not None:  # images still encoding are dropped with the store
+                self._pool.shutdown(wait=True, cancel_futures=True)
+                self._pool = None
+            self._pending.clear()
             for writer in (self._views_writer, self._features_writer):
                 if writer is not None:
                     with contextlib.suppress(Exception):
