@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import zlib
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -39,7 +39,7 @@ from evaluate.spl import shortest_to_success
 from evaluate.success import QuerySet, grid_queries, instance_queries, scene_point_labels
 from evaluate.travel import SceneTravel, SceneWalks
 from query.confidence import log_confidence
-from query.map import MAP_TABLES, REPLAN_COLUMNS, load_map
+from query.map import MAP_TABLES, REPLAN_COLUMNS, CandidateMap, load_map
 from replan.attempts import Attempts, run_attempts
 from replan.expected import expected_random_success
 from replan.strategies import STRATEGIES, Strategy
@@ -55,6 +55,7 @@ __all__ = [
     "evaluate_scene",
     "run_eval",
     "run_scenes",
+    "scene_query_sets",
     "scenes_of",
 ]
 
@@ -348,16 +349,18 @@ def evaluate_scene(scene: Scene, config: EvalConfig) -> pa.Table:
         return _evaluate_scene(scene, config)
 
 
-def _evaluate_scene(scene: Scene, config: EvalConfig) -> pa.Table:
+def scene_query_sets(
+    scene: Scene, config: EvalConfig
+) -> Iterator[tuple[MapKind, CandidateMap, str, float, list[QuerySet]]]:
+    """Every query set of a scene as the evaluation plays it: ``(map kind, its map,
+    protocol, exclusion radius, query sets)`` per instance-query protocol and per grid
+    exclusion radius (one protocol each, the grid's query sets shared between them)."""
     gt = scene.gt.load(scene.recording, scene.store)
-    tables = []
-    walks = SceneWalks(scene.store, config)  # one roadmap for both maps
     for kind in config.maps:
         if not (scene.store / f"{MAP_TABLES[kind]}.parquet").is_file():
             msg = f"{scene.store}: no {MAP_TABLES[kind]}.parquet; run `care fuse` (or drop --maps {kind})"
             raise EvalError(msg)
         cmap = load_map(scene.store, kind)  # type: ignore[arg-type]
-        travel = walks.for_map(cmap)
         if kind == MapKind.INSTANCES:
             labels = scene_point_labels(scene.store, gt, config.label_distance)
             for protocol in config.protocols:
@@ -365,18 +368,26 @@ def _evaluate_scene(scene: Scene, config: EvalConfig) -> pa.Table:
                     cmap, gt, labels, protocol=protocol, rooms=config.rooms,
                     iou_threshold=config.iou_threshold,
                 )  # fmt: skip
-                tables += [
-                    evaluate_queries(qs, kind, protocol, scene.name, config, travel) for qs in sets
-                ]
+                yield kind, cmap, protocol, 0.0, sets
         else:
             sets = grid_queries(cmap, gt, rooms=config.rooms, radius=config.success_radius)
-            tables += [
-                evaluate_queries(
-                    qs, kind, grid_protocol(r), scene.name, config, travel, exclude_radius=r
-                )
-                for r in config.exclude_radii
-                for qs in sets
-            ]
+            for radius in config.exclude_radii:
+                yield kind, cmap, grid_protocol(radius), radius, sets
+
+
+def _evaluate_scene(scene: Scene, config: EvalConfig) -> pa.Table:
+    tables = []
+    walks = SceneWalks(scene.store, config)  # one roadmap for both maps
+    travel: dict[MapKind, SceneTravel | None] = {}
+    for kind, cmap, protocol, radius, sets in scene_query_sets(scene, config):
+        if kind not in travel:
+            travel[kind] = walks.for_map(cmap)
+        tables += [
+            evaluate_queries(
+                qs, kind, protocol, scene.name, config, travel[kind], exclude_radius=radius
+            )
+            for qs in sets
+        ]
     if not tables:
         return ATTEMPT_SCHEMA.empty_table()
     return pa.concat_tables(tables)

@@ -23,12 +23,12 @@ import numpy as np
 import pyarrow as pa
 
 from care.maps import MapKind
-from evaluate.config import EvalConfig, grid_protocol
+from evaluate.config import EvalConfig
 from evaluate.discrimination import Discrimination, rule_discrimination, second_attempt_set
-from evaluate.job import Scene
-from evaluate.success import QuerySet, grid_queries, instance_queries, scene_point_labels
+from evaluate.job import Scene, scene_query_sets
+from evaluate.success import QuerySet
 from query.confidence import log_confidence
-from query.map import REPLAN_COLUMNS, load_map
+from query.map import REPLAN_COLUMNS
 from replan.strategies import Criterion, StrategyName
 from runtime.threads import Work, threads_for
 
@@ -78,29 +78,12 @@ def _query_set_counts(
 
 
 def _scene_counts(scene: Scene, config: EvalConfig) -> dict[_Key, Discrimination]:
-    gt = scene.gt.load(scene.recording, scene.store)
     totals: dict[_Key, Discrimination] = {}
-
-    def add(kind: MapKind, protocol: str, counts: dict) -> None:
-        for (rule, criterion, k), d in counts.items():
-            key = _Key(kind, protocol, rule, criterion, k)
-            totals[key] = totals[key] + d if key in totals else d
-
-    for kind in config.maps:
-        cmap = load_map(scene.store, kind)
-        if kind == MapKind.INSTANCES:
-            labels = scene_point_labels(scene.store, gt, config.label_distance)
-            for protocol in config.protocols:
-                for qs in instance_queries(
-                    cmap, gt, labels, protocol=protocol, rooms=config.rooms,
-                    iou_threshold=config.iou_threshold,
-                ):  # fmt: skip
-                    add(kind, protocol, _query_set_counts(qs, kind, config, 0.0))
-        else:
-            sets = grid_queries(cmap, gt, rooms=config.rooms, radius=config.success_radius)
-            for radius in config.exclude_radii:
-                for qs in sets:
-                    add(kind, grid_protocol(radius), _query_set_counts(qs, kind, config, radius))
+    for kind, _, protocol, radius, sets in scene_query_sets(scene, config):
+        for qs in sets:
+            for (rule, criterion, k), d in _query_set_counts(qs, kind, config, radius).items():
+                key = _Key(kind, protocol, rule, criterion, k)
+                totals[key] = totals[key] + d if key in totals else d
     return totals
 
 
