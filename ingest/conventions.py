@@ -48,6 +48,8 @@ __all__ = [
     "BODY_FROM_OPTICAL",
     "CameraConvention",
     "ConventionFound",
+    "PoseConvention",
+    "QuaternionOrder",
     "find_convention",
     "optical_pose",
 ]
@@ -60,6 +62,25 @@ class CameraConvention(StrEnum):
     """x right, y down, z forward (``*_optical_frame``): the images' own axes."""
     BODY = "body"
     """x forward, y left, z up (``camera_link``): a body's axes."""
+
+
+class PoseConvention(StrEnum):
+    """Which way a dataset's poses file maps points (a folder's ``--pose-convention``)."""
+
+    CAMERA_TO_WORLD = "camera-to-world"
+    """The camera's pose in the world (TUM, ScanNet, Redwood, Replica): a camera point in,
+    a world point out."""
+    WORLD_TO_CAMERA = "world-to-camera"
+    """The inverse, an extrinsic matrix (COLMAP, many SfM exports): a world point in."""
+
+
+class QuaternionOrder(StrEnum):
+    """The order of a pose line's quaternion (a folder's ``--quaternion-order``)."""
+
+    XYZW = "xyzw"
+    """TUM's trajectory format, ROS, scipy: ``qx qy qz qw``."""
+    WXYZ = "wxyz"
+    """Eigen's constructor, COLMAP, many SLAM systems' own logs: ``qw qx qy qz``."""
 
 
 BODY_FROM_OPTICAL = np.array(

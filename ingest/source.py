@@ -42,7 +42,14 @@ from care.config import member
 from care.errors import IngestError
 from care.frames import DEFAULT_WORLD_FRAME, Frame
 from ingest import decode
-from ingest.conventions import CameraConvention, ConventionFound, find_convention, optical_pose
+from ingest.conventions import (
+    CameraConvention,
+    ConventionFound,
+    PoseConvention,
+    QuaternionOrder,
+    find_convention,
+    optical_pose,
+)
 from ingest.folders.base import DatasetLayout
 from ingest.intrinsics import CameraIntrinsics
 from ingest.readers import RecordingReader, TopicInfo, open_reader
@@ -132,8 +139,25 @@ class ReadOptions:
     format: DatasetLayout | None = None
     """Read a dataset folder as this layout; default the one its file names match (a
     recording takes none)."""
+    pose_convention: PoseConvention | None = None
+    """A dataset folder's poses: camera-to-world (the datasets' convention) or
+    world-to-camera (extrinsics); default the layout's own."""
+    quaternion_order: QuaternionOrder | None = None
+    """The quaternion order of a folder's pose lines: xyzw (TUM's format) or wxyz; default
+    the layout's own."""
+    depth_scale: float | None = None
+    """The depth value of one metre (1000: millimetres), instead of what the dataset
+    layout or the depth encoding says."""
+    accept_geometry: bool = False
+    """Keep the geometry as given when the views disagree on where the surfaces are (the
+    consistency check refuses it otherwise, naming the likelier reading)."""
 
-    HOW: ClassVar[tuple[str, ...]] = ("max_translation", "max_speed", "depth_registered")
+    HOW: ClassVar[tuple[str, ...]] = (
+        "max_translation",
+        "max_speed",
+        "depth_registered",
+        "accept_geometry",
+    )
     """Fields that only refuse a recording: a store they let through is the same whatever
     their values, so they are left out of its fingerprint and recorded config (stores built
     before they existed stay current)."""
@@ -146,6 +170,18 @@ class ReadOptions:
             object.__setattr__(self, "camera_convention", convention)
         if isinstance(self.intrinsics, str):
             object.__setattr__(self, "intrinsics", CameraIntrinsics.from_text(self.intrinsics))
+        for name, enum in (
+            ("pose_convention", PoseConvention),
+            ("quaternion_order", QuaternionOrder),
+        ):
+            value = getattr(self, name)
+            if value is not None:
+                object.__setattr__(self, name, member(enum, value, IngestError, name))
+        if self.depth_scale is not None and not (
+            math.isfinite(self.depth_scale) and self.depth_scale > 0
+        ):
+            msg = f"read options: --depth-scale {self.depth_scale} must be a finite positive number (the depth value of one metre)."
+            raise IngestError(msg)
         if self.intrinsics is not None and self.camera_info is not None:
             msg = "read options: --intrinsics replaces the camera info topic; pass either it or --camera-info, not both."
             raise IngestError(msg)
@@ -164,13 +200,19 @@ class ReadStats:
     rgb_messages: int = 0
     frames: int = 0
     dropped: Counter[str] = field(default_factory=Counter)
+    lost_pixels: Counter[str] = field(default_factory=Counter)
+    """Valid depth pixels of kept views that no view holds, by reason (e.g. depth outside
+    the colour image's field of view when it is resampled into the colour camera)."""
 
     def as_dict(self) -> dict[str, Any]:
-        return {
+        counts: dict[str, Any] = {
             "rgb_messages": self.rgb_messages,
             "frames": self.frames,
             "dropped": dict(self.dropped),
         }
+        if self.lost_pixels:
+            counts["lost_pixels"] = dict(sorted(self.lost_pixels.items()))
+        return counts
 
 
 class RecordingFrames:
