@@ -452,6 +452,10 @@ class StoreMeta:
     vocabulary: tuple[str, ...] = ()
     counts: dict[str, Any] = dataclasses.field(default_factory=dict)
     """Frames read, written and dropped (by reason)."""
+    geometry: dict[str, Any] | None = None
+    """What the geometric consistency check of ingest found (:mod:`ingest.consistency`):
+    its status, the agreement of reprojected depth between views, the likelier reading
+    where one was found; None: a store made before the check."""
     config: dict[str, Any] = dataclasses.field(default_factory=dict)
     """The ingest options that shape the store (not where its inputs and outputs lie)."""
     tables: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)

@@ -51,7 +51,14 @@ def _verify(path: Path) -> tuple[list[str], str]:
         evaluated = " and its evaluation" if (path / "eval").is_dir() else ""
         return problems, f"{path}: ok ({len(stores)} stores{evaluated} verified)"
     tables = sorted(p.name for p in Path(path).glob("*.parquet"))
-    return _store_problems(path), f"{path}: ok ({len(tables)} tables verified)"
+    problems = _store_problems(path)
+    ok = f"{path}: ok ({len(tables)} tables verified)"
+    if not problems:
+        from care_cli.summary import geometry_line
+
+        geometry = geometry_line(path)
+        ok += "" if geometry is None else "\n" + geometry
+    return problems, ok
 
 
 def check(

@@ -81,7 +81,7 @@ def ingest(
 ) -> None:
     """Read a robot recording or a dataset folder into a feature store (views, poses,
     features)."""
-    from care.store import Store
+    from care_cli.summary import geometry_line, ingest_line
     from ingest.pipeline import run_ingest
 
     config = job.config(
@@ -90,15 +90,9 @@ def ingest(
         select=selection.config(),
     )
     path = run_ingest(recording, out, config, run=run.config())
-    store = Store(path)
-    counts = store.meta.counts
-    dropped = counts.get("dropped") or {}
-    skipped = counts.get("skipped") or {}
-    typer.echo(
-        f"{path}: {store.num_views} views from {counts.get('rgb_messages', '?')} colour images"
-        + (f", dropped {dropped}" if dropped else "")
-        + (f", skipped {skipped}" if skipped else "")
-    )
+    for line in (ingest_line(path), geometry_line(path)):
+        if line is not None:
+            typer.echo(line)
 
 
 @read_options
@@ -136,9 +130,12 @@ def topics(
     width = max((len(n) for n in listed), default=0)
     for info in listed.values():
         typer.echo(f"{info.name:<{width}}  {info.msgtype:<36} {info.count:>7}")
+    from ingest.consistency import topics_lines
+
     try:
         with RecordingFrames(recording, options) as frames:
             chosen = frames.describe()
+            geometry = topics_lines(recording, frames, options)
     except CareError as err:
         typer.echo(f"auto-detection: {err}")
         raise typer.Exit(1) from err
@@ -152,16 +149,20 @@ def topics(
     axes = chosen.get("camera_convention")
     if axes:
         typer.echo(f"  camera axes  {axes['convention']} ({axes['reason']})")
+    for line in geometry:
+        typer.echo(line)
 
 
 def _folder_topics(folder: Path, options: ReadOptions) -> None:
     """``care topics`` of a dataset folder: the layout, its views (and those it leaves out),
     its files, camera and frames."""
+    from ingest.consistency import topics_lines
     from ingest.folders.frames import FolderFrames
 
     with FolderFrames(folder, options) as frames:
         chosen = frames.describe()
         stats = frames.stats
+        geometry = topics_lines(folder, frames, options)
     layout = dict(chosen["topics"])
     kind, views = layout.pop("layout"), layout.pop("views")
     dropped = dict(stats.dropped)
@@ -173,6 +174,8 @@ def _folder_topics(folder: Path, options: ReadOptions) -> None:
     for key, value in layout.items():
         typer.echo(f"  {key:<12} {value}")
     typer.echo(f"  world frame  {chosen['world_frame']}, camera frame {chosen['camera_frame']}")
+    for line in geometry:
+        typer.echo(line)
 
 
 def register(app: typer.Typer) -> None:

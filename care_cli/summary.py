@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["frame_line", "ingest_line", "store_lines"]
+__all__ = ["frame_line", "geometry_line", "ingest_line", "store_lines"]
 
 
 def ingest_line(store: Path) -> str:
@@ -23,6 +23,18 @@ def ingest_line(store: Path) -> str:
     )
 
 
+def geometry_line(store: Path) -> str | None:
+    """What ingest's geometric consistency check found (None for a store made before it)."""
+    from care.store import Store
+    from ingest.consistency import describe_verdict
+
+    found = Store(store).meta.geometry
+    if not found:
+        return None
+    kept = " (kept as given: --accept-geometry)" if found.get("accepted") else ""
+    return f"{store}: {describe_verdict(found)}{kept}"
+
+
 def frame_line(store: Path) -> str:
     """The frame ``map.yaml`` and goals are in, for the robot stack (``care frame`` says how
     to publish it where the recording's TF tree lacks it)."""
@@ -38,7 +50,11 @@ def store_lines(store: Path) -> list[str]:
     from care.store import Store, read_table
 
     opened = Store(store)
-    lines = [ingest_line(store), f"{store}: {opened.map_frame.describe()}"]
+    lines = [ingest_line(store)]
+    geometry = geometry_line(store)
+    if geometry is not None:
+        lines.append(geometry)
+    lines.append(f"{store}: {opened.map_frame.describe()}")
     for table, what in (("cells", "grid cells"), ("instances", "instances")):
         path = opened.table_path(table)
         if path.is_file():

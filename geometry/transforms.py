@@ -8,12 +8,25 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = [
+    "BODY_FROM_OPTICAL",
     "backproject",
     "matrix_to_quaternion",
     "project",
     "quaternion_to_matrix",
     "transform_points",
 ]
+
+BODY_FROM_OPTICAL = np.array(
+    [
+        [0.0, 0.0, 1.0, 0.0],
+        [-1.0, 0.0, 0.0, 0.0],
+        [0.0, -1.0, 0.0, 0.0],
+        [0.0, 0.0, 0.0, 1.0],
+    ]
+)
+"""(4, 4) ``body_from_optical`` of one camera: its columns are the optical axes in body
+axes (optical x = body -y, optical y = body -z, optical z = body x), REP 103's
+``camera_link`` -> ``camera_optical_frame`` rotation."""
 
 
 def quaternion_to_matrix(q: np.ndarray) -> np.ndarray:

@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from care.errors import IngestError
+from geometry.transforms import BODY_FROM_OPTICAL
 
 __all__ = [
     "BODY_FROM_OPTICAL",
@@ -82,18 +83,6 @@ class QuaternionOrder(StrEnum):
     WXYZ = "wxyz"
     """Eigen's constructor, COLMAP, many SLAM systems' own logs: ``qw qx qy qz``."""
 
-
-BODY_FROM_OPTICAL = np.array(
-    [
-        [0.0, 0.0, 1.0, 0.0],
-        [-1.0, 0.0, 0.0, 0.0],
-        [0.0, -1.0, 0.0, 0.0],
-        [0.0, 0.0, 0.0, 1.0],
-    ]
-)
-"""(4, 4) ``body_from_optical`` of one camera: its columns are the optical axes in body
-axes (optical x = body -y, optical y = body -z, optical z = body x), REP 103's
-``camera_link`` -> ``camera_optical_frame`` rotation."""
 
 _OPTICAL_WORD = "optical"
 _BODY_NAME_ENDINGS = ("_link", "body", "base_footprint")

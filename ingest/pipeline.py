@@ -44,6 +44,12 @@ from care.outputs import (
     output_lock,
 )
 from care.store import META_FILE, SCHEMA_VERSION, Store, StoreMeta, StoreWriter
+from ingest.consistency import (
+    GeometrySampler,
+    check_geometry,
+    refuse_unless_consistent,
+    source_reading,
+)
 from ingest.folders.frames import Frames, folder_identity, open_frames
 from ingest.select import FrameSelection, FrameSelector
 from ingest.source import ReadOptions
@@ -344,6 +350,7 @@ def _build(
     try:
         with StoreWriter(job.out, info, encoding=config.store_encoding) as writer:
             selector = FrameSelector(config.select)
+            sampler = GeometrySampler()
             _stream(
                 frames,
                 writer,
@@ -353,10 +360,20 @@ def _build(
                 bar,
                 selector,
                 job.run.read_ahead,
+                sampler,
+            )
+            # before anything is committed: geometry the views disagree on is refused
+            reading = source_reading(recording, frames, config.read)
+            verdict = check_geometry(sampler, reading)
+            refuse_unless_consistent(
+                verdict, reading, sampler.K, accept=config.read.accept_geometry
             )
             if text is not None:
                 writer.set_text(vocab, text)
             meta = _meta(job, frames, source, fp, vocab, encoder)
+            meta["geometry"] = verdict.as_json()
+            if not verdict.passed:  # kept as given, as asked (--accept-geometry)
+                meta["geometry"]["accepted"] = True
             meta["counts"]["skipped"] = dict(sorted(selector.skipped.items()))
             writer.commit(
                 {**meta, "request_fingerprint": request},
@@ -384,6 +401,7 @@ def _stream(
     bar: tqdm,
     selector: FrameSelector,
     depth: int,
+    sampler: GeometrySampler,
 ) -> None:
     """Frames to the store: read and decoded up to ``depth`` ahead on a background thread
     (:func:`runtime.readahead.read_ahead`) while this thread encodes and writes them, so
@@ -410,6 +428,7 @@ def _stream(
                 continue
             if logger is not None:
                 logger.log(writer.num_views + len(batch), frame)
+            sampler.add(frame)
             batch.append(frame)
             if len(batch) >= max(1, batch_size):
                 flush()
