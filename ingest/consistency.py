@@ -132,21 +132,20 @@ def source_reading(path: Path, frames: Any, options: Any) -> SourceReading:
     read ``options``: what a verdict's fix is phrased against."""
     described = frames.describe()
     topics = described.get("topics") or {}
-    folder = "layout" in topics
+    layout = getattr(frames, "layout", None)  # a dataset folder's (FolderFrames)
     scale = options.depth_scale
-    if scale is None and folder:
+    if scale is None and layout is not None:
         scale = topics.get("depth_scale")
     axes = described.get("camera_convention") or {}
+    camera = CameraConvention(axes["convention"]) if axes.get("convention") else None
     return SourceReading(
         path=Path(path),
-        folder=folder,
-        quaternion_lines=bool(getattr(frames, "quaternion_lines", False)),
+        folder=layout is not None,
+        quaternion_lines=layout is not None and layout.pose_lines,
         depth_scale=None if scale is None else float(scale),
-        pose_convention=options.pose_convention,
-        quaternion_order=options.quaternion_order,
-        camera_convention=CameraConvention(axes["convention"])
-        if axes.get("convention")
-        else options.camera_convention,
+        pose_convention=None if layout is None else layout.pose_convention(),
+        quaternion_order=None if layout is None else layout.quaternion_order(),
+        camera_convention=camera or options.camera_convention,
     )
 
 

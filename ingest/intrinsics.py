@@ -1,7 +1,8 @@
 """Colour camera intrinsics given by hand, for recordings without a (right) camera info.
 
-``--intrinsics`` takes either four numbers, ``fx,fy,cx,cy`` (pixels, a pinhole camera with
-rectified images), or a calibration file:
+``--intrinsics`` takes four numbers, ``fx,fy,cx,cy`` (pixels, a pinhole camera with
+rectified images), the name of a published camera (:data:`NAMED_CAMERAS`: ``primesense``,
+``freiburg1``, ``freiburg2``, ``freiburg3``), or a calibration file:
 
 - a ROS camera_info YAML as ``camera_calibration`` and ``camera_info_manager`` write it
   (``image_width``, ``image_height``, ``camera_matrix.data`` row-major,
@@ -18,6 +19,7 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import dataclass
+from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
@@ -26,15 +28,30 @@ import numpy as np
 from care.errors import IngestError
 from ingest.undistort import Distortion, parse_distortion
 
-__all__ = ["CameraIntrinsics"]
+__all__ = ["NAMED_CAMERAS", "CameraIntrinsics", "NamedCamera"]
 
 _JSON = ".json"
 _YAML_SUFFIXES = (".yaml", ".yml")
 _FLAG = "--intrinsics"
 _FORMS = (
-    "fx,fy,cx,cy in pixels, or a camera_info YAML/JSON file (image_width, image_height, "
-    "camera_matrix, distortion_model, distortion_coefficients) or an Open3D intrinsics JSON"
+    "fx,fy,cx,cy in pixels, a camera's name (primesense, freiburg1, freiburg2, freiburg3), "
+    "or a camera_info YAML/JSON file (image_width, image_height, camera_matrix, "
+    "distortion_model, distortion_coefficients) or an Open3D intrinsics JSON"
 )
+
+
+class NamedCamera(StrEnum):
+    """A published camera ``--intrinsics`` takes by name (:data:`NAMED_CAMERAS`)."""
+
+    PRIMESENSE = "primesense"
+    """The PrimeSense / Kinect default: Open3D's ``PrimeSenseDefault`` and the ROS default
+    that TUM RGB-D's own conversion code applies to every sequence."""
+    FREIBURG1 = "freiburg1"
+    """TUM RGB-D's calibrated colour camera of the freiburg1 Kinect."""
+    FREIBURG2 = "freiburg2"
+    """TUM RGB-D's calibrated colour camera of the freiburg2 Kinect."""
+    FREIBURG3 = "freiburg3"
+    """TUM RGB-D's freiburg3 Asus Xtion (its images were rectified before release: no D)."""
 
 
 @dataclass(frozen=True)
@@ -80,7 +97,11 @@ class CameraIntrinsics:
 
     @classmethod
     def from_text(cls, text: str) -> CameraIntrinsics:
-        """``fx,fy,cx,cy`` or a calibration file's path (the forms in the module's doc)."""
+        """``fx,fy,cx,cy``, a camera's name or a calibration file's path (the forms in the
+        module's doc)."""
+        named = {str(name): camera for name, camera in NAMED_CAMERAS.items()}
+        if text.strip().lower() in named:
+            return named[text.strip().lower()]
         path = Path(text).expanduser()
         if path.suffix.lower() in (_JSON, *_YAML_SUFFIXES) or path.is_file():
             return cls.from_file(path)
@@ -139,3 +160,23 @@ def _matrix_data(entry: Any) -> list[float]:
     """The values of a camera_info YAML matrix (``{rows, cols, data}``) or a plain list."""
     values = entry["data"] if isinstance(entry, dict) else entry
     return [float(v) for v in values]
+
+
+_TUM_SIZE = (640, 480)
+NAMED_CAMERAS: dict[NamedCamera, CameraIntrinsics] = {
+    NamedCamera.PRIMESENSE: CameraIntrinsics(525.0, 525.0, 319.5, 239.5, *_TUM_SIZE),
+    NamedCamera.FREIBURG1: CameraIntrinsics(
+        517.3, 516.5, 318.6, 255.3, *_TUM_SIZE,
+        "plumb_bob", (0.2624, -0.9531, -0.0054, 0.0026, 1.1633),
+    ),
+    NamedCamera.FREIBURG2: CameraIntrinsics(
+        520.9, 521.0, 325.1, 249.7, *_TUM_SIZE,
+        "plumb_bob", (0.2312, -0.7849, -0.0033, -0.0001, 0.9172),
+    ),
+    NamedCamera.FREIBURG3: CameraIntrinsics(535.4, 539.2, 320.1, 247.6, *_TUM_SIZE),
+}  # fmt: skip
+"""The cameras ``--intrinsics`` takes by name, at 640x480: the PrimeSense default
+(fx = fy = 525, cx = 319.5, cy = 239.5) and TUM RGB-D's calibrated colour cameras
+(cvg.cit.tum.de/data/datasets/rgbd-dataset/file_formats, "Intrinsic Camera Calibration of
+the Kinect"; D is OpenCV's k1 k2 p1 p2 k3). The one source of these numbers: the TUM and
+Redwood layouts take theirs from here."""

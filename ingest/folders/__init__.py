@@ -4,7 +4,9 @@ per :class:`~ingest.folders.base.DatasetLayout`, found by the names a folder hol
 - :mod:`ingest.folders.base`: the layout interface and its records,
 - :mod:`ingest.folders.files`: reading a folder's images and text files, one-line errors,
 - :mod:`ingest.folders.generic`, :mod:`~ingest.folders.redwood`, :mod:`~ingest.folders.tum`,
-  :mod:`~ingest.folders.replica`, ...: one module per layout,
+  :mod:`~ingest.folders.eth3d`, :mod:`~ingest.folders.bonn`, :mod:`~ingest.folders.sevenscenes`,
+  :mod:`~ingest.folders.replica`, ...: one module per layout (TUM's variants, ETH3D and Bonn,
+  subclass it and mark their folders, so one folder matches one layout),
 - :mod:`ingest.folders.frames`: a folder as the stream of frames ingest reads
   (:class:`~ingest.folders.frames.FolderFrames`, the counterpart of a recording's
   :class:`ingest.source.RecordingFrames`).
@@ -19,11 +21,14 @@ from pathlib import Path
 
 from care.errors import IngestError
 from ingest.folders.base import DatasetLayout, FolderLayout
+from ingest.folders.bonn import BonnLayout
+from ingest.folders.eth3d import Eth3dLayout
 from ingest.folders.generic import GenericLayout
 from ingest.folders.matterport import MatterportLayout
 from ingest.folders.redwood import RedwoodLayout
 from ingest.folders.replica import ReplicaLayout
 from ingest.folders.scannet import ScanNetLayout
+from ingest.folders.sevenscenes import SevenScenesLayout
 from ingest.folders.tum import TumLayout
 
 __all__ = ["LAYOUTS", "DatasetLayout", "FolderLayout", "detect_layout", "is_dataset_folder"]
@@ -34,8 +39,11 @@ LAYOUTS: dict[DatasetLayout, type[FolderLayout]] = {
     DatasetLayout.SCANNET: ScanNetLayout,
     DatasetLayout.REPLICA: ReplicaLayout,
     DatasetLayout.TUM: TumLayout,
+    DatasetLayout.ETH3D: Eth3dLayout,
+    DatasetLayout.BONN: BonnLayout,
     DatasetLayout.REDWOOD: RedwoodLayout,
     DatasetLayout.MATTERPORT: MatterportLayout,
+    DatasetLayout.SEVEN_SCENES: SevenScenesLayout,
     DatasetLayout.GENERIC: GenericLayout,
 }
 """Layout class by :class:`DatasetLayout` (what ``--format`` names)."""

@@ -19,10 +19,13 @@ from PIL import Image, UnidentifiedImageError
 
 from care.errors import IngestError
 from geometry.transforms import quaternion_to_matrix
+from ingest.conventions import QuaternionOrder
+from ingest.intrinsics import NAMED_CAMERAS, CameraIntrinsics, NamedCamera
 
 __all__ = [
     "DEPTH_MILLIMETRES",
     "IMAGE_SUFFIXES",
+    "MAX_STAMP_SECONDS",
     "PINHOLE_KEYS",
     "PRIMESENSE",
     "Intrinsics",
@@ -42,11 +45,17 @@ DEPTH_MILLIMETRES = 1000.0
 """Depth value of one metre in millimetre PNGs (Redwood, Open3D, our generic layout)."""
 PINHOLE_KEYS = ("fx", "fy", "cx", "cy")
 """The pinhole parameters (pixels) a camera file names, as :class:`Intrinsics` takes them."""
-PRIMESENSE = {"fx": 525.0, "fy": 525.0, "cx": 319.5, "cy": 239.5, "width": 640, "height": 480}
-"""The PrimeSense / Kinect default camera: Open3D's ``PrimeSenseDefault`` and the ROS default
-that TUM's conversion code applies to every sequence."""
+PRIMESENSE = NAMED_CAMERAS[NamedCamera.PRIMESENSE]
+"""The PrimeSense / Kinect default camera (Open3D's ``PrimeSenseDefault``), as
+:data:`ingest.intrinsics.NAMED_CAMERAS` states it."""
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 """Colour image files a folder may hold (Open3D's reconstruction system reads the first two)."""
+MAX_STAMP_SECONDS = 1e11
+"""Largest stamp, in seconds, a dataset's text file may hold (the year 5138): epoch
+nanoseconds (1.7e18) or microseconds (1.7e15) written where seconds belong lie far above."""
+_SIXTEEN_BIT_GREY = ("I;16", "I;16B", "I;16L", "I;16N", "I")
+"""Pillow's modes of a 16-bit single-channel PNG; ``convert("RGB")`` clips them at 255."""
+_UINT16_MAX = 65535
 
 
 def natural_key(path: Path) -> tuple[Any, ...]:
@@ -80,30 +89,49 @@ def _open(path: Path) -> Image.Image:
     return image
 
 
-def read_colour(path: Path) -> np.ndarray:
-    """(H, W, 3) uint8 RGB of a colour image file."""
-    with _open(path) as image:
+def _rgb(image: Image.Image, path: Path) -> np.ndarray:
+    """(H, W, 3) uint8 RGB of an opened image. A 16-bit grey image (``I;16``; a PNG read as
+    ``I`` holds the same 0..65535) is scaled to 8 bit, ``round(v * 255 / 65535)``, and
+    replicated to three channels: Pillow's own conversion clips every value above 255, which
+    makes such an image all white."""
+    if image.mode not in _SIXTEEN_BIT_GREY:
         return np.asarray(image.convert("RGB"))
+    values = np.asarray(image).astype(np.int64)
+    if values.size and (values.min() < 0 or values.max() > _UINT16_MAX):
+        msg = f"{path}: a {image.mode} colour image with values {values.min()}..{values.max()}, beyond 16 bits; write the colour images as 8-bit RGB."
+        raise IngestError(msg)
+    grey = np.round(values * (255 / _UINT16_MAX)).astype(np.uint8)
+    return np.repeat(grey[..., None], 3, axis=-1)
+
+
+def read_colour(path: Path) -> np.ndarray:
+    """(H, W, 3) uint8 RGB of a colour image file (16-bit grey scaled, :func:`_rgb`)."""
+    with _open(path) as image:
+        return _rgb(image, path)
 
 
 def read_colour_kept(path: Path) -> tuple[np.ndarray, bytes | None]:
     """:func:`read_colour`, and the file's own bytes when it is a JPEG: the store keeps
     those instead of encoding the image again (:attr:`care.frames.Frame.rgb_jpeg`)."""
     with _open(path) as image:
-        rgb = np.asarray(image.convert("RGB"))
+        rgb = _rgb(image, path)
         jpeg = image.format == "JPEG"
     return rgb, path.read_bytes() if jpeg else None
 
 
-def read_depth(path: Path, scale: float) -> np.ndarray:
-    """(H, W) float32 metres of a 16-bit depth PNG whose value ``scale`` is one metre."""
+def read_depth(path: Path, scale: float, invalid: int | None = None) -> np.ndarray:
+    """(H, W) float32 metres of a 16-bit depth PNG whose value ``scale`` is one metre; 0, and
+    ``invalid`` where a dataset marks missing depth with another value, read as no depth."""
     with _open(path) as image:
         mode = image.mode
         values = np.asarray(image)
     if values.ndim != 2 or values.dtype.kind not in "ui" or mode in ("L", "P", "1"):
         msg = f"{path}: a {mode} image of shape {values.shape}, not a 16-bit single-channel depth image; the folder's depth/ holds something else (check the layout with care topics)."
         raise IngestError(msg)
-    return (values.astype(np.float32) / np.float32(scale)).astype(np.float32)
+    depth = (values.astype(np.float32) / np.float32(scale)).astype(np.float32)
+    if invalid is not None:
+        depth[values == invalid] = 0.0
+    return depth
 
 
 def table(path: Path, columns: int | tuple[int, ...], what: str) -> list[tuple[int, list[str]]]:
@@ -152,20 +180,27 @@ def stamp_ns(text: str, path: Path, line: int) -> int:
     if not value.is_finite():
         msg = f"{path}: line {line}: time {text!r} is not finite; fix or re-copy the file."
         raise IngestError(msg)
+    if abs(value) > MAX_STAMP_SECONDS:
+        msg = f"{path}: line {line}: time {text} is beyond {MAX_STAMP_SECONDS:.0e} s (the year 5138): the stamps look like nanoseconds (or microseconds); write seconds (e.g. 1305031102.175304)."
+        raise IngestError(msg)
     return int((value * 1_000_000_000).to_integral_value())
 
 
-def pose_from_tum(values: np.ndarray, path: Path, line: int) -> np.ndarray:
-    """(4, 4) pose of ``tx ty tz qx qy qz qw``; non-finite values give a non-finite pose (a
-    view the reader drops as unposed), a zero quaternion is an error (no rotation at all)."""
+def pose_from_tum(
+    values: np.ndarray, path: Path, line: int, order: QuaternionOrder = QuaternionOrder.XYZW
+) -> np.ndarray:
+    """(4, 4) pose of ``tx ty tz`` and a quaternion in ``order`` (TUM's ``qx qy qz qw`` by
+    default); non-finite values give a non-finite pose (a view the reader drops as unposed),
+    a zero quaternion is an error (no rotation at all)."""
     pose = np.full((4, 4), np.nan)
     if not np.isfinite(values).all():
         return pose
-    if np.linalg.norm(values[3:]) < 1e-6:
+    quaternion = values[3:] if order is QuaternionOrder.XYZW else np.roll(values[3:], -1)
+    if np.linalg.norm(quaternion) < 1e-6:
         msg = f"{path}: line {line}: quaternion {values[3:].tolist()} is zero, not a rotation; fix or re-copy the file."
         raise IngestError(msg)
     pose = np.eye(4)
-    pose[:3, :3] = quaternion_to_matrix(values[3:])
+    pose[:3, :3] = quaternion_to_matrix(quaternion)
     pose[:3, 3] = values[:3]
     return pose
 
@@ -191,15 +226,31 @@ class Intrinsics:
                  height: int = 0, source: str) -> None:  # fmt: skip
         self.K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], np.float64)
         self.width, self.height, self.source = int(width), int(height), source
+        self._first: tuple[int, int, Path] | None = None
         if not (np.isfinite(self.K).all() and fx > 0 and fy > 0):
             msg = f"{source}: intrinsics fx {fx}, fy {fy}, cx {cx}, cy {cy} are not a camera (focal lengths must be finite and positive); fix the file."
             raise IngestError(msg)
 
+    @classmethod
+    def of(cls, camera: CameraIntrinsics, source: str) -> Intrinsics:
+        """The pinhole part of a :class:`ingest.intrinsics.CameraIntrinsics` (its lens is
+        the caller's to keep)."""
+        return cls(camera.fx, camera.fy, camera.cx, camera.cy, width=camera.width,
+                   height=camera.height, source=source)  # fmt: skip
+
     def check_size(self, width: int, height: int, image: Path, fix: str) -> None:
         """Refuse images of another size than the intrinsics are for: K would put every
-        pixel's ray in the wrong place. ``fix`` names the file that gives the right ones."""
+        pixel's ray in the wrong place. ``fix`` names the file that gives the right ones.
+        Intrinsics for any size (none stated) take the first image's: one K cannot be the
+        camera of two image sizes, so a later image of another size is refused too."""
         if self.width and self.height and (width, height) != (self.width, self.height):
             msg = f"{image}: {width}x{height} image, but the intrinsics ({self.source}) are for {self.width}x{self.height}; {fix}."
+            raise IngestError(msg)
+        if self._first is None:
+            self._first = (width, height, image)
+        first_w, first_h, first = self._first
+        if (width, height) != (first_w, first_h):
+            msg = f"{image}: {width}x{height} image, but the first view {first.name} is {first_w}x{first_h} and the intrinsics ({self.source}) state no size; all views share one camera: resize the images to one size, or state the size the camera is for ({fix})."
             raise IngestError(msg)
 
     def as_json(self) -> dict[str, Any]:

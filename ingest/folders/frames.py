@@ -8,11 +8,15 @@ recording, with the same surface (a context manager; ``world_frame``, ``camera_f
 alike. What a recording needs (topics, TF, camera info) a layout gives from its own files.
 
 Of :class:`ingest.source.ReadOptions` a folder takes ``format``, ``max_dt`` (where a layout
-associates by time) and the pose bounds ``max_translation`` and ``max_speed``; any other
-option names a topic or frame only a recording has, and is refused in one line rather than
-ignored. The pose bounds are checked here with messages that name the view's image and the
-layout's poses file (a recording's name its topics and TF, and point at ``--pose-source``,
-which a folder has not).
+associates by time), the pose bounds ``max_translation`` and ``max_speed``,
+``accept_geometry``, and what the user states about the folder's camera and poses
+(``intrinsics``, ``depth_scale``, ``pose_convention``, ``quaternion_order``,
+``camera_convention``: :class:`ingest.folders.base.FolderOptions`, applied by the layouts'
+common base); any other option names a topic or frame only a recording has, and is refused
+in one line rather than ignored. The pose bounds are checked here with messages that name
+the view's image and the layout's poses file (a recording's name its topics and TF, and
+point at ``--pose-source``, which a folder has not). Lens distortion (a TUM sensor's, or a
+given ``--intrinsics``') is removed here, from colour and depth alike, whatever the layout.
 """
 
 from __future__ import annotations
@@ -20,7 +24,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Iterator
-from dataclasses import asdict, fields
+from dataclasses import asdict, fields, replace
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -30,9 +34,9 @@ import numpy as np
 from care.errors import IngestError
 from care.frames import DEFAULT_CAMERA_FRAME, Frame
 from ingest.folders import LAYOUTS, DatasetLayout, FolderLayout, detect_layout
-from ingest.folders.base import FolderView
+from ingest.folders.base import FolderOptions, FolderView
 from ingest.source import ReadOptions, ReadStats, RecordingFrames
-from ingest.undistort import Distortion
+from ingest.undistort import Distortion, undistort
 
 __all__ = [
     "FOLDER_OPTIONS",
@@ -43,7 +47,14 @@ __all__ = [
     "resolve_layout",
 ]
 
-FOLDER_OPTIONS = ("format", "max_dt", "max_translation", "max_speed")
+FOLDER_OPTIONS = (
+    "format",
+    "max_dt",
+    "max_translation",
+    "max_speed",
+    "accept_geometry",
+    *(f.name for f in fields(FolderOptions)),
+)
 """The :class:`ingest.source.ReadOptions` fields a dataset folder takes."""
 _RIGID_TOLERANCE = 1e-3
 """Largest deviation of a pose's rotation from orthonormal (and of its last row from
@@ -99,8 +110,12 @@ def folder_identity(path: Path, options: ReadOptions) -> dict[str, Any] | None:
     kind = resolve_layout(path, options.format)
     if kind is None:
         return None
-    layout = LAYOUTS[kind](Path(path), max_dt=options.max_dt)
-    return {"kind": str(kind), **layout.describe()}
+    return {"kind": str(kind), **open_layout(path, kind, options).identity()}
+
+
+def open_layout(path: Path, kind: DatasetLayout, options: ReadOptions) -> FolderLayout:
+    """The layout ``kind`` of ``path`` with what ``options`` states about the folder."""
+    return LAYOUTS[kind](Path(path), max_dt=options.max_dt, options=FolderOptions.of(options))
 
 
 class FolderFrames:
@@ -128,7 +143,7 @@ class FolderFrames:
             msg = f"{self.path}: not a dataset folder; read it as a recording."
             raise IngestError(msg)
         self.kind = kind
-        layout = LAYOUTS[kind](self.path, max_dt=self.options.max_dt)
+        layout = open_layout(self.path, kind, self.options)
         views = layout.views()
         stamps = [v.stamp_ns for v in views]
         if any(b <= a for a, b in itertools.pairwise(stamps)):
@@ -165,6 +180,12 @@ class FolderFrames:
             raise IngestError(msg)
 
     @property
+    def layout(self) -> FolderLayout | None:
+        """The layout reading the folder (once entered): what it reads the poses, depth and
+        camera with, for the consistency check's fix (:mod:`ingest.consistency`)."""
+        return self._layout
+
+    @property
     def total(self) -> int:
         """Views the folder lists (the progress bar's length)."""
         return len(self._views)
@@ -180,7 +201,7 @@ class FolderFrames:
         return {
             "topics": None
             if layout is None
-            else {"layout": str(self.kind), "views": len(self._views), **layout.describe()},
+            else {"layout": str(self.kind), "views": len(self._views), **layout.identity()},
             "world_frame": self.world_frame,
             "camera_frame": self.camera_frame,
             "label_names": list(self.label_names),
@@ -197,19 +218,33 @@ class FolderFrames:
             if not np.isfinite(view.cam_to_world).all():
                 self.stats.dropped["no_pose"] += 1
                 continue
+            layout.lost_pixels.clear()
             frame = layout.load(view)
             if frame.depth_m.shape != frame.rgb.shape[:2]:
                 msg = f"{view.depth}: depth image is {frame.depth_m.shape[1]}x{frame.depth_m.shape[0]}, its colour image {view.colour.name} {frame.width}x{frame.height}; the {self.kind} layout pairs them pixel by pixel (re-copy the folder, or check --format)."
                 raise IngestError(msg)
+            frame = self._undistorted(frame)
             if not frame.depth_m.any():
                 self.stats.dropped["no_valid_depth"] += 1
                 continue
             self._check_pose(frame, view)
             self.stats.frames += 1
+            self.stats.lost_pixels.update(layout.lost_pixels)
             yield frame
         if self.stats.frames == 0:
             msg = f"{self.path}: none of the {len(self._views)} views has a pose and valid depth ({dict(self.stats.dropped)}); check the folder's poses and depth images."
             raise IngestError(msg)
+
+    def _undistorted(self, frame: Frame) -> Frame:
+        """``frame`` with the layout's lens distortion removed from colour (blended) and
+        depth (nearest: a blend of two depths is a point in mid-air), so their pixels stay
+        paired; the colour file's own JPEG bytes are no longer its pixels."""
+        lens = self._layout.lens() if self._layout is not None else None
+        if lens is None or lens.is_zero:
+            return frame
+        rgb = undistort(frame.rgb, frame.K, lens, blend=True)
+        depth = undistort(frame.depth_m, frame.K, lens, blend=False)
+        return replace(frame, rgb=rgb, depth_m=depth, rgb_jpeg=None)
 
     def _check_pose(self, frame: Frame, view: FolderView) -> None:
         """Refuse a pose no camera can have: not rigid (a file in another convention),

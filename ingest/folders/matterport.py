@@ -48,7 +48,7 @@ import numpy as np
 
 from care.errors import IngestError
 from care.frames import Frame
-from ingest.folders.base import DatasetLayout, FolderLayout, FolderView
+from ingest.folders.base import DatasetLayout, FolderLayout, FolderOptions, FolderView
 from ingest.folders.files import Intrinsics, numbers, read_colour_kept, read_depth, table
 
 __all__ = ["OPENGL_TO_OPTICAL", "MatterportLayout"]
@@ -103,6 +103,7 @@ class MatterportLayout(FolderLayout):
 
     kind: ClassVar[DatasetLayout] = DatasetLayout.MATTERPORT
     world_frame: ClassVar[str] = "matterport_world"
+    own_camera_axes: ClassVar[str] = "an OpenGL camera (y up, looking along -z)"
 
     @classmethod
     def detect(cls, path: Path) -> bool:
@@ -110,8 +111,8 @@ class MatterportLayout(FolderLayout):
         has_conf = cameras is not None and next(cameras.glob(f"*{CONF_SUFFIX}"), None) is not None
         return has_conf and type_folder(path, COLOUR_FOLDER) is not None
 
-    def __init__(self, path: Path, *, max_dt: float) -> None:
-        super().__init__(path, max_dt=max_dt)
+    def __init__(self, path: Path, *, max_dt: float, options: FolderOptions | None = None) -> None:
+        super().__init__(path, max_dt=max_dt, options=options)
         self._camera_of: dict[Path, _Camera] = {}
         self._conf_path: Path | None = None
 
@@ -188,7 +189,8 @@ class MatterportLayout(FolderLayout):
                 continue
             self._camera_of[colour] = camera
             stamp = index * VIEW_PERIOD_NS
-            views.append(FolderView(stamp, colour, depth, pose @ OPENGL_TO_OPTICAL))
+            optical = self.file_pose(pose) @ OPENGL_TO_OPTICAL
+            views.append(FolderView(stamp, colour, depth, optical))
         if not views:
             msg = f"{path}: no scan line has a finite pose and both images; {_DOWNLOAD_HINT}."
             raise IngestError(msg)
@@ -202,12 +204,12 @@ class MatterportLayout(FolderLayout):
             msg = f"{view.colour}: no scan line of {self._conf()} lists this image."
             raise IngestError(msg)
         rgb, jpeg = read_colour_kept(view.colour)
-        depth = read_depth(view.depth, DEPTH_QUARTER_MILLIMETRES)
+        depth = read_depth(view.depth, self.scale(DEPTH_QUARTER_MILLIMETRES))
         if depth.shape != rgb.shape[:2]:
             msg = f"{view.depth}: {depth.shape[1]}x{depth.shape[0]} depth for a {rgb.shape[1]}x{rgb.shape[0]} colour image {view.colour.name}; undistorted depth and colour share one size, re-copy the house."
             raise IngestError(msg)
         source = f"{self._conf().name} line {camera.line}"
-        K = camera.on_image(rgb.shape[0], source).K
+        K = self.camera(camera.on_image(rgb.shape[0], source))[0].K
         return Frame(view.stamp_ns, rgb, depth, K, view.cam_to_world, rgb_jpeg=jpeg)
 
     def describe(self) -> dict[str, Any]:
@@ -217,7 +219,9 @@ class MatterportLayout(FolderLayout):
         return {
             "colour": relative(self._folder(COLOUR_FOLDER)),
             "depth": relative(self._folder(DEPTH_FOLDER)),
-            "poses": relative(self._conf()), "depth_scale": DEPTH_QUARTER_MILLIMETRES,
+            "poses": relative(self._conf()),
+            "depth_scale": self.scale(DEPTH_QUARTER_MILLIMETRES),
             "pose": "conf matrix @ diag(1, -1, -1, 1)",
-            "principal_point": "(cx - 0.5, height - 0.5 - cy)",
+            **({"intrinsics": self.camera()[0].as_json()} if self.options.intrinsics is not None
+               else {"principal_point": "(cx - 0.5, height - 0.5 - cy)"}),
         }  # fmt: skip

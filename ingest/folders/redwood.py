@@ -13,9 +13,11 @@ FOLDER/
   point from the camera's coordinates to the world's, and the camera is Open3D's pinhole
   camera, x right, y down, z forward: our optical frame, as it is. The metadata's third
   number is the 1-based frame number; poses are taken in file order, one per image.
-- Intrinsics: ``camera_intrinsic.json`` (``intrinsic_matrix`` column-major, as Open3D writes
-  it), else Open3D's PrimeSense default (fx = fy = 525, cx = 319.5, cy = 239.5 at 640x480),
-  which the Augmented ICL-NUIM renders and Redwood's scans are read with.
+- Intrinsics: ``--intrinsics`` when given, else ``camera_intrinsic.json`` (``intrinsic_matrix``
+  column-major, as Open3D writes it), else Open3D's PrimeSense default (fx = fy = 525,
+  cx = 319.5, cy = 239.5 at 640x480): the camera the ICL-NUIM renders were made with and the
+  one Open3D's reconstruction system reads Redwood's scans with when the folder names none,
+  so for this dataset it is the published camera, not a guess.
 - Depth: millimetres (Open3D's ``depth_scale`` 1000). Timing: none; 30 Hz by frame index.
 """
 
@@ -28,7 +30,13 @@ import numpy as np
 
 from care.errors import IngestError
 from care.frames import Frame
-from ingest.folders.base import DatasetLayout, FolderLayout, FolderView, nominal_stamp_ns
+from ingest.folders.base import (
+    DatasetLayout,
+    FolderLayout,
+    FolderOptions,
+    FolderView,
+    nominal_stamp_ns,
+)
 from ingest.folders.files import (
     DEPTH_MILLIMETRES,
     PRIMESENSE,
@@ -62,8 +70,8 @@ class RedwoodLayout(FolderLayout):
         has_colour = any((path / name).is_dir() for name in COLOUR_FOLDERS)
         return has_colour and (path / "depth").is_dir() and (path / TRAJECTORY_FILE).is_file()
 
-    def __init__(self, path: Path, *, max_dt: float) -> None:
-        super().__init__(path, max_dt=max_dt)
+    def __init__(self, path: Path, *, max_dt: float, options: FolderOptions | None = None) -> None:
+        super().__init__(path, max_dt=max_dt, options=options)
         self._camera: Intrinsics | None = None
 
     def _colour_folder(self) -> Path:
@@ -74,12 +82,15 @@ class RedwoodLayout(FolderLayout):
         raise IngestError(msg)
 
     def _intrinsics(self) -> Intrinsics:
-        if self._camera is not None:
-            return self._camera
+        if self._camera is None:
+            given = self.options.intrinsics is not None
+            self._camera = self.camera()[0] if given else self._own_intrinsics()
+        return self._camera
+
+    def _own_intrinsics(self) -> Intrinsics:
         path = self.path / INTRINSIC_FILE
         if not path.is_file():
-            self._camera = Intrinsics(**PRIMESENSE, source="Open3D PrimeSense default")
-            return self._camera
+            return Intrinsics.of(PRIMESENSE, "Open3D PrimeSense default")
         data = json_file(path, "Open3D's camera intrinsic: width, height, intrinsic_matrix")
         try:
             K = np.asarray(data["intrinsic_matrix"], np.float64).reshape(3, 3).T  # column-major
@@ -87,9 +98,8 @@ class RedwoodLayout(FolderLayout):
         except (KeyError, TypeError, ValueError) as err:
             msg = f"{path}: no width, height and 9-number intrinsic_matrix ({err!r}); write it as Open3D's PinholeCameraIntrinsic JSON."
             raise IngestError(msg) from err
-        self._camera = Intrinsics(K[0, 0], K[1, 1], K[0, 2], K[1, 2], width=width,
-                                  height=height, source=INTRINSIC_FILE)  # fmt: skip
-        return self._camera
+        return Intrinsics(K[0, 0], K[1, 1], K[0, 2], K[1, 2], width=width, height=height,
+                          source=INTRINSIC_FILE)  # fmt: skip
 
     def _poses(self) -> list[np.ndarray]:
         path = self.path / TRAJECTORY_FILE
@@ -105,7 +115,7 @@ class RedwoodLayout(FolderLayout):
             if np.isfinite(matrix).all() and not np.allclose(matrix[3], _HOMOGENEOUS_ROW):
                 msg = f"{path}: line {block[4][0]}: last row {matrix[3].tolist()} is not 0 0 0 1, so the matrix is not a pose; fix or re-copy the file."
                 raise IngestError(msg)
-            poses.append(matrix)
+            poses.append(self.file_pose(matrix))
         return poses
 
     def views(self) -> list[FolderView]:
@@ -128,12 +138,12 @@ class RedwoodLayout(FolderLayout):
         rgb, jpeg = read_colour_kept(view.colour)
         fix = f"give the camera in {self.path / INTRINSIC_FILE} (Open3D's PinholeCameraIntrinsic JSON)"
         camera.check_size(rgb.shape[1], rgb.shape[0], view.colour, fix)
-        depth = read_depth(view.depth, DEPTH_MILLIMETRES)
+        depth = read_depth(view.depth, self.scale(DEPTH_MILLIMETRES))
         return Frame(view.stamp_ns, rgb, depth, camera.K.copy(), view.cam_to_world, rgb_jpeg=jpeg)
 
     def describe(self) -> dict[str, Any]:
         return {
             "colour": f"{self._colour_folder().name}/", "depth": "depth/",
             "poses": TRAJECTORY_FILE, "intrinsics": self._intrinsics().as_json(),
-            "depth_scale": DEPTH_MILLIMETRES,
+            "depth_scale": self.scale(DEPTH_MILLIMETRES),
         }  # fmt: skip

@@ -13,7 +13,8 @@ Replica/
 - Poses: camera-to-world in the optical convention (x right, y down, z forward); NICE-SLAM's
   loader flips the y and z columns to reach its own OpenGL-style camera, so the file itself
   is ours, as it is. One line per frame, in frame order.
-- Intrinsics and depth scale: ``cam_params.json`` of the scene folder or of the release
+- Intrinsics and depth scale (``--intrinsics`` and ``--depth-scale`` override them):
+  ``cam_params.json`` of the scene folder or of the release
   folder above it (NICE-SLAM's download has one for all scenes), else the values of NICE-SLAM's
   ``configs/Replica/replica.yaml`` (1200x680, fx = fy = 600, cx = 599.5, cy = 339.5, depth
   scale 6553.5: 10 m is 65535).
@@ -28,7 +29,13 @@ from typing import Any, ClassVar
 
 from care.errors import IngestError
 from care.frames import Frame
-from ingest.folders.base import DatasetLayout, FolderLayout, FolderView, nominal_stamp_ns
+from ingest.folders.base import (
+    DatasetLayout,
+    FolderLayout,
+    FolderOptions,
+    FolderView,
+    nominal_stamp_ns,
+)
 from ingest.folders.files import (
     PINHOLE_KEYS,
     Intrinsics,
@@ -62,8 +69,8 @@ class ReplicaLayout(FolderLayout):
         results = Path(path) / "results"
         return results.is_dir() and next(results.glob("frame*.jpg"), None) is not None
 
-    def __init__(self, path: Path, *, max_dt: float) -> None:
-        super().__init__(path, max_dt=max_dt)
+    def __init__(self, path: Path, *, max_dt: float, options: FolderOptions | None = None) -> None:
+        super().__init__(path, max_dt=max_dt, options=options)
         self._camera: tuple[Intrinsics, float] | None = None
 
     def _params_file(self) -> Path | None:
@@ -94,7 +101,8 @@ class ReplicaLayout(FolderLayout):
         if not scale > 0:
             msg = f"{path}: depth scale {scale} must be positive (the depth value of one metre)."
             raise IngestError(msg)
-        self._camera = (Intrinsics(**values, width=width, height=height, source=source), scale)
+        own = Intrinsics(**values, width=width, height=height, source=source)
+        self._camera = (self.camera(own)[0], self.scale(scale))
         return self._camera
 
     def views(self) -> list[FolderView]:
@@ -113,7 +121,7 @@ class ReplicaLayout(FolderLayout):
             if not depth.is_file():
                 msg = f"{depth}: missing; every colour image {image.name} needs its depth image (re-copy the scene)."
                 raise IngestError(msg)
-            pose = numbers(fields, path, line).reshape(4, 4)
+            pose = self.file_pose(numbers(fields, path, line).reshape(4, 4))
             views.append(FolderView(nominal_stamp_ns(i), image, depth, pose))
         return views
 

@@ -29,7 +29,11 @@ scene0000_00/                       the export, or the downloaded scene folder h
   intrinsics, ``K_colour @ inv(K_depth)`` per pixel, rather than resized to the depth size
   as OpenMask3D and ConceptGraphs do. Views come out at the depth resolution with the depth
   intrinsics: depth, whose values must not be blended across edges, is never interpolated.
-  Depth pixels whose ray leaves the colour image get depth 0.
+  Depth pixels whose ray leaves the colour image get depth 0, counted in the store's
+  ``counts.lost_pixels.outside_colour_view`` (about a sixth of the valid depth when the two
+  cameras' fields of view differ as the living-room test's do).
+- ``--intrinsics`` replaces the depth camera (the camera of the views as returned); the
+  colour camera stays ``intrinsic_color.txt``'s.
 - Timing: the export keeps no times. A view's stamp is its frame index (the file name) at
   30 Hz, the rate of the Structure sensor ScanNet was captured with, so frames exported with
   a ``frame_skip`` keep their true spacing.
@@ -46,7 +50,13 @@ from PIL import Image
 
 from care.errors import IngestError
 from care.frames import Frame
-from ingest.folders.base import DatasetLayout, FolderLayout, FolderView, nominal_stamp_ns
+from ingest.folders.base import (
+    DatasetLayout,
+    FolderLayout,
+    FolderOptions,
+    FolderView,
+    nominal_stamp_ns,
+)
 from ingest.folders.files import (
     DEPTH_MILLIMETRES,
     Intrinsics,
@@ -56,7 +66,7 @@ from ingest.folders.files import (
     table,
 )
 
-__all__ = ["ScanNetLayout", "colour_in_depth_camera"]
+__all__ = ["OUTSIDE_COLOUR_VIEW", "ScanNetLayout", "colour_in_depth_camera"]
 
 COLOUR_FOLDER = "color"
 DEPTH_FOLDER = "depth"
@@ -70,6 +80,9 @@ POSE_SUFFIX = ".txt"
 CENTRE_TOLERANCE = 0.1
 """Largest distance of a principal point from its image's centre, as a share of the image's
 side: farther means the image is not the size its intrinsics were calibrated at."""
+OUTSIDE_COLOUR_VIEW = "outside_colour_view"
+"""The :attr:`ingest.source.ReadStats.lost_pixels` reason of valid depth pixels whose ray
+leaves the colour image (zeroed: no colour to give them)."""
 _HOMOGENEOUS_ROW = np.array([0.0, 0.0, 0.0, 1.0])
 _EXPORT_HINT = "export the scene with ScanNet's SensReader (reader.py --export_depth_images --export_color_images --export_poses --export_intrinsics)"
 
@@ -153,8 +166,8 @@ class ScanNetLayout(FolderLayout):
         path = Path(path)
         return all((path / name).is_dir() for name in (COLOUR_FOLDER, DEPTH_FOLDER, POSE_FOLDER))
 
-    def __init__(self, path: Path, *, max_dt: float) -> None:
-        super().__init__(path, max_dt=max_dt)
+    def __init__(self, path: Path, *, max_dt: float, options: FolderOptions | None = None) -> None:
+        super().__init__(path, max_dt=max_dt, options=options)
         self._cameras: tuple[Intrinsics, Intrinsics] | None = None
 
     def _intrinsics(self) -> tuple[Intrinsics, Intrinsics]:
@@ -167,7 +180,7 @@ class ScanNetLayout(FolderLayout):
                 msg = f"{folder / missing[0]}: missing; the colour and depth cameras are needed to register them: {_EXPORT_HINT}."
                 raise IngestError(msg)
             colour, depth = (_camera(folder / n, f"{INTRINSIC_FOLDER}/{n}") for n in names)
-            self._cameras = (colour, depth)
+            self._cameras = (colour, self.camera(depth)[0])
         return self._cameras
 
     def _pose(self, path: Path) -> np.ndarray:
@@ -176,7 +189,7 @@ class ScanNetLayout(FolderLayout):
         if np.isfinite(matrix).all() and not np.allclose(matrix[3], _HOMOGENEOUS_ROW):
             msg = f"{path}: last row {matrix[3].tolist()} is not 0 0 0 1, so the matrix is not a pose; {_EXPORT_HINT}."
             raise IngestError(msg)
-        return matrix
+        return self.file_pose(matrix)
 
     def views(self) -> list[FolderView]:
         self._intrinsics()
@@ -201,13 +214,14 @@ class ScanNetLayout(FolderLayout):
 
     def load(self, view: FolderView) -> Frame:
         colour_camera, depth_camera = self._intrinsics()
-        depth = read_depth(view.depth, DEPTH_MILLIMETRES)
+        depth = read_depth(view.depth, self.scale(DEPTH_MILLIMETRES))
         rgb = read_colour(view.colour)
         _check_centred(depth_camera, view.depth, depth.shape[1], depth.shape[0])
         _check_centred(colour_camera, view.colour, rgb.shape[1], rgb.shape[0])
         rgb, inside = colour_in_depth_camera(
             rgb, colour_camera.K, depth_camera.K, depth.shape[1], depth.shape[0]
         )
+        self.lost_pixels[OUTSIDE_COLOUR_VIEW] += int(np.count_nonzero(depth[~inside]))
         depth[~inside] = 0.0
         return Frame(view.stamp_ns, rgb, depth, depth_camera.K.copy(), view.cam_to_world)
 
@@ -216,6 +230,6 @@ class ScanNetLayout(FolderLayout):
         return {
             "colour": f"{COLOUR_FOLDER}/<i>{COLOUR_SUFFIX}", "depth": f"{DEPTH_FOLDER}/<i>{DEPTH_SUFFIX}",
             "poses": f"{POSE_FOLDER}/<i>{POSE_SUFFIX}", "colour_intrinsics": colour.as_json(),
-            "intrinsics": depth.as_json(), "depth_scale": DEPTH_MILLIMETRES,
+            "intrinsics": depth.as_json(), "depth_scale": self.scale(DEPTH_MILLIMETRES),
             "registration": "colour resampled into the depth camera",
         }  # fmt: skip

@@ -23,14 +23,22 @@ intrinsic calibration) and its ``associate.py``:
   (``no_pose``), as are stamps that fall on a non-finite sample.
 - Depth: registered to colour by the OpenNI driver, 1:1 pixels; 5000 per metre.
 - Intrinsics: the benchmark's calibrated colour camera of the sensor the folder's name gives
-  (``freiburg1``, ``freiburg2``, ``freiburg3``), lens distortion included (removed at ingest
-  from colour and depth alike, so their pixels stay paired); a folder whose name gives none
-  takes the ROS default the benchmark's own conversion code uses for every sequence
-  (fx = fy = 525, cx = 319.5, cy = 239.5). ``intrinsics.json`` overrides both.
+  (``freiburg1``, ``freiburg2``, ``freiburg3``, or their short forms ``fr1``..``fr3`` as in
+  ``fr3_livingroom``), lens distortion included (removed at ingest from colour and depth
+  alike, so their pixels stay paired). ``intrinsics.json`` overrides it, ``--intrinsics``
+  overrides both (``--intrinsics primesense``: the ROS default, fx = fy = 525, cx = 319.5,
+  cy = 239.5, that the benchmark's own conversion code applies to every sequence). A folder
+  whose name gives no sensor and that has neither is refused: its camera is unknown, and a
+  default camera that is wrong by 2% in focal length bends every wall of the map without a
+  word.
+
+ETH3D SLAM and Bonn RGB-D Dynamic ship the same lists (:mod:`ingest.folders.eth3d`,
+:mod:`ingest.folders.bonn`); this layout leaves their folders to them.
 """
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -39,9 +47,8 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from care.errors import IngestError
 from care.frames import Frame
-from ingest.folders.base import DatasetLayout, FolderLayout, FolderView
+from ingest.folders.base import DatasetLayout, FolderLayout, FolderOptions, FolderView
 from ingest.folders.files import (
-    PRIMESENSE,
     Intrinsics,
     numbers,
     pose_from_tum,
@@ -51,32 +58,41 @@ from ingest.folders.files import (
     table,
 )
 from ingest.folders.generic import INTRINSICS_FILE, TUM_POSE_COLUMNS, read_intrinsics_json
-from ingest.undistort import NO_DISTORTION, Distortion, undistort
+from ingest.intrinsics import NAMED_CAMERAS, NamedCamera
+from ingest.undistort import NO_DISTORTION, Distortion, parse_distortion
 
-__all__ = ["CALIBRATIONS", "DEPTH_SCALE", "ROS_DEFAULT", "TumLayout", "associate"]
+__all__ = ["CALIBRATIONS", "DEPTH_SCALE", "TumLayout", "associate", "sensor_in_name"]
 
 DEPTH_SCALE = 5000.0
 """Depth value of one metre in TUM's depth PNGs."""
-ROS_DEFAULT = Intrinsics(**PRIMESENSE, source="TUM/ROS default")
-"""The intrinsics TUM's conversion code applies to every sequence."""
-CALIBRATIONS: dict[str, tuple[Intrinsics, Distortion]] = {
-    "freiburg1": (
-        Intrinsics(517.3, 516.5, 318.6, 255.3, width=640, height=480, source="TUM freiburg1"),
-        Distortion("plumb_bob", (0.2624, -0.9531, -0.0054, 0.0026, 1.1633)),
-    ),
-    "freiburg2": (
-        Intrinsics(520.9, 521.0, 325.1, 249.7, width=640, height=480, source="TUM freiburg2"),
-        Distortion("plumb_bob", (0.2312, -0.7849, -0.0033, -0.0001, 0.9172)),
-    ),
-    "freiburg3": (
-        Intrinsics(535.4, 539.2, 320.1, 247.6, width=640, height=480, source="TUM freiburg3"),
-        NO_DISTORTION,
-    ),
+_SENSORS = (NamedCamera.FREIBURG1, NamedCamera.FREIBURG2, NamedCamera.FREIBURG3)
+CALIBRATIONS: dict[NamedCamera, tuple[Intrinsics, Distortion]] = {
+    sensor: (
+        Intrinsics.of(NAMED_CAMERAS[sensor], f"TUM {sensor}"),
+        parse_distortion(
+            NAMED_CAMERAS[sensor].distortion_model, NAMED_CAMERAS[sensor].distortion, sensor
+        ),
+    )
+    for sensor in _SENSORS
 }
-"""The benchmark's calibrated colour cameras by sensor (its intrinsic calibration page; D is
-OpenCV's k1 k2 p1 p2 k3). freiburg3's images were rectified before release."""
+"""The benchmark's calibrated colour cameras by sensor (:data:`ingest.intrinsics.NAMED_CAMERAS`,
+from its intrinsic calibration page). freiburg3's images were rectified before release."""
+_SENSOR_NAME = re.compile(r"(?<![a-z0-9])(?:freiburg|fr)([1-3])(?![0-9])")
+"""A sensor in a folder's name: ``freiburg1`` (the benchmark's names) or ``fr1`` (the short
+form papers and SLAM configs use, ``fr3_livingroom``), not inside a longer word or number."""
 _LISTS = {"rgb": "rgb.txt", "depth": "depth.txt"}
 GROUNDTRUTH_FILE = "groundtruth.txt"
+
+
+def sensor_in_name(name: str) -> NamedCamera | None:
+    """The TUM sensor a folder's name gives, if any."""
+    found = _SENSOR_NAME.search(name.lower())
+    return _SENSORS[int(found.group(1)) - 1] if found else None
+
+
+def has_tum_lists(path: Path) -> bool:
+    """Whether ``path`` holds TUM's image lists (as TUM, ETH3D and Bonn folders do)."""
+    return all((Path(path) / name).is_file() for name in _LISTS.values())
 
 
 def associate(first: np.ndarray, second: np.ndarray, max_dt_ns: int) -> list[tuple[int, int]]:
@@ -103,31 +119,58 @@ def associate(first: np.ndarray, second: np.ndarray, max_dt_ns: int) -> list[tup
 
 
 class TumLayout(FolderLayout):
-    """A TUM RGB-D sequence folder (see the module)."""
+    """A TUM RGB-D sequence folder (see the module). Layouts of datasets that ship TUM's
+    lists subclass it and say, by :meth:`marks`, which folders are theirs."""
 
     kind: ClassVar[DatasetLayout] = DatasetLayout.TUM
     world_frame: ClassVar[str] = "tum_world"
+    pose_lines: ClassVar[bool] = True
+
+    @classmethod
+    def marks(cls, path: Path) -> bool:
+        """What tells this dataset's folders from the others with TUM's lists (TUM: any)."""
+        return True
 
     @classmethod
     def detect(cls, path: Path) -> bool:
-        return all((Path(path) / name).is_file() for name in _LISTS.values())
+        # one layout per folder: TUM's own leaves to its variants the folders they mark
+        variants = (sub for sub in cls.__subclasses__() if sub.marks(Path(path)))
+        return has_tum_lists(path) and cls.marks(Path(path)) and next(variants, None) is None
 
-    def __init__(self, path: Path, *, max_dt: float) -> None:
-        super().__init__(path, max_dt=max_dt)
+    def __init__(self, path: Path, *, max_dt: float, options: FolderOptions | None = None) -> None:
+        super().__init__(path, max_dt=max_dt, options=options)
         self._camera: tuple[Intrinsics, Distortion, float] | None = None
+
+    def own_camera(self) -> tuple[Intrinsics, Distortion, float]:
+        """The folder's camera and depth scale without ``--intrinsics``: ``intrinsics.json``,
+        else the sensor the folder's name gives, else refused (see the module)."""
+        override = self.path / INTRINSICS_FILE
+        if override.is_file():
+            camera, scale = read_intrinsics_json(override, default_scale=DEPTH_SCALE)
+            return camera, NO_DISTORTION, scale
+        sensor = sensor_in_name(self.path.resolve().name)
+        if sensor is None:
+            msg = f"{self.path}: the folder's name names no TUM sensor (freiburg1, freiburg2, freiburg3, or fr1..fr3), so its camera is unknown; give it with --intrinsics (fx,fy,cx,cy, or primesense for the ROS default TUM's tools use, or freiburg1..3), or write it into {override.name} (docs/inputs.md)."
+            raise IngestError(msg)
+        return (*CALIBRATIONS[sensor], DEPTH_SCALE)
+
+    def own_depth_scale(self) -> float:
+        """The depth scale when ``--intrinsics`` replaces the camera: ``intrinsics.json``'s,
+        else the dataset's."""
+        override = self.path / INTRINSICS_FILE
+        if override.is_file():
+            return read_intrinsics_json(override, default_scale=DEPTH_SCALE)[1]
+        return DEPTH_SCALE
 
     def _calibration(self) -> tuple[Intrinsics, Distortion, float]:
         if self._camera is None:
-            override = self.path / INTRINSICS_FILE
-            name = self.path.resolve().name.lower()
-            sensor = next((s for s in CALIBRATIONS if s in name), None)
-            if override.is_file():
-                camera, scale = read_intrinsics_json(override, default_scale=DEPTH_SCALE)
-                self._camera = (camera, NO_DISTORTION, scale)
-            elif sensor is not None:
-                self._camera = (*CALIBRATIONS[sensor], DEPTH_SCALE)
+            if self.options.intrinsics is not None:
+                camera, lens = self.camera()
+                scale = self.own_depth_scale()
             else:
-                self._camera = (ROS_DEFAULT, NO_DISTORTION, DEPTH_SCALE)
+                own, own_lens, scale = self.own_camera()
+                camera, lens = self.camera(own, own_lens)
+            self._camera = (camera, lens, self.scale(scale))
         return self._camera
 
     def _list(self, key: str) -> tuple[np.ndarray, list[Path]]:
@@ -144,25 +187,32 @@ class TumLayout(FolderLayout):
             raise IngestError(msg)
         return stamps, files
 
+    def gt_pose(self, pose: np.ndarray) -> np.ndarray:
+        """A ground-truth sample as the camera's optical pose (the file's conventions,
+        :meth:`FolderLayout.file_pose`); a variant whose ground truth is of another body
+        converts it here."""
+        return self.file_pose(pose)
+
     def _groundtruth(self) -> tuple[np.ndarray, np.ndarray]:
         """Stamps (N,) and poses (N, 4, 4) of the ground truth, sorted, non-finite rows out."""
         path = self.path / GROUNDTRUTH_FILE
         rows = table(path, TUM_POSE_COLUMNS, "timestamp tx ty tz qx qy qz qw")
+        order = self.quaternion_order()
         stamps, poses = [], []
         for line, fields in rows:
-            pose = pose_from_tum(numbers(fields[1:], path, line), path, line)
+            pose = pose_from_tum(numbers(fields[1:], path, line), path, line, order)
             if np.isfinite(pose).all():
                 stamps.append(stamp_ns(fields[0], path, line))
-                poses.append(pose)
+                poses.append(self.gt_pose(pose))
         if not stamps:
             msg = f"{path}: no finite pose; the sequence has no usable ground truth."
             raise IngestError(msg)
-        order = np.argsort(stamps, kind="stable")
-        stamps_sorted = np.asarray(stamps, np.int64)[order]
+        order_ = np.argsort(stamps, kind="stable")
+        stamps_sorted = np.asarray(stamps, np.int64)[order_]
         if (np.diff(stamps_sorted) == 0).any():
             msg = f"{path}: two poses at one stamp; fix or re-copy the file."
             raise IngestError(msg)
-        return stamps_sorted, np.asarray(poses)[order]
+        return stamps_sorted, np.asarray(poses)[order_]
 
     def _poses_at(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(N, 4, 4) ground-truth poses at ``times`` and an (N,) mask of those with a sample
@@ -187,34 +237,39 @@ class TumLayout(FolderLayout):
             out[:, :3, :3] = rotations.as_matrix()[0]
         return out, valid
 
-    def views(self) -> list[FolderView]:
-        self._calibration()
+    def pairs(self) -> tuple[list[tuple[int, Path, Path]], int]:
+        """``(colour stamp, colour image, depth image)`` of each colour image with its
+        depth, and how many colour images the lists hold: associated as ``associate.py``
+        does (a variant that ships its associations reads them instead)."""
         colour_stamps, colour = self._list("rgb")
         depth_stamps, depth = self._list("depth")
         pairs = associate(colour_stamps, depth_stamps, round(self.max_dt * 1e9))
-        times = np.array([colour_stamps[i] for i, _ in pairs], np.int64)
+        return [(int(colour_stamps[i]), colour[i], depth[j]) for i, j in pairs], len(colour)
+
+    def views(self) -> list[FolderView]:
+        self._calibration()
+        pairs, n_colour = self.pairs()
+        times = np.array([stamp for stamp, _, _ in pairs], np.int64)
         poses, valid = self._poses_at(times) if len(times) else (np.zeros((0, 4, 4)), [])
-        lost = {"no_depth": len(colour) - len(pairs), "no_pose": len(pairs) - int(np.sum(valid))}
+        lost = {"no_depth": n_colour - len(pairs), "no_pose": len(pairs) - int(np.sum(valid))}
         self.dropped.update({reason: n for reason, n in lost.items() if n})
         views = [
-            FolderView(int(colour_stamps[i]), colour[i], depth[j], poses[k])
-            for k, (i, j) in enumerate(pairs)
+            FolderView(stamp, colour, depth, poses[k])
+            for k, (stamp, colour, depth) in enumerate(pairs)
             if valid[k]
         ]
         return sorted(views, key=lambda v: v.stamp_ns)
 
+    def camera_fix(self) -> str:
+        """What to do when the images are not the camera's size."""
+        return f"give the camera with --intrinsics or in {self.path / INTRINSICS_FILE} (docs/inputs.md)"
+
     def load(self, view: FolderView) -> Frame:
-        camera, lens, scale = self._calibration()
-        decoded, jpeg = read_colour_kept(view.colour)
-        rgb = decoded
-        fix = f"give the camera in {self.path / INTRINSICS_FILE} (docs/inputs.md)"
-        camera.check_size(rgb.shape[1], rgb.shape[0], view.colour, fix)
+        camera, _, scale = self._calibration()
+        rgb, jpeg = read_colour_kept(view.colour)
+        camera.check_size(rgb.shape[1], rgb.shape[0], view.colour, self.camera_fix())
         depth = read_depth(view.depth, scale)
-        if depth.shape == rgb.shape[:2]:
-            rgb = undistort(rgb, camera.K, lens, blend=True)
-            depth = undistort(depth, camera.K, lens, blend=False)
-        kept = jpeg if rgb is decoded else None  # undistorted: other pixels than the file's
-        return Frame(view.stamp_ns, rgb, depth, camera.K.copy(), view.cam_to_world, rgb_jpeg=kept)
+        return Frame(view.stamp_ns, rgb, depth, camera.K.copy(), view.cam_to_world, rgb_jpeg=jpeg)
 
     def describe(self) -> dict[str, Any]:
         camera, lens, scale = self._calibration()
@@ -223,6 +278,5 @@ class TumLayout(FolderLayout):
             "intrinsics": camera.as_json(), "distortion": lens.as_json(), "depth_scale": scale,
         }  # fmt: skip
 
-    def distortions(self) -> list[Distortion]:
-        lens = self._calibration()[1]
-        return [] if lens.is_zero else [lens]
+    def lens(self) -> Distortion:
+        return self._calibration()[1]

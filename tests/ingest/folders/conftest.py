@@ -7,8 +7,18 @@ timing), written here independently of the readers under test.
 - TUM RGB-D: ``rgb/<stamp>.png``, ``depth/<stamp>.png`` (5000 per metre) at stamps a few
   milliseconds off the colour ones, ``rgb.txt``/``depth.txt`` with TUM's three comment lines,
   ``groundtruth.txt`` at 100 Hz on its own clock (the trajectory interpolated there), stamps
-  as epoch seconds with six decimals. The folder's name names no sensor, so the reader takes
-  the ROS default camera, which is the living room's own (fx = fy = 525, 319.5, 239.5).
+  as epoch seconds with six decimals. The folder's name names no sensor, so the tests give
+  the camera (``--intrinsics primesense``: the living room's own, fx = fy = 525, 319.5,
+  239.5); without it the folder is refused.
+- ETH3D SLAM: TUM's lists at the same stamps for colour and depth (the rig is synchronised),
+  ``associated.txt``, ``groundtruth.txt`` at the image stamps, ``calibration.txt`` with the
+  living room's camera (``525 525 319.5 239.5``).
+- Bonn RGB-D Dynamic: TUM's layout in a folder named ``rgbd_bonn_*``, its ground truth the
+  pose of the motion-capture markers: the camera pose taken back through the dataset's
+  ``compute_global_transformation.py`` (``T_ros``, ``T_m``; written out here). The frames
+  are the living room's, not Bonn's camera: tests give ``--intrinsics`` to read them.
+- 7-Scenes: ``seq-01/frame-%06d.color.png``, ``.depth.png`` (millimetres, 65535 for no
+  depth), ``.pose.txt`` (4x4 camera-to-world, tab-separated rows as the release's).
 - Replica (NICE-SLAM): ``Replica/cam_params.json`` above the scene (the living room's camera:
   the real renders are 1200x680, these frames 640x480), ``room0/results/frame%06d.jpg``,
   ``depth%06d.png`` (6553.5 per metre), ``traj.txt`` (16 numbers a line, row-major).
@@ -19,6 +29,7 @@ timing), written here independently of the readers under test.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -76,7 +87,11 @@ def tum_seconds(frame: Frame, first: Frame) -> float:
     return round(TUM_EPOCH + (frame.stamp_ns - first.stamp_ns) / 1e9, 6)
 
 
-def tum(folder: Path, frames: list[Frame]) -> Path:
+def tum(
+    folder: Path, frames: list[Frame], gt_pose: Callable[[np.ndarray], np.ndarray] | None = None
+) -> Path:
+    """TUM's layout; ``gt_pose`` turns a camera pose into what ``groundtruth.txt`` holds
+    (another body's pose, as Bonn's markers)."""
     (folder / "rgb").mkdir(parents=True)
     (folder / "depth").mkdir()
     header = "# {what}\n# file: 'rgbd_dataset_livingroom.bag'\n# timestamp filename\n"
@@ -94,7 +109,9 @@ def tum(folder: Path, frames: list[Frame]) -> Path:
     # slerp) at 100 Hz over the images' span, so most images fall between two samples
     times = np.array([tum_seconds(f, frames[0]) for f in frames]) - TUM_EPOCH
     poses = np.stack([f.cam_to_world for f in frames])
-    gt_times = np.r_[np.arange(times[0], times[-1], 1 / TUM_GT_RATE_HZ), times[-1]]
+    period = 1 / TUM_GT_RATE_HZ
+    # the last image's stamp closes the samples (not a sample a rounding step before it)
+    gt_times = np.r_[np.arange(times[0], times[-1] - period / 2, period), times[-1]]
     inside = gt_times
     rotations = Slerp(times, Rotation.from_matrix(poses[:, :3, :3]))(inside)
     lines = ["# ground truth trajectory\n# file: 'rgbd_dataset_livingroom.bag'\n"
@@ -103,7 +120,7 @@ def tum(folder: Path, frames: list[Frame]) -> Path:
         T = np.eye(4)
         T[:3, :3] = rotations[k].as_matrix()
         T[:3, 3] = [np.interp(inside[k], times, poses[:, a, 3]) for a in range(3)]
-        lines.append(f"{TUM_EPOCH + t:.4f} {_tum_row(T)}\n")
+        lines.append(f"{TUM_EPOCH + t:.4f} {_tum_row(gt_pose(T) if gt_pose else T)}\n")
     (folder / "groundtruth.txt").write_text("".join(lines))
     return folder
 
@@ -141,12 +158,71 @@ def generic(folder: Path, frames: list[Frame]) -> Path:
     return folder
 
 
+def eth3d(folder: Path, frames: list[Frame]) -> Path:
+    (folder / "rgb").mkdir(parents=True)
+    (folder / "depth").mkdir()
+    rgb, depth, associated, gt = [], [], [], ["# timestamp tx ty tz qx qy qz qw\n"]
+    for f in frames:
+        t = f"{tum_seconds(f, frames[0]):.6f}"
+        _image(folder / "rgb" / f"{t}.png", f.rgb)
+        _png16(folder / "depth" / f"{t}.png", f.depth_m, 5000.0)
+        rgb.append(f"{t} rgb/{t}.png\n")
+        depth.append(f"{t} depth/{t}.png\n")
+        associated.append(f"{t} rgb/{t}.png {t} depth/{t}.png\n")
+        gt.append(f"{t} {_tum_row(f.cam_to_world)}\n")
+    for name, lines in (("rgb.txt", rgb), ("depth.txt", depth), ("associated.txt", associated),
+                        ("groundtruth.txt", gt)):  # fmt: skip
+        (folder / name).write_text("".join(lines))
+    K = frames[0].K
+    (folder / "calibration.txt").write_text(f"{K[0, 0]} {K[1, 1]} {K[0, 2]} {K[1, 2]}\n")
+    return folder
+
+
+BONN_T_ROS = np.array([[-1, 0, 0, 0], [0, 0, 1, 0], [0, 1, 0, 0], [0, 0, 0, 1]], np.float64)
+BONN_T_M = np.array([
+    [1.0157, 0.1828, -0.2389, 0.0113],
+    [0.0009, -0.8431, -0.6413, -0.0098],
+    [-0.3009, 0.6147, -0.8085, 0.0111],
+    [0, 0, 0, 1.0],
+])  # fmt: skip
+"""``compute_global_transformation.py`` of the Bonn RGB-D Dynamic dataset, as published."""
+
+
+def bonn_marker_pose(camera: np.ndarray) -> np.ndarray:
+    """The marker pose ``groundtruth.txt`` holds for the camera pose ``camera`` (in the
+    reference cloud's frame): ``camera = T_ros @ marker @ T_ros @ T_m``, ``T_m`` taken rigid
+    (scipy's nearest rotation to its 3x3 block)."""
+    T_m = np.eye(4)
+    T_m[:3, :3] = Rotation.from_matrix(
+        BONN_T_M[:3, :3] / np.cbrt(np.linalg.det(BONN_T_M[:3, :3]))
+    ).as_matrix()
+    T_m[:3, 3] = BONN_T_M[:3, 3]
+    return BONN_T_ROS @ camera @ np.linalg.inv(BONN_T_ROS @ T_m)
+
+
+def bonn(folder: Path, frames: list[Frame]) -> Path:
+    return tum(folder, frames, gt_pose=bonn_marker_pose)
+
+
+def seven_scenes(folder: Path, frames: list[Frame]) -> Path:
+    folder.mkdir(parents=True)
+    for i, f in enumerate(frames):
+        _image(folder / f"frame-{i:06d}.color.png", f.rgb)
+        mm = np.round(f.depth_m.astype(np.float64) * 1000.0)
+        mm[f.depth_m == 0] = 65535  # the release's "no depth"
+        Image.fromarray(mm.astype(np.uint16)).save(folder / f"frame-{i:06d}.depth.png")
+        rows = "".join("\t".join(f"{v:.7e}" for v in row) + "\t\n" for row in f.cam_to_world)
+        (folder / f"frame-{i:06d}.pose.txt").write_text(rows)
+    return folder
+
+
 @pytest.fixture(scope="session")
 def lay() -> SimpleNamespace:
     """The writers above, by layout name (conftest is not importable under importlib mode)."""
     return SimpleNamespace(
-        redwood=redwood, tum=tum, replica=replica, generic=generic, tum_seconds=tum_seconds
-    )
+        redwood=redwood, tum=tum, replica=replica, generic=generic, tum_seconds=tum_seconds,
+        eth3d=eth3d, bonn=bonn, seven_scenes=seven_scenes, bonn_marker_pose=bonn_marker_pose,
+    )  # fmt: skip
 
 
 @pytest.fixture(scope="session")

@@ -5,13 +5,17 @@ options that belong to recordings are refused rather than ignored."""
 from __future__ import annotations
 
 import json
+import re
 
+import numpy as np
 import pytest
+from PIL import Image
 
 from care.errors import IngestError
 from evaluate.pipeline import recordings_of
 from ingest.folders import DatasetLayout, detect_layout
 from ingest.folders.frames import FolderFrames
+from ingest.folders.generic import read_intrinsics_json
 from ingest.readers import is_recording, recordings_in
 from ingest.source import ReadOptions
 from ingest.write import write_recording
@@ -35,9 +39,25 @@ def _one_line_error(run_cli, *args) -> str:
 def test_a_missing_poses_file_is_named(tmp_path, frames, lay, run_cli) -> None:
     folder = lay.tum(tmp_path / "rgbd_dataset_livingroom", frames)
     (folder / "groundtruth.txt").unlink()
-    line = _one_line_error(run_cli, "ingest", folder, "--out", tmp_path / "store")
+    out = tmp_path / "store"
+    line = _one_line_error(run_cli, "ingest", folder, "--out", out, "--intrinsics", "primesense")
     assert "groundtruth.txt: missing" in line
     assert not (tmp_path / "store").exists()
+
+
+def test_a_tum_folder_without_a_camera_is_refused(tmp_path, frames, lay, run_cli) -> None:
+    """No sensor in the name, no intrinsics.json, no --intrinsics: no default camera is
+    guessed; care topics and care ingest both say what to give."""
+    folder = lay.tum(tmp_path / "rgbd_dataset_livingroom", frames)
+    for command in (("topics", folder), ("ingest", folder, "--out", tmp_path / "store")):
+        line = _one_line_error(run_cli, *command)
+        assert f"{folder}: the folder's name names no TUM sensor" in line
+        assert "--intrinsics" in line
+        assert "intrinsics.json" in line
+    assert not (tmp_path / "store").exists()
+    code, out, err = run_cli("topics", folder, "--intrinsics", "primesense")
+    assert code == 0, err
+    assert "'source': '--intrinsics'" in out
 
 
 def test_a_pose_count_that_differs_from_the_images_is_named(tmp_path, frames, lay, run_cli):
@@ -158,3 +178,81 @@ def test_a_replica_render_of_another_size_needs_its_camera(tmp_path, frames, lay
     (scene / "cam_params.json").write_text(json.dumps(camera))
     with FolderFrames(scene) as opened:
         assert opened.describe()["topics"]["intrinsics"]["source"] == "cam_params.json"
+
+
+# -- the generic layout's bad input: one line each, naming the file ---------------------------
+
+
+def _rewrite_json(folder, **fields) -> None:
+    path = folder / "intrinsics.json"
+    data = json.loads(path.read_text())
+    data.update(fields)
+    for key in [k for k, v in data.items() if v is None]:
+        del data[key]
+    path.write_text(json.dumps(data))
+
+
+def test_stamps_in_nanoseconds_are_refused_at_read(tmp_path, frames, lay, run_cli) -> None:
+    folder = lay.generic(tmp_path / "generic", frames)
+    lines = (folder / "poses.txt").read_text().splitlines()
+    ns = [f"{f.stamp_ns + 1_700_000_000 * 10**9} {line.split(maxsplit=1)[1]}"
+          for f, line in zip(frames, lines, strict=True)]  # fmt: skip
+    (folder / "poses.txt").write_text("\n".join(ns) + "\n")
+    line = _one_line_error(run_cli, "ingest", folder, "--out", tmp_path / "store")
+    assert f"{folder / 'poses.txt'}: line 1: time" in line
+    assert "stamps look like nanoseconds" in line
+    assert "write seconds" in line
+    assert "internal error" not in line
+
+
+def test_a_16_bit_grey_colour_image_is_scaled_to_8_bit(tmp_path, frames, lay) -> None:
+    """A 16-bit grey PNG (Pillow's I;16) is read as its values scaled by 255/65535, the same
+    grey in three channels, not clipped at 255 (all white)."""
+    folder = lay.generic(tmp_path / "generic", frames[:1])
+    grey16 = (np.arange(480 * 640, dtype=np.int64).reshape(480, 640) * 211) % 65536
+    Image.fromarray(grey16.astype(np.uint16)).save(folder / "rgb" / "000000.png")
+    with FolderFrames(folder) as opened:
+        rgb = next(iter(opened)).rgb
+    # the reference, independently: 8-bit value v8 of v16 is the nearest to v16 / 257
+    expected = np.floor(grey16 / 257.0 + 0.5).astype(np.uint8)
+    assert rgb.dtype == np.uint8
+    np.testing.assert_array_equal(rgb, np.repeat(expected[..., None], 3, axis=-1))
+    assert (rgb.min(), rgb.max()) == (0, 255)
+
+
+def test_a_view_of_another_size_is_refused_without_width_and_height(
+    tmp_path, frames, lay, run_cli
+) -> None:
+    folder = lay.generic(tmp_path / "generic", frames)
+    _rewrite_json(folder, width=None, height=None)
+    image = folder / "rgb" / "000002.png"
+    Image.fromarray(frames[2].rgb[:240, :320]).save(image)
+    Image.fromarray(np.zeros((240, 320), np.uint16)).save(folder / "depth" / "000002.png")
+    line = _one_line_error(run_cli, "ingest", folder, "--out", tmp_path / "store")
+    assert f"{image}: 320x240 image, but the first view 000000.png is 640x480" in line
+    assert "intrinsics.json's fx, fy, cx, cy and its width and height fields" in line
+
+
+@pytest.mark.parametrize("value", ["Infinity", "NaN", "0", "-5", '"mm"'])
+def test_a_bad_depth_scale_is_named(tmp_path, frames, lay, run_cli, value: str) -> None:
+    folder = lay.generic(tmp_path / "generic", frames)
+    path = folder / "intrinsics.json"
+    text = path.read_text().replace('"depth_scale": 1000.0', f'"depth_scale": {value}')
+    path.write_text(text)
+    assert json.loads(text)  # Python's json takes Infinity and NaN
+    line = _one_line_error(run_cli, "topics", folder)
+    assert line.startswith(f"error: {path}: depth_scale")
+    assert "fix the depth_scale field" in line or "in the depth_scale field" in line
+
+
+@pytest.mark.parametrize(("field", "value"), [("fx", "Infinity"), ("cy", "NaN"), ("fy", "0")])
+def test_a_camera_that_is_not_one_is_named(tmp_path, frames, lay, field: str, value: str):
+    folder = lay.generic(tmp_path / "generic", frames)
+    path = folder / "intrinsics.json"
+    data = json.loads(path.read_text())
+    text = path.read_text().replace(f'"{field}": {data[field]}', f'"{field}": {value}')
+    path.write_text(text)
+    with pytest.raises(IngestError, match=rf"^{re.escape(str(path))}: {field} .*fix those fields"):
+        read_intrinsics_json(path)
+    with pytest.raises(IngestError, match=rf"^{re.escape(str(path))}: {field} "):
+        FolderFrames(folder).__enter__()

@@ -1,7 +1,10 @@
 """Dataset folders as downloaded give the map their frames give as a recording: the same 40
-living-room frames laid out as Redwood, TUM RGB-D, Replica (NICE-SLAM) and our generic layout,
-each in its dataset's own conventions (conftest), and written as an MCAP bag by the real
-writer. Every store has the bag's views and poses, and the same grid, cell for cell within 1%."""
+living-room frames laid out as Redwood, TUM RGB-D, ETH3D SLAM, Bonn RGB-D Dynamic, 7-Scenes,
+Replica (NICE-SLAM) and our generic layout, each in its dataset's own conventions (conftest),
+and written as an MCAP bag by the real writer. Every store has the bag's views and poses, and
+the same grid, cell for cell within 1%. Where the dataset's own camera is not the living
+room's (TUM without a sensor in the folder's name, Bonn, 7-Scenes) the living room's is
+given with --intrinsics, as a user of such frames would."""
 
 from __future__ import annotations
 
@@ -13,7 +16,9 @@ import pytest
 
 from care.store import Store, read_table
 from fuse.grid import GridConfig, build_grid
+from ingest.folders import LAYOUTS as ALL_LAYOUTS
 from ingest.folders import DatasetLayout, detect_layout
+from ingest.folders.base import FolderOptions
 from ingest.folders.frames import FolderFrames, open_frames
 from ingest.folders.tum import TumLayout
 from ingest.pipeline import IngestConfig, run_ingest
@@ -22,20 +27,42 @@ from ingest.write import write_recording
 from runtime.execution import Execution
 
 QUIET = Execution(progress=False)
+PRIMESENSE = FolderOptions.of(ReadOptions(intrinsics="primesense"))
 CELL = 0.05
-LAYOUTS = ("redwood", "tum", "replica", "generic")
+LAYOUTS = ("redwood", "tum", "eth3d", "bonn", "7scenes", "replica", "generic")
+FOLDERS = {
+    "redwood": ("redwood", "livingroom_redwood"),
+    "tum": ("tum", "rgbd_dataset_livingroom"),
+    "eth3d": ("eth3d", "sofa_1"),
+    "bonn": ("bonn", "rgbd_bonn_livingroom"),
+    "7scenes": ("seven_scenes", "livingroom/seq-01"),
+    "replica": ("replica", "Replica"),
+    "generic": ("generic", "generic"),
+}
+"""Writer (conftest) and folder name of each layout."""
+LIVING_ROOM_CAMERA = {
+    "tum": "primesense",
+    "bonn": "primesense",
+    "7scenes": "525,525,319.5,239.5",
+}
+"""``--intrinsics`` of the layouts whose own camera is not the living room's."""
+
+
+def write_layout(lay, layout: str, root: Path, frames) -> Path:
+    """``frames`` in ``layout`` under ``root`` (Replica: the scene inside its release)."""
+    writer, name = FOLDERS[layout]
+    return getattr(lay, writer)(root / name, frames)
+
+
+def read_options(layout: str) -> ReadOptions:
+    return ReadOptions(intrinsics=LIVING_ROOM_CAMERA.get(layout))
 
 
 @pytest.fixture(scope="module")
 def sources(tmp_path_factory, livingroom40, lay) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("layouts")
-    return {
-        "bag": write_recording(root / "rec.mcap", livingroom40, fmt="mcap"),
-        "redwood": lay.redwood(root / "livingroom_redwood", livingroom40),
-        "tum": lay.tum(root / "rgbd_dataset_livingroom", livingroom40),
-        "replica": lay.replica(root / "Replica", livingroom40),
-        "generic": lay.generic(root / "generic", livingroom40),
-    }
+    written = {name: write_layout(lay, name, root, livingroom40) for name in LAYOUTS}
+    return {"bag": write_recording(root / "rec.mcap", livingroom40, fmt="mcap"), **written}
 
 
 @pytest.fixture(scope="module")
@@ -43,7 +70,7 @@ def stores(sources, tmp_path_factory, h) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("stores")
     out = {}
     for name, source in sources.items():
-        config = IngestConfig(vocabulary="red,green,blue")
+        config = IngestConfig(vocabulary="red,green,blue", read=read_options(name))
         out[name] = run_ingest(source, root / name, config, run=QUIET, encoder=h.TinyEncoder())
         build_grid(out[name], GridConfig(cell_size=CELL, stride=2), run=QUIET)
     return out
@@ -63,9 +90,12 @@ def _cells(store: Path) -> set[tuple[int, int]]:
 def test_each_layout_is_detected_by_its_names(tmp_path, livingroom40, lay) -> None:
     frames = livingroom40[:2]
     for name in LAYOUTS:
-        folder = getattr(lay, name)(tmp_path / name, frames)
+        folder = write_layout(lay, name, tmp_path, frames)
+        found = [kind for kind, cls in ALL_LAYOUTS.items() if cls.detect(folder)]
+        assert found == [DatasetLayout(name)], (name, found)  # one layout per folder
         assert detect_layout(folder) == DatasetLayout(name)
-    assert detect_layout(tmp_path / "replica") is None  # the release folder above the scene
+    assert detect_layout(tmp_path / "Replica") is None  # the release folder above the scene
+    assert detect_layout(tmp_path / "livingroom") is None  # a 7-Scenes scene: its sequences
     bag = write_recording(tmp_path / "rec.mcap", frames, fmt="mcap")
     assert detect_layout(bag) is None  # a file
 
@@ -77,10 +107,12 @@ def test_a_dataset_folder_gives_the_bags_views_and_grid(stores, layout: str) -> 
     assert meta["topics"]["layout"] == layout
     assert meta["counts"]["frames"] == 40
     assert "format" not in meta["config"]["read"]  # only picks the layout, recorded in topics
-    # TUM: poses interpolated between 100 Hz samples of a trajectory that is itself linear
-    # between the images, so it cuts the corners at them (under a millimetre); TUM and
-    # generic: quaternions written with six decimals
-    atol = {"tum": 1e-3, "generic": 1e-5}.get(layout, 1e-6)
+    if layout in LIVING_ROOM_CAMERA:
+        assert meta["topics"]["intrinsics"]["source"] == "--intrinsics"
+    # TUM, Bonn: poses interpolated between 100 Hz samples of a trajectory that is itself
+    # linear between the images, so it cuts the corners at them (under a millimetre); TUM,
+    # ETH3D, Bonn and generic: quaternions written with six decimals; 7-Scenes: eight digits
+    atol = {"tum": 1e-3, "bonn": 1e-3, "eth3d": 1e-5, "generic": 1e-5}.get(layout, 1e-6)
     np.testing.assert_allclose(_poses(stores[layout]), _poses(stores["bag"]), atol=atol)
     ours, bag = _cells(stores[layout]), _cells(stores["bag"])
     assert len(ours ^ bag) <= 0.01 * len(bag), (len(ours), len(bag), len(ours ^ bag))
@@ -91,7 +123,7 @@ def test_tum_associates_depth_and_interpolates_the_ground_truth(
 ) -> None:
     frames = livingroom40[:16]
     folder = lay.tum(tmp_path / "rgbd_dataset_livingroom", frames)
-    layout = TumLayout(folder, max_dt=0.02)
+    layout = TumLayout(folder, max_dt=0.02, options=PRIMESENSE)
     views = layout.views()
     assert len(views) == 16
     assert not layout.dropped
@@ -103,7 +135,7 @@ def test_tum_associates_depth_and_interpolates_the_ground_truth(
         assert view.stamp_ns == round(seconds * 1e6) * 1000  # microseconds, exactly
         np.testing.assert_allclose(view.cam_to_world, frame.cam_to_world, atol=1e-3)
     # depth further than --max-dt away: no colour image has depth
-    assert not TumLayout(folder, max_dt=0.005).views()
+    assert not TumLayout(folder, max_dt=0.005, options=PRIMESENSE).views()
 
 
 def test_tum_drops_colour_without_depth_or_ground_truth(tmp_path, livingroom40, lay) -> None:
@@ -115,7 +147,7 @@ def test_tum_drops_colour_without_depth_or_ground_truth(tmp_path, livingroom40, 
     (folder / "groundtruth.txt").write_text(
         "\n".join(line for i, line in enumerate(gt) if i not in set(lost)) + "\n"
     )
-    with FolderFrames(folder) as frames:
+    with FolderFrames(folder, ReadOptions(intrinsics="primesense")) as frames:
         got = list(frames)
         stats = frames.stats
     assert stats.rgb_messages == 12

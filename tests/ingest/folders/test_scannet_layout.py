@@ -27,6 +27,7 @@ from evaluate.groundtruth import GtSource, gt_files
 from fuse.grid import GridConfig, build_grid
 from ingest.folders import LAYOUTS
 from ingest.folders.base import DatasetLayout
+from ingest.folders.frames import FolderFrames
 from ingest.folders.scannet import ScanNetLayout, colour_in_depth_camera
 from ingest.pipeline import IngestConfig, run_ingest
 from ingest.write import write_recording
@@ -304,3 +305,40 @@ def test_care_run_evaluates_a_scannet_scene_folder(
         "subgoal success (%), protocol `exclude-1m` (2 queries)" in results
     )  # chair and sofa, in the map frame
     assert Store(tmp_path / "out" / "stores" / SCENE).meta.topics["layout"] == "scannet"
+
+
+def test_depth_outside_the_colour_view_is_counted(living: list[Frame], tmp_path: Path) -> None:
+    """Depth pixels whose ray leaves the colour image are zeroed and counted as
+    ``outside_colour_view``, the count equal to one made here: every valid depth pixel
+    back-projected through the depth camera and projected through a colour camera 15%
+    narrower (ScanNet's own two calibrations differ so), outside the colour image's pixel
+    edges. The colour and depth cameras share the viewpoint (identity extrinsics)."""
+    folder = write_export(tmp_path / SCENE, living[:3])
+    K4 = np.eye(4)
+    K4[:3, :3] = colour_camera(living[0].K, COLOUR_SIZE)
+    K4[0, 0] *= 1.15
+    K4[1, 1] *= 1.15
+    _savetxt(folder / "intrinsic" / "intrinsic_color.txt", K4)
+    Kd_inv = np.linalg.inv(living[0].K)
+    expected = valid_total = 0
+    for i, f in enumerate(living[:3]):
+        if i == LOST:
+            continue
+        mm = np.round(f.depth_m.astype(np.float64) * 1000)  # as exported
+        v, u = np.nonzero(mm > 0)
+        rays = Kd_inv @ np.stack([u, v, np.ones_like(u)]).astype(np.float64)
+        seen = K4[:3, :3] @ rays
+        uc, vc = seen[0] / seen[2], seen[1] / seen[2]
+        inside = (uc >= -0.5) & (uc <= COLOUR_SIZE[0] - 0.5)
+        inside &= (vc >= -0.5) & (vc <= COLOUR_SIZE[1] - 0.5)
+        expected += int((~inside).sum())
+        valid_total += len(u)
+    with FolderFrames(folder) as opened:
+        got = list(opened)
+        lost = dict(opened.stats.lost_pixels)
+        counts = opened.stats.as_dict()
+    assert len(got) == 2
+    assert lost == {"outside_colour_view": expected}
+    assert counts["lost_pixels"] == {"outside_colour_view": expected}
+    assert 0.1 * valid_total < expected < 0.5 * valid_total
+    assert sum(int((f.depth_m > 0).sum()) for f in got) == valid_total - expected
