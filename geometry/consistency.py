@@ -446,6 +446,8 @@ def judge(
     plausible = RANGE_M[0] <= depth_range <= RANGE_M[1]
     if given.pairs < MIN_PAIRS and plausible:
         return Verdict(Status.UNJUDGED, **base)
+    if plausible and given.pairs >= MIN_PAIRS and _unbeatable(given):
+        return Verdict(Status.AGREE, **base)  # no reading can be clearly better: none tried
     candidates = [
         (m, h)
         for m, h in hypotheses(mistakes)
@@ -513,6 +515,13 @@ def _refine_focal(
 
 def _rank(a: Agreement) -> tuple[float, float]:
     return (round(a.agree, 2), -a.residual)
+
+
+def _unbeatable(given: Agreement) -> bool:
+    """Whether no reading can be :func:`_clearly_better` than ``given``, whatever it scores:
+    agreeing on more than ``1 - MARGIN`` of the pixels with residuals at sensor noise. Then
+    trying the mistakes would change nothing, and the check costs one scoring."""
+    return given.agree > 1.0 - MARGIN and given.residual < NOISE_RESIDUAL
 
 
 def _clearly_better(got: Agreement, given: Agreement) -> bool:

@@ -123,7 +123,7 @@ def test_depth_in_other_units_is_refused_as_such_not_as_a_floor_problem(
     line = _ingest_and_grid(h, bag, tmp_path / "bad")
     assert line is not None
     assert "depth reads 5 times too large" in line
-    assert "--depth-scale 5000 for 16-bit" in line
+    assert "--depth-scale with the depth value of one metre (5000 for 16-bit images" in line
     assert _ingest_and_grid(h, bag, tmp_path / "fixed", depth_scale=5000.0) is None
     _same_map(tmp_path / "fixed", reference[1])
 
