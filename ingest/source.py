@@ -106,7 +106,8 @@ class ReadOptions:
     noise and nothing fails, so an unclear frame named like a body is refused rather than
     guessed (:mod:`ingest.conventions`)."""
     intrinsics: CameraIntrinsics | None = None
-    """Colour camera intrinsics instead of a camera info topic: fx,fy,cx,cy (pixels) or a
+    """Colour camera intrinsics instead of a camera info topic (a folder's calibration):
+    fx,fy,cx,cy (pixels), a named camera (primesense, freiburg1, freiburg2, freiburg3) or a
     camera_info YAML / intrinsics JSON file; default the camera info topic.
 
     Given as text (the CLI, or Python), a file is read at once: the store records the
