@@ -173,22 +173,34 @@ def _compressed_depth(msg: Any, topic: str) -> np.ndarray:
     return img.astype(np.float32) * np.float32(0.001)
 
 
-def decode_depth(msg: Any, topic: str) -> np.ndarray:
-    """(H, W) float32 metres, 0 where invalid (NaN, inf, 0, negative)."""
+MILLIMETRES = 1000.0
+"""Depth value of one metre in 16-bit depth images (REP 118: ``16UC1`` millimetres)."""
+
+
+def decode_depth(msg: Any, topic: str, scale: float | None = None) -> np.ndarray:
+    """(H, W) float32 metres, 0 where invalid (NaN, inf, 0, negative). ``scale``: the depth
+    value of one metre (``--depth-scale``) instead of the encoding's own (1000 for 16-bit
+    images, 1 for ``32FC1``): a driver that writes other units under a standard encoding."""
     if _is_compressed(msg):
         fmt = str(msg.format)
         if "compresseddepth" in fmt.lower():
             depth = _compressed_depth(msg, topic)
+            own = 1.0 if fmt.split(";")[0].strip() == "32FC1" else MILLIMETRES
+            if scale is not None:  # back to the values as written, then the given units
+                depth = depth * np.float32(own / scale)
         else:
             img = np.asarray(_open_compressed(bytes(np.asarray(msg.data, np.uint8)), topic, fmt))
             if img.ndim != 2 or img.dtype.kind not in "ui" or img.dtype.itemsize < 2:
                 msg_ = f"topic {topic}: compressed depth of format {fmt!r} is not a 16-bit single-channel image; use compressedDepth or 16-bit PNG."
                 raise IngestError(msg_)
-            depth = img.astype(np.float32) * np.float32(0.001)
+            depth = img.astype(np.float32) / np.float32(scale or MILLIMETRES)
     else:
         arr, enc = _raw_array(msg, topic, DEPTH_ENCODINGS)
         arr = arr[..., 0]
-        depth = arr.astype(np.float32) if enc == "32FC1" else arr.astype(np.float32) * 0.001
+        if scale is None:
+            depth = arr.astype(np.float32) if enc == "32FC1" else arr.astype(np.float32) * 0.001
+        else:
+            depth = arr.astype(np.float32) / np.float32(scale)
     depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0)
     return _not_empty(depth.astype(np.float32), topic, "depth")
 

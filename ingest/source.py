@@ -601,7 +601,7 @@ class RecordingFrames:
         assert sel is not None
         decoded, jpeg = decode.decode_colour_kept(match.primary, sel.rgb)
         rgb = decoded
-        depth = decode.decode_depth(match.secondary["depth"], sel.depth)
+        depth = decode.decode_depth(match.secondary["depth"], sel.depth, self.options.depth_scale)
         h, w = rgb.shape[:2]
         if depth.shape != (h, w):
             msg = f"{self.path}: colour images on {sel.rgb} are {w}x{h} but depth images on {sel.depth} are {depth.shape[1]}x{depth.shape[0]}; record depth registered to colour (e.g. aligned_depth_to_color) or pass --depth TOPIC."
