@@ -30,7 +30,7 @@ import json
 import math
 from collections import Counter
 from collections.abc import Iterator
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from types import TracebackType
 from typing import Any, ClassVar
@@ -58,6 +58,7 @@ from ingest.tf import TFBuffer, check_transform
 from ingest.topics import (
     TopicSelection,
     depth_camera_info,
+    pose_topics,
     registered_depth_topics,
     select_topics,
 )
@@ -285,7 +286,13 @@ class RecordingFrames:
             msg = f"{self.path}: no pose source: no /tf or /tf_static messages and no nav_msgs/Odometry or geometry_msgs/PoseStamped topic; pass --static-pose to give every frame the identity pose, or --pose-source TOPIC."
             raise IngestError(msg)
         depth_info = None if o.depth_registered else depth_camera_info(self.topics, sel)
+        # a pose topic TF may not need: read with the small topics, taken as the pose source
+        # if TF turns out to hold no moving transform (a static chain sent on /tf)
+        candidate = None
+        if not sel.pose_source and not o.static_pose and (found := pose_topics(self.topics)):
+            candidate = found[0]
         small = [*sel.tf, *filter(None, [sel.camera_info, sel.pose_source, sel.class_names])]
+        small += [candidate] if candidate else []
         small += [depth_info] if depth_info else []
         pose_samples: list[decode.StampedTransform] = []
         depth_intrinsics: tuple[np.ndarray, int, int, str] | None = None
@@ -300,7 +307,7 @@ class RecordingFrames:
                     depth_intrinsics = (K, w, h, str(msg.header.frame_id).lstrip("/"))
             elif topic == sel.class_names:
                 self.label_names = self._parse_names(msg.data, topic)
-            elif topic == sel.pose_source:
+            elif topic in (sel.pose_source, candidate):
                 sample = decode.pose_sample(msg, t)
                 check_transform(sample, f"pose source {topic}")
                 pose_samples.append(sample)
@@ -320,8 +327,15 @@ class RecordingFrames:
         self.camera_frame = o.camera_frame or self.camera_frame
         if depth_info and depth_intrinsics is not None:
             self._check_depth_registered(depth_info, depth_intrinsics, colour_frame)
-        if not o.static_pose and pose_samples:
+        if candidate and pose_samples and not self._tf.moving_after_freezing():
+            # TF holds only transforms that never change: the robot's motion is the pose
+            # topic's, the chain on /tf its mount (as with a chain on /tf_static)
+            self.selection = sel = replace(sel, pose_source=candidate)
+        if not o.static_pose and sel.pose_source and pose_samples:
+            self._tf.freeze_unchanging(single=True)
             self._add_pose_source(pose_samples)
+        elif not o.static_pose:
+            self._tf.freeze_unchanging(single=False)
         if not o.static_pose and self.camera_frame:
             self._resolve_world_frame()
         if o.static_pose:  # the camera frame is the world: any convention is consistent

@@ -103,6 +103,20 @@ _SAME = 1e-9
 republisher that recomputes a transform may differ in the last bits)."""
 
 
+_UNCHANGED = 1e-6
+"""Metres and quaternion units: samples of one edge this close are one transform
+republished (a static chain sent on ``/tf`` by a replay or a driver)."""
+
+
+def _unchanging(edge: _Edge) -> bool:
+    """Whether every sample of ``edge`` is its first one again (within :data:`_UNCHANGED`)."""
+    t = np.asarray(edge.translations, np.float64)
+    q = np.asarray(edge.rotations, np.float64)
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    gap = np.minimum(np.abs(q - q[0]).max(axis=1), np.abs(q + q[0]).max(axis=1))
+    return bool((np.abs(t - t[0]).max(axis=1) <= _UNCHANGED).all() and (gap <= _UNCHANGED).all())
+
+
 def _same_transform(edge: _Edge, index: int, tf: StampedTransform) -> bool:
     """Whether ``tf`` is the edge's sample ``index`` again (q and -q are one rotation)."""
     t0, q0 = edge.translations[index], edge.rotations[index]
@@ -171,6 +185,26 @@ class TFBuffer:
         edge.translations.append(tf.translation)
         edge.rotations.append(tf.rotation)
         edge._arrays = edge._slerp = None
+
+    def freeze_unchanging(self, *, single: bool) -> list[str]:
+        """Make static every edge whose samples are all one transform, wherever it was
+        published: a chain that ``static_transform_publisher`` or a driver sends on ``/tf``
+        (once, or again and again) is as static as one on ``/tf_static``. An edge with one
+        sample only counts where ``single`` (a pose source moves the robot, so a transform
+        published once is its mount; without one, a lone world transform is not stretched
+        over the whole recording). Returns the children made static."""
+        frozen = []
+        for child, edge in self._edges.items():
+            if not edge.static and (single or len(edge.stamps) > 1) and _unchanging(edge):
+                edge.static = True
+                edge._arrays = edge._slerp = None
+                frozen.append(child)
+        return sorted(frozen)
+
+    def moving_after_freezing(self) -> list[str]:
+        """Children of the edges whose samples change (those :meth:`freeze_unchanging`
+        leaves dynamic), without freezing anything."""
+        return sorted(c for c, e in self._edges.items() if not e.static and not _unchanging(e))
 
     def drop(self, child: str) -> None:
         """Forget the transform into ``child`` (a pose source replaces it)."""
