@@ -5,7 +5,12 @@ An answer is worth drawing for what it costs a robot to drive: ``care query`` dr
 first ``--attempts`` attempts a robot replanning by max confidence makes, each from where
 the last ended (:func:`query.paths.walk`), so a miss shows as the detour it is; ``care
 replan`` draws the visited candidates' goals and the way to the next one, the very path
-its JSON gives.
+its JSON gives. Either draws the candidates of the goals it shows, no others: an object
+drawn without its goal reads as part of the answer when it is not.
+
+The attempts are those the answer offers (:mod:`replan.answer`): a candidate whose goal
+breaks the clearance or that no way reaches is passed over, as the JSON passes it over, and
+each attempt's goal is the one the robot is sent to.
 """
 
 from __future__ import annotations
@@ -16,7 +21,6 @@ from typing import Any
 import numpy as np
 import typer
 
-from query.paths import PathConfig
 from replan.batch import BatchConfig
 
 __all__ = ["query_rrd", "replan_rrd"]
@@ -36,69 +40,80 @@ def _write(rrd: Path, store: Path, answer: Any, goals: Any) -> None:
     typer.echo(f"rerun {rrd}", err=True)  # stderr: --json keeps stdout one JSON document
 
 
-def _paths(travel: Any) -> bool:
-    """There are paths: a grid, and a free cell near the start."""
-    return travel is not None and travel.source is not None
+def _attempts(answer: Any, target: Any, config: BatchConfig, first: Any) -> list[Any]:
+    """The offers of the first ``config.attempts`` attempts by max confidence: the JSON's
+    first attempt, then each next one after the earlier ones failed (on a grid,
+    ``config.exclude_radius`` away from the cells tried), passing over what it passes over."""
+    from replan.answer import offer_next
+    from replan.strategies import StrategyName
+
+    if first.offer is None:
+        return []
+    offers = [first.offer]
+    skip = [p.candidate for p in first.passed]
+    while len(offers) < config.attempts:
+        nxt = offer_next(
+            answer, target, [o.candidate for o in offers], skip=skip,
+            strategy=StrategyName.MAX_CONFIDENCE, exclude_radius=config.exclude_radius,
+        )  # fmt: skip
+        if nxt.offer is None:
+            break
+        offers.append(nxt.offer)
+        skip += [p.candidate for p in nxt.passed]
+    return offers
 
 
 def query_rrd(
     rrd: Path,
     store: Path,
     target: Any,
-    goals: Any,
-    travel: Any,
-    paths: PathConfig,
+    answer: Any,
     config: BatchConfig,
-    rows: list[dict],
+    first: Any,
+    ranking: Any,
     note: str | None,
 ) -> None:
-    """The listed candidates (``rows``, as ``care query`` prints them) and the first
-    ``config.attempts`` attempts by max confidence (on a grid, ``config.exclude_radius``
-    away from the cells tried), each driven from where the last ended."""
+    """The first ``config.attempts`` attempts by max confidence (``first``: the JSON's
+    first attempt, :func:`replan.answer.first_offer`), each driven from where the last
+    ended, with their candidates labelled by rank and confidence."""
     from query.paths import walk
     from query.viz import Answer
-    from replan import next_goal
-    from replan.strategies import StrategyName
 
     cmap = target.cmap
-    tried: list[int] = []
-    for _ in range(config.attempts):
-        choice = next_goal(
-            cmap, target, tried, strategy=StrategyName.MAX_CONFIDENCE,
-            exclude_radius=config.exclude_radius,
-        )  # fmt: skip
-        if choice.candidate < 0:
-            break
-        tried.append(choice.candidate)
-    attempts = [goals.goal(cmap, c) for c in tried]
-    legs = (
-        walk(travel.roadmap, travel.start, paths.start_reach, attempts) if _paths(travel) else None
-    )
-    answer = Answer(
+    offers = _attempts(answer, target, config, first)
+    attempts = [o.drive for o in offers]
+    travel = answer.travel
+    legs = None
+    if answer.usable:
+        legs = walk(travel.roadmap, travel.start, answer.paths.start_reach, attempts)
+    conf = np.array([float(ranking.conf[g.candidate]) for g in attempts])
+    drawn = Answer(
         title=f'"{target.match.names[0]}" in the {cmap.kind} map ({target.match.method})',
-        positions=cmap.positions[[r["candidate"] for r in rows]].reshape(-1, 3),
-        labels=[f"#{r['rank']} {r['confidence']:.2f}" for r in rows],
-        confidence=np.array([r["confidence"] for r in rows]),
+        labels=[
+            f"#{int(ranking.rank[g.candidate])} {c:.2f}"
+            for g, c in zip(attempts, conf, strict=True)
+        ],
+        confidence=conf,
         goals=attempts,
         legs=legs,
         start=travel.start if legs is not None else None,
         notes=[
             "Attempts: max confidence, each after the earlier ones failed (on a grid, away "
-            "from the cells tried), each driven from where the last ended.",
+            "from the cells tried), each driven from where the last ended; candidates "
+            "without a goal that keeps --clearance and is reachable passed over.",
             *([note] if note else []),
         ],
     )
-    _write(rrd, store, answer, goals)
+    _write(rrd, store, drawn, answer.goals)
 
 
 def replan_rrd(
     rrd: Path,
     store: Path,
     target: Any,
-    goals: Any,
+    answer: Any,
     visited: list[int],
     chosen: Any,
-    travel: Any,
     note: str | None,
 ) -> None:
     """The visited candidates' goals (their ways unknown: where the robot came from is
@@ -106,17 +121,16 @@ def replan_rrd(
     from query.paths import Leg
     from query.viz import Answer
 
-    cmap = target.cmap
+    cmap, goals, travel = target.cmap, answer.goals, answer.travel
     before = [goals.goal(cmap, c) for c in visited if 0 <= c < cmap.num_candidates]
     attempts = [*before, *([chosen] if chosen is not None else [])]
     legs = None
-    if _paths(travel):
+    if answer.usable:
         way = [Leg(chosen, travel.start, travel.waypoints(chosen))] if chosen else []
         legs = [None] * len(before) + way
     shown = [g.candidate for g in attempts]
-    answer = Answer(
+    drawn = Answer(
         title=f'next for "{target.match.names[0]}" in the {cmap.kind} map',
-        positions=cmap.positions[shown].reshape(-1, 3),
         labels=[f"attempt {k}" for k in range(1, len(shown) + 1)],
         confidence=np.asarray(target.confidence())[shown],
         goals=attempts,
@@ -125,4 +139,4 @@ def replan_rrd(
         notes=[note] if note else [],
         visited=len(before),
     )
-    _write(rrd, store, answer, goals)
+    _write(rrd, store, drawn, goals)

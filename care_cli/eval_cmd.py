@@ -140,12 +140,14 @@ _BATCH = {
     "attempts": {"min": 1},
     "top": {"min": 1},
 }
-_CLEARANCE = "clearance"
+_GOAL = ("clearance", "frame_id", "allow_tight_goals")
+_TIGHT = {"allow_tight_goals": {"flags": ("--allow-tight-goals",)}}
+"""One flag, not a switch both ways: off is the default a robot relies on."""
 _FROM = {"start": {"flags": ("--from",)}}
 
 
 @config_options("path", PathConfig, only=("start",), extra=_FROM)
-@config_options("goal", GoalConfig, only=(_CLEARANCE, "frame_id"))
+@config_options("goal", GoalConfig, only=_GOAL, extra=_TIGHT)
 @config_options("settings", BatchConfig, only=("top", "k", "attempts", "exclude_radius", "seed"),
                 extra=_BATCH)  # fmt: skip
 def query(
@@ -174,13 +176,12 @@ def query(
     rrd: AnswerRrdOpt = None,
 ) -> None:
     """Rank a map's candidates by confidence for TEXT, with their uncertainty measures, a
-    goal pose for each (``geometry_msgs/PoseStamped`` JSON with --json), its distance along
-    free space from --from (default: the recording's first pose) and the path to the top
-    one (``nav_msgs/Path``); with --batch, every query's ranking and each strategy's attempt
+    goal pose for each (``geometry_msgs/PoseStamped`` JSON with --json), the clearance it
+    keeps, its distance along free space from --from (default: the recording's first pose),
+    and the first attempt: the best-ranked candidate whose goal keeps --clearance and is
+    reachable, with its path (``nav_msgs/Path``), saying which were passed over and why; with --batch, every query's ranking and each strategy's attempt
     sequence as a Parquet table, each row with its distance from the start. --rrd draws the
     first --attempts attempts by max confidence, each driven from where the last ended."""
-
-    from query import rank_by_confidence
 
     if (batch is None) == (text is None):
         _fail("give either TEXT or --batch FILE")
@@ -192,60 +193,90 @@ def query(
         _batch(store, kind, batch, out, weights, goal.config(), config, paths)
         return
     target = _resolve(store, kind, text, weights)
-    cmap, match = target.cmap, target.match
-    goals = _goal_maker(store, goal.config())
-    travel = _travel(store, goals, paths)
-    conf = target.confidence()
-    order = rank_by_confidence(conf[None])[0][: config.top]
-    chosen = [goals.goal(cmap, int(c)) for c in order]
-    rows = [
-        {
-            "rank": r + 1,
-            "candidate": int(c),
-            "confidence": float(conf[c]),
-            "entropy": float(cmap.entropy[c]),
-            "stderr": float(cmap.stderr[c]),
-            "pwkl": float(cmap.pwkl[c]),
-            "num_views": int(cmap.num_views[c]),
-            "position": [round(float(v), 3) for v in cmap.positions[c]],
-            "goal": g.as_dict(),
-            "distance": _distance(travel, g),
-        }
-        for r, (c, g) in enumerate(zip(order, chosen, strict=True))
-    ]
+    answer = _answer_goals(store, target.cmap, goal.config(), paths)
+    ranking, first = _first_offer(answer, target.confidence())
+    rows = [_row(answer, target, ranking, int(c)) for c in ranking.order[: config.top]]
+    result = {
+        "query": text,
+        "class": target.match.names[0],
+        "method": target.match.method,
+        "frame_id": answer.goals.frame_id,
+        "candidates": rows,
+        **_offered(answer, first, ranking),
+    }
     if rrd is not None:
         from care_cli.answer_rrd import query_rrd
 
-        note = _no_path(travel, paths)
-        query_rrd(rrd, store, target, goals, travel, paths, config, rows, note)
+        query_rrd(rrd, store, target, answer, config, first, ranking, result["path_note"])
     if as_json:
-        top = _way(travel, chosen[0]) if chosen else _way(None, None)
-        out = {"query": text, "class": match.names[0], "method": match.method}
-        note = {"path_note": _no_path(travel, paths)}
-        typer.echo(json.dumps({**out, "candidates": rows, **top, **note}))
+        typer.echo(json.dumps(result))
         return
+    _print_table(answer, kind, target, result)
+
+
+def _print_table(answer: Any, kind: str, target: Any, result: dict) -> None:
+    """``care query``'s table: a row per candidate (its goal, the clearance the goal keeps,
+    ``!`` below --clearance, the metres to it, ``-``: none), then the first attempt, the
+    candidates passed over and each row's note."""
+    cmap, frame = target.cmap, answer.goals.frame_id
     typer.echo(
-        f"{MapKind(kind).value} map, class {match.names[0]!r}: {cmap.num_candidates} candidates"
+        f"{MapKind(kind).value} map, class {target.match.names[0]!r}: {cmap.num_candidates} "
+        f"candidates (positions and goals in {frame!r})"
     )
     typer.echo(
-        f"rank  cand  confidence  entropy   stderr     pwkl  views  position  "
-        f"goal in {goals.frame_id!r} (x, y, yaw deg)  path m"
+        "rank  cand  confidence  entropy   stderr     pwkl  views  position  "
+        "goal (x, y, yaw deg)  clear m  path m"
     )
-    for r in rows:
-        pose = r["goal"]["pose_stamped"]["pose"]["position"]
+    for r in result["candidates"]:
+        goal = r["goal"]
+        pose = goal["pose_stamped"]["pose"]["position"]
         dist = "-" if r["distance"] is None else f"{r['distance']:.2f}"
+        if r["reachable_distance"] is not None:
+            dist = f"{r['reachable_distance']:.2f}*"
+        clear = "-" if goal["clearance"] is None else f"{goal['clearance']:.2f}"
+        clear += "!" if goal["clearance_ok"] is False else " "
         typer.echo(
             f"{r['rank']:>4} {r['candidate']:>5} {r['confidence']:>11.4g} {r['entropy']:>8.3f} "
             f"{r['stderr']:>8.4g} {r['pwkl']:>8.4g} {r['num_views']:>6}  {r['position']}  "
-            f"({pose['x']:.2f}, {pose['y']:.2f}, {math.degrees(r['goal']['yaw']):.0f})  {dist}"
+            f"({pose['x']:.2f}, {pose['y']:.2f}, {math.degrees(goal['yaw']):.0f})  {clear:>7}  "
+            f"{dist}"
         )
-    note = _no_path(travel, paths)
-    if note is not None:
-        typer.echo(note)
+    for line in _summary(answer, result):
+        typer.echo(line)
+
+
+def _summary(answer: Any, result: dict) -> list[str]:
+    """The lines under the table: what the first attempt is, what was passed over and why,
+    each row's note (``*``: the metres to the reachable goal the note names)."""
+    lines = []
+    if result["candidate"] is not None:
+        pose = result["goal"]["pose_stamped"]["pose"]["position"]
+        way = "-" if result["distance"] is None else f"{result['distance']:.2f} m"
+        lines.append(
+            f"first attempt: candidate {result['candidate']} (rank {result['rank']}), goal "
+            f"({pose['x']:.2f}, {pose['y']:.2f}), path {way}"
+        )
+    passed = [f"#{p['rank']} {p['candidate']} ({p['path_state']})" for p in result["passed_over"]]
+    if result["passed_over_more"]:
+        passed.append(f"and {result['passed_over_more']} more")
+    if passed:
+        lines.append(
+            f"passed over (no goal that keeps --clearance and is reachable): {', '.join(passed)}"
+        )
+    notes = [
+        f"  #{r['rank']} {r['candidate']}: {r['path_note']}"
+        for r in result["candidates"]
+        if r["path_note"] is not None and r["path_note"] != answer.start_note
+    ]
+    if notes:
+        lines += ["notes:", *notes]
+    if result["path_note"] is not None:
+        lines.append(result["path_note"])
+    return lines
 
 
 @config_options("path", PathConfig, only=("start",), extra=_FROM)
-@config_options("goal", GoalConfig, only=(_CLEARANCE, "frame_id"))
+@config_options("goal", GoalConfig, only=_GOAL, extra=_TIGHT)
 @config_options("settings", ReplanConfig, extra={"k": _BATCH["k"]})
 def replan(
     store: StoreArg,
@@ -271,7 +302,7 @@ def replan(
     goals of the visited candidates."""
     import dataclasses
 
-    from replan import next_goal
+    from replan.answer import offer_next
     from replan.strategies import get_strategy
 
     _check_rrd(rrd, store)
@@ -279,30 +310,28 @@ def replan(
     paths = path.config()
     target = _resolve(store, kind, text, weights)
     cmap, match = target.cmap, target.match
-    reach = goal.config().reach
-    goals = _goal_maker(store, goal.config())
+    answer = _answer_goals(store, cmap, goal.config(), paths)
     config = settings.config()
-    travel = _travel(store, goals, paths)
     distance = None
     if get_strategy(config.strategy).travel:
-        distance = _candidate_distances(cmap, reach, travel, config.strategy)
-    choice = next_goal(
-        cmap, target, ids, **dataclasses.asdict(config), visited_at=places, distance=distance
+        distance = _candidate_distances(cmap, answer, config.strategy)
+    offered = offer_next(
+        answer, target, ids, **dataclasses.asdict(config), visited_at=places, distance=distance
     )
-    out = dataclasses.asdict(choice)
-    found = choice.candidate >= 0
-    out["position"] = [float(v) for v in cmap.positions[choice.candidate]] if found else None
-    chosen = goals.goal(cmap, choice.candidate) if found else None
-    out["goal"] = chosen.as_dict() if chosen else None
+    out = dataclasses.asdict(offered.choice)
+    found = offered.offer is not None
+    out["frame_id"] = answer.goals.frame_id
+    out["position"] = _position(answer, offered.choice.candidate) if found else None
     out["class"] = match.names[0]
     out["method"] = match.method
-    travel = travel if found else None
-    out.update(_way(travel, chosen))
-    out["path_note"] = _no_path(travel, paths)
+    way = _offered(answer, offered)
+    del way["candidate"], way["rank"]  # the choice says which
+    out.update(way)
     if rrd is not None:
         from care_cli.answer_rrd import replan_rrd
 
-        replan_rrd(rrd, store, target, goals, ids, chosen, travel, out["path_note"])
+        drive = offered.offer.drive if found else None
+        replan_rrd(rrd, store, target, answer, ids, drive, out["path_note"])
     typer.echo(json.dumps(out))
 
 
@@ -384,28 +413,38 @@ def _travel(store: Path, goals: Any, config: PathConfig) -> Any:
     return roadmap.travel(start, config.start_reach)
 
 
-def _candidate_distances(cmap: Any, reach: float, travel: Any, strategy: str) -> Any:
+def _answer_goals(store: Path, cmap: Any, goal: GoalConfig, paths: PathConfig) -> Any:
+    """The offers of the map's candidates (:class:`replan.answer.AnswerGoals`): goals, and
+    paths from ``paths.start``, else the recording's first pose."""
+    from replan.answer import AnswerGoals
+
+    goals = _goal_maker(store, goal)
+    return AnswerGoals(goals, cmap, _travel(store, goals, paths), paths)
+
+
+def _candidate_distances(cmap: Any, answer: Any, strategy: str) -> Any:
     """(N,) metres from the start to each candidate's approach point (inf: unreachable),
     what a travel rule trades its measure against; one line and exit 1 without paths."""
     import numpy as np
 
     from query.travel import approach_cells
 
-    if travel is None or travel.source is None:
+    travel = answer.travel
+    if not answer.usable:
         _fail(
             f"--strategy {strategy} trades its measure against travel, but there are no paths "
             "from the start (no grid map, or no free cell near it); give --from x,y in free "
             "space or pick another strategy"
         )
-    cells = approach_cells(travel.roadmap, cmap.positions[:, :2], reach)
+    cells = approach_cells(travel.roadmap, cmap.positions[:, :2], answer.goals.config.reach)
     out = np.full(len(cells), np.inf)
     out[cells >= 0] = travel.distance[cells[cells >= 0]]
     return out
 
 
 def _no_path(travel: Any, config: PathConfig) -> str | None:
-    """Why there are no paths (the start is off free space), None where there are: part of
-    the answer (a line under the table, ``path_note`` in JSON), not an error."""
+    """Why a batch has no paths (the start is off free space), None where it has: a line
+    under its summary, not an error."""
     if travel is None or travel.source is not None:
         return None
     x, y = travel.start
@@ -422,24 +461,85 @@ def _first_position(store: Path) -> tuple[float, float] | None:
     return Store(store).first_position()
 
 
-def _distance(travel: Any, goal: Any) -> float | None:
-    """Metres along free space to ``goal`` (None: unreachable, or no paths)."""
-    metres = travel.distance_to(goal) if travel is not None else math.inf
-    return metres if math.isfinite(metres) else None
+class _Ranking:
+    """A query's candidates by confidence (ties by lower id), and each one's rank."""
+
+    def __init__(self, conf: Any) -> None:
+        import numpy as np
+
+        from query import rank_by_confidence
+
+        self.conf = conf
+        self.order = rank_by_confidence(conf[None])[0]
+        self.rank = np.empty(len(self.order), np.int64)
+        self.rank[self.order] = np.arange(1, len(self.order) + 1)
 
 
-def _way(travel: Any, goal: Any) -> dict:
-    """The way to ``goal``: ``distance`` (m along free space, None: unreachable or no
-    paths), ``path`` (``nav_msgs/Path`` JSON, None likewise), ``path_length`` and the
-    ``start`` (map x, y)."""
+def _first_offer(answer: Any, conf: Any) -> tuple[_Ranking, Any]:
+    """The ranking and its first attempt (:func:`replan.answer.first_offer`)."""
+    from replan.answer import first_offer
+
+    ranking = _Ranking(conf)
+    return ranking, first_offer(answer, ranking.order)
+
+
+def _position(answer: Any, candidate: int) -> list[float]:
+    """The candidate's position in the goals' frame."""
+    return [float(v) for v in answer.goals.in_frame(answer.cmap.positions[candidate])[0]]
+
+
+def _row(answer: Any, target: Any, ranking: _Ranking, c: int) -> dict:
+    """One candidate of ``care query``'s answer: measures, position and goal (in the goals'
+    frame), the metres to the goal (None: no way to it) and what its offer says."""
+    cmap, offer = target.cmap, answer.offer(c)
+    plain = offer.drive is offer.goal
+    return {
+        "rank": int(ranking.rank[c]),
+        "candidate": c,
+        "confidence": float(ranking.conf[c]),
+        "entropy": float(cmap.entropy[c]),
+        "stderr": float(cmap.stderr[c]),
+        "pwkl": float(cmap.pwkl[c]),
+        "num_views": int(cmap.num_views[c]),
+        "position": [round(v, 3) for v in _position(answer, c)],
+        "goal": offer.goal.as_dict(),
+        "distance": offer.distance if plain else None,
+        **offer.as_dict(),
+    }
+
+
+def _offered(answer: Any, offered: Any, ranking: _Ranking | None = None) -> dict:
+    """The answer's first (or next) attempt: the candidate, the goal the robot is sent to,
+    the way there (``nav_msgs/Path`` JSON in the goals' frame, ``distance`` and
+    ``path_length`` in metres, None: no way), the start (x, y, z in the goals' frame), the
+    candidates passed over and why, and the note on the way (None: plainly reachable)."""
     from query.paths import nav_path, path_length
 
-    points = travel.waypoints(goal) if travel is not None and goal is not None else None
+    offer = offered.offer
+    rank = (lambda c: int(ranking.rank[c])) if ranking is not None else (lambda c: None)
+    travel = answer.travel
+    start = None
+    if travel is not None:
+        start = [float(v) for v in answer.goals.in_frame([*travel.start, 0.0])[0]]
+    points = None if offer is None else offer.waypoints
+    note = answer.start_note if offer is None else offer.note
+    if offer is None and (offered.passed or offered.left_out):
+        note = (
+            "no candidate left has a goal that keeps --clearance "
+            f"{answer.clearance:g} m and is reachable (see passed_over)"
+        )
     return {
-        "distance": None if points is None else _distance(travel, goal),
-        "path": None if points is None else nav_path(goal, points),
+        "candidate": None if offer is None else offer.candidate,
+        "rank": None if offer is None else rank(offer.candidate),
+        "goal": None if offer is None else offer.drive.as_dict(),
+        "path_state": None if offer is None else offer.state.value,
+        "passed_over": [p.passed(rank(p.candidate)) for p in offered.passed],
+        "passed_over_more": offered.left_out,
+        "distance": None if points is None else offer.distance,
+        "path": None if points is None else nav_path(offer.drive, points),
         "path_length": None if points is None else path_length(points),
-        "start": None if travel is None else list(travel.start),
+        "start": start,
+        "path_note": note,
     }
 
 

@@ -27,6 +27,7 @@ import math
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pyarrow.parquet as pq
@@ -39,7 +40,15 @@ from fuse.layout import CELLS_TABLE, GridLayout
 from query.map import CandidateMap
 from query.publish import MAP_FRAME_ID, FramePlan, frame_plan
 
-__all__ = ["MAP_FRAME_ID", "FreeSpace", "Goal", "GoalConfig", "GoalMaker", "stamped_poses"]
+__all__ = [
+    "MAP_FRAME_ID",
+    "Approach",
+    "FreeSpace",
+    "Goal",
+    "GoalConfig",
+    "GoalMaker",
+    "stamped_poses",
+]
 
 
 @dataclass(frozen=True)
@@ -55,6 +64,10 @@ class GoalConfig:
     """Frame of the goals: the recording's world frame's name gives them in the world frame;
     any other name is the map frame's, published as a static transform (``care frame``).
     Default: the world frame when it has z up, else ``care_map``."""
+    allow_tight_goals: bool = False
+    """Offer a candidate whose goal cannot keep the clearance (no free cell within reach keeps
+    it: the goal is the one with the most, flagged); by default such a candidate is passed
+    over for the next one whose goal keeps the promise."""
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.clearance) and self.clearance >= 0):
@@ -73,7 +86,8 @@ class Goal:
     frame_id: str
     stamp_ns: int
     target: tuple[float, float, float]
-    """Where the object is (candidate position, map frame)."""
+    """Where the object is (candidate position, map frame; :meth:`as_dict` gives it in
+    ``frame_id``)."""
     position: tuple[float, float, float]
     """Where to go: the approach point, or the target when there is none."""
     yaw: float
@@ -89,6 +103,17 @@ class Goal:
     """The recording's world frame name."""
     frame_from_map: np.ndarray | None = None
     """(4, 4) from the map frame to ``frame_id`` (None: ``frame_id`` is the map frame)."""
+    keeps_clearance: bool | None = None
+    """``position`` keeps :attr:`required_clearance` from every obstacle cell (False: no free
+    cell within reach does, or there is none; None: no grid to tell)."""
+    required_clearance: float | None = None
+    """The clearance (m) the goal was asked to keep (``GoalConfig.clearance``)."""
+
+    def in_frame(self, xyz: tuple[float, ...] | np.ndarray) -> np.ndarray:
+        """(3,) map point ``xyz`` in ``frame_id``: every coordinate of an answer is given
+        in the frame of its goal, so one transform places all of them."""
+        point = np.append(np.asarray(xyz, np.float64)[:3], 1.0)
+        return point[:3] if self.frame_from_map is None else (self.frame_from_map @ point)[:3]
 
     def pose_matrix(self) -> np.ndarray:
         """(4, 4) the goal pose in the map frame: at ``position``, yawed by ``yaw`` about z."""
@@ -109,18 +134,23 @@ class Goal:
         return stamped_poses(pose[None], frame_id, self.stamp_ns)[0]
 
     def as_dict(self) -> dict:
-        """JSON of the goal: the PoseStamped (and, where the map frame is not the world frame,
-        the same goal in the world frame and the transform), the target and how the point was
-        found."""
+        """JSON of the goal: the PoseStamped and the target (the object's position) in the
+        same frame, ``header.frame_id`` (and, where the map frame is not the world frame, both
+        again in the world frame with the transform), how the point was found and whether it
+        keeps the clearance asked for."""
         out = {
             "pose_stamped": self.pose_stamped(),
-            "target": list(self.target),
+            "target": [float(v) for v in self.in_frame(self.target)],
             "yaw": self.yaw,
             "approach": self.approach,
             "clearance": self.clearance,
+            "required_clearance": self.required_clearance,
+            "clearance_ok": self.keeps_clearance,
         }
         if self.map_from_world is not None:
+            world = np.linalg.solve(self.map_from_world, np.append(self.target, 1.0))[:3]
             out["world_pose_stamped"] = self.pose_stamped(in_world=True)
+            out["world_target"] = [float(v) for v in world]
             out["map_from_world"] = self.map_from_world.reshape(-1).tolist()
         return out
 
@@ -143,6 +173,17 @@ def stamped_poses(poses: np.ndarray, frame_id: str, stamp_ns: int) -> list[dict]
         }
         for pose, quat in zip(poses, quats, strict=True)
     ]
+
+
+class Approach(NamedTuple):
+    """An approach point found around an object."""
+
+    x: float
+    y: float
+    clearance: float
+    """Metres to the nearest obstacle cell (float32 precision, as goals report it)."""
+    keeps: bool
+    """``clearance`` is at least the one asked for."""
 
 
 @dataclass(frozen=True)
@@ -231,6 +272,20 @@ class FreeSpace:
         """(x, y, clearance) of the free cell nearest to ``target_xy`` within ``reach`` whose
         clearance is at least ``config.clearance``; if none keeps that clearance, the one with
         the most clearance; None when no free cell lies within reach."""
+        found = self.approach_point(target_xy, config)
+        return None if found is None else (found.x, found.y, found.clearance)
+
+    def approach_point(
+        self,
+        target_xy: tuple[float, float],
+        config: GoalConfig,
+        *,
+        within: np.ndarray | None = None,
+        fallback: bool = True,
+    ) -> Approach | None:
+        """:meth:`approach` among the cells of ``within`` ((nx, ny) bool, e.g. those a robot
+        can drive to from its start; None: every cell), saying whether the point keeps the
+        clearance; without ``fallback``, None rather than a point that does not."""
         size = self.layout.cell_size
         ox, oy = self.layout.origin
         nx, ny = self.layout.shape
@@ -244,6 +299,8 @@ class FreeSpace:
         px, py = ox + (gx + 0.5) * size, oy + (gy + 0.5) * size
         dist = np.hypot(px - target_xy[0], py - target_xy[1])
         ok = self.free[x0:x1, y0:y1] & (dist <= config.reach)
+        if within is not None:
+            ok &= within[x0:x1, y0:y1]
         if not ok.any():
             return None
         # a margin past the clearance asked for: every value below it is then exact, so which
@@ -253,14 +310,17 @@ class FreeSpace:
             metres, exact = self.clearance(slice(x0, x1), slice(y0, y1), margin)
             clear = metres.astype(np.float32)  # the precision goals have always reported
             safe = ok & (clear >= config.clearance)
-            if not safe.any():  # every clearance in reach is below the one asked for: exact
+            keeps = bool(safe.any())
+            if not keeps:  # every clearance in reach is below the one asked for: exact
+                if not fallback:
+                    return None
                 best = np.flatnonzero(ok.reshape(-1))[np.argmax(clear[ok])]
                 break
             best = np.flatnonzero(safe.reshape(-1))[np.argmin(dist[safe])]
             if metres.flat[best] <= exact:
                 break
             margin *= 2
-        return float(px.flat[best]), float(py.flat[best]), float(clear.flat[best])
+        return Approach(float(px.flat[best]), float(py.flat[best]), float(clear.flat[best]), keeps)
 
 
 @dataclass(frozen=True)
@@ -318,21 +378,52 @@ class GoalMaker:
         world = str((meta and meta.world_frame) or DEFAULT_WORLD_FRAME)
         return frame_plan(read_map_frame(store), world, frame_id)
 
+    def in_frame(self, xyz: np.ndarray) -> np.ndarray:
+        """(M, 3) map points in :attr:`frame_id` (the frame of every coordinate of an
+        answer)."""
+        xyz = np.asarray(xyz, np.float64).reshape(-1, 3)
+        if self.frame_from_map is None:
+            return xyz.copy()
+        return xyz @ self.frame_from_map[:3, :3].T + self.frame_from_map[:3, 3]
+
     def goal(self, cmap: CandidateMap, candidate: int) -> Goal:
-        """The goal for one candidate of ``cmap``."""
+        """The goal for one candidate of ``cmap``: its nearest approach point that keeps the
+        clearance, else (flagged) the one with the most clearance, else the object itself."""
+        target = self._target(cmap, candidate)
+        found = self.free_space.approach_point(target[:2], self.config) if self.free_space else None
+        return self._goal(candidate, target, found)
+
+    def goal_within(self, cmap: CandidateMap, candidate: int, within: np.ndarray) -> Goal | None:
+        """The goal of ``candidate`` at the approach point nearest the object among the
+        cells of ``within`` ((nx, ny) bool: those a robot can drive to) that keeps the
+        clearance; None where there is none (or no grid)."""
+        target = self._target(cmap, candidate)
+        if self.free_space is None:
+            return None
+        found = self.free_space.approach_point(
+            target[:2], self.config, within=within, fallback=False
+        )
+        return None if found is None else self._goal(candidate, target, found)
+
+    def _target(self, cmap: CandidateMap, candidate: int) -> tuple[float, float, float]:
         if not 0 <= candidate < cmap.num_candidates:
             msg = f"candidate {candidate} is not in the map (0..{cmap.num_candidates - 1})"
             raise QueryError(msg)
-        target = tuple(float(v) for v in cmap.positions[candidate])
-        found = self.free_space.approach(target[:2], self.config) if self.free_space else None
-        if found is None:
+        return tuple(float(v) for v in cmap.positions[candidate])  # type: ignore[return-value]
+
+    def _goal(
+        self, candidate: int, target: tuple[float, float, float], found: Approach | None
+    ) -> Goal:
+        frames = (self.map_from_world, self.world_frame, self.frame_from_map)
+        required = self.config.clearance
+        if found is None:  # no free cell in reach (or no grid): the object itself
+            keeps = None if self.free_space is None else False
             return Goal(
                 candidate, self.frame_id, self.stamp_ns, target, target, 0.0, False, None,
-                self.map_from_world, self.world_frame, self.frame_from_map,
+                *frames, keeps, required,
             )  # fmt: skip
-        x, y, clear = found
-        yaw = math.atan2(target[1] - y, target[0] - x)
+        yaw = math.atan2(target[1] - found.y, target[0] - found.x)
         return Goal(
-            candidate, self.frame_id, self.stamp_ns, target, (x, y, 0.0), yaw, True, clear,
-            self.map_from_world, self.world_frame, self.frame_from_map,
+            candidate, self.frame_id, self.stamp_ns, target, (found.x, found.y, 0.0), yaw, True,
+            found.clearance, *frames, found.keeps, required,
         )  # fmt: skip

@@ -9,7 +9,9 @@ moved by ``--frame-id``'s transform):
 
 - ``floor``: the obstacle cells, on the floor;
 - ``scene``: the store's coloured point cloud, thinned (where the store has one);
-- ``candidates``: the candidates the answer lists, coloured by confidence, labelled by rank;
+- ``candidates``: the candidates whose goals it shows (each attempt's, no more, no fewer: an
+  object drawn without its goal, or a goal without its object, reads as part of the answer
+  that is not), coloured by confidence, labelled;
 - ``start``: where the paths start (``--from``, or the recording's first pose);
 - ``goals``: each attempt's goal, an arrow at the approach point facing the object;
 - ``attempts/<k>``: the way of attempt k (:class:`query.paths.Leg`), a line on the floor
@@ -32,6 +34,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from care.errors import QueryError
 from care.viz import open_scene_recording, panels
 from query.goals import FreeSpace, Goal
 from query.paths import Leg
@@ -83,18 +86,16 @@ class GoalState(StrEnum):
 
 @dataclass(frozen=True)
 class Answer:
-    """What one answer shows: the listed candidates and the attempts in order."""
+    """What one answer shows: the attempts in order, each with its candidate and goal."""
 
     title: str
     """The heading of the text: what was asked and of which map."""
-    positions: np.ndarray
-    """(N, 3) map positions of the candidates listed."""
     labels: Sequence[str]
-    """(N,) a label per candidate (rank and confidence)."""
+    """A label per attempt's candidate (rank and confidence)."""
     confidence: np.ndarray
-    """(N,) confidence of each (colours)."""
+    """Confidence of each attempt's candidate (colours)."""
     goals: Sequence[Goal]
-    """The goal of each attempt, in order."""
+    """The goal of each attempt, in order; its candidate is drawn at ``Goal.target``."""
     legs: Sequence[Leg | None] | None
     """The way of each attempt (None: no paths: no grid, or no start near free space; an
     entry None: an attempt made before this answer, whose way it does not know)."""
@@ -104,6 +105,20 @@ class Answer:
     """Lines under the table (why there are no paths, what the attempts follow)."""
     visited: int = 0
     """The first ``visited`` goals are attempts made before (``care replan --visited``)."""
+
+    def __post_init__(self) -> None:
+        n = len(self.goals)
+        if len(self.labels) != n or len(self.confidence) != n:
+            msg = (
+                f"an answer draws one candidate per goal: {n} goals, {len(self.labels)} labels, "
+                f"{len(self.confidence)} confidences"
+            )
+            raise QueryError(msg)
+
+    @property
+    def positions(self) -> np.ndarray:
+        """(N, 3) map positions of the candidates drawn: those of the goals."""
+        return np.array([g.target for g in self.goals], np.float64).reshape(-1, 3)
 
 
 def attempt_entity(attempt: int) -> str:

@@ -334,6 +334,7 @@ def next_goal(
     seed: int = _REPLAN.seed,
     visited_at: np.ndarray | list[tuple[float, float]] = (),  # type: ignore[assignment]
     distance: np.ndarray | list[float] | None = None,
+    skip: list[int] | np.ndarray = (),  # type: ignore[assignment]
 ) -> Choice:
     """The next candidate to try for ``query`` after the ``visited`` (failed) ones.
 
@@ -348,7 +349,9 @@ def next_goal(
     one (1 m by default, for instances too) count as visited. ``distance``: (N,) metres from
     where the robot stands to each candidate's goal (inf: unreachable), which the travel rules
     (``nearest_topk``, ``*_near``) trade against and the others ignore; a travel rule without
-    it is refused, not played as if every candidate were equally far.
+    it is refused, not played as if every candidate were equally far. ``skip``: candidates
+    with no goal to offer (:func:`replan.answer.offer_next`), left out as if absent: no
+    exclusion radius around them, and the first attempt stays the first.
     """
     if criterion not in CRITERIA:
         msg = f"unknown selection criterion {criterion!r}; choose one of {', '.join(CRITERIA)}"
@@ -374,6 +377,11 @@ def next_goal(
     available[0, candidates_near(cmap, places, default_radius)] = False
     radius = default_radius if cmap.kind == MapKind.GRID else 0.0
     available[0, visited_ids] = False
+    skipped = np.asarray(skip, dtype=np.int64).reshape(-1)
+    if skipped.size and (skipped.min() < 0 or skipped.max() >= cmap.num_candidates):
+        msg = f"skipped candidate ids must lie in 0..{cmap.num_candidates - 1}"
+        raise ReplanError(msg)
+    available[0, skipped] = False
     if radius > 0:  # the map's spatial index: each exclusion costs its window, not N
         for v in np.unique(visited_ids):
             available[0, cmap.near(int(v), radius)] = False

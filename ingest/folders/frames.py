@@ -238,7 +238,7 @@ class FolderFrames:
     def _undistorted(self, frame: Frame) -> Frame:
         """``frame`` with the layout's lens distortion removed from colour (blended) and
         depth (nearest: a blend of two depths is a point in mid-air), so their pixels stay
-        paired; the colour file's own JPEG bytes are no longer its pixels."""
+        paired; the colour file's own JPEG bytes then differ from its pixels, and are not kept."""
         lens = self._layout.lens() if self._layout is not None else None
         if lens is None or lens.is_zero:
             return frame

@@ -21,7 +21,6 @@ def _answer(legs, visited: int = 0) -> Answer:
     goals = [_goal(7, 1.0, 0.0), _goal(3, 2.0, 1.0), _goal(9, 0.0, 2.0)]
     return Answer(
         title='"chair" in the grid map',
-        positions=np.array([g.target for g in goals]),
         labels=["#1", "#2", "#3"],
         confidence=np.array([0.9, 0.5, 0.1]),
         goals=goals,

@@ -111,7 +111,7 @@ def test_intrinsics_replace_the_layouts_camera(tmp_path, frames, lay) -> None:
     assert (got[0].K[0, 0], got[0].K[1, 1], got[0].K[0, 2], got[0].K[1, 2]) == (500, 501, 320, 240)
     assert described["intrinsics"]["source"] == "--intrinsics"
     assert folder_identity(redwood, ReadOptions(intrinsics="500,501,320,240")) != default
-    # a named camera with a lens: its distortion is removed, and the JPEG is no longer the image
+    # a named camera with a lens: its distortion is removed, and the JPEG then differs from the image
     got, _ = _read(redwood, intrinsics="freiburg1")
     with FolderFrames(redwood, ReadOptions(intrinsics="freiburg1")) as opened:
         assert [d.coefficients for d in opened.distortions] == [
