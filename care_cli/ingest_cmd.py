@@ -144,6 +144,9 @@ def topics(
     for role in ("rgb", "depth", "camera_info", "pose_source", "class_names"):
         typer.echo(f"  {role:<12} {sel[role]}")
     typer.echo(f"  {'tf':<12} {', '.join(sel['tf']) or None}")
+    pose = chosen.get("pose")
+    if pose:
+        typer.echo(f"  {'pose':<12} {pose['from']}: {pose['reason']}")
     typer.echo(f"  {'extras':<12} {sel['extras'] or None}")
     typer.echo(f"  world frame  {chosen['world_frame']}, camera frame {chosen['camera_frame']}")
     axes = chosen.get("camera_convention")

@@ -428,6 +428,8 @@ NOISE_RESIDUAL = 0.01
 """Median relative residual of views that agree as well as sensors allow (1 %): below it, no
 reading is called better for its smaller residuals alone."""
 RESIDUAL_RATIO = 2.0
+COVER = 0.8
+"""Share of the pair directions judged as given that a better reading must judge too."""
 
 
 def judge(
@@ -526,10 +528,11 @@ def _unbeatable(given: Agreement) -> bool:
 
 def _clearly_better(got: Agreement, given: Agreement) -> bool:
     """Whether a mistake undone reads the views clearly better than as given: consistent
-    itself, and either agreeing on :data:`MARGIN` more of the pixels or, agreeing as much,
+    itself, on at least :data:`COVER` of the pairs that overlap as given (a reading that makes
+    the views stop overlapping dodges the evidence rather than explaining it), and either agreeing on :data:`MARGIN` more of the pixels or, agreeing as much,
     with residuals :data:`RESIDUAL_RATIO` times smaller where those as given are above sensor
     noise (:data:`NOISE_RESIDUAL`)."""
-    if got.agree < PASS_AGREE:
+    if got.agree < PASS_AGREE or got.pairs < COVER * given.pairs:
         return False
     if given.pairs < MIN_PAIRS or got.agree >= given.agree + MARGIN:
         return True

@@ -21,6 +21,12 @@ error naming where, never a silent pick: two different transforms for one frame 
 again is dropped and counted as ``duplicate_stamp``), a camera farther than
 ``--max-translation`` from the world origin or faster than ``--max-speed`` between
 consecutive frames.
+
+A view TF does not pose at its stamp is dropped and counted by why
+(:class:`ingest.tf.Uncovered`: before the first or after the last sample of a moving
+transform, or between two that never overlap); a recording whose colour images mostly have
+no pose is refused, naming the TF frames, the world frame and what to pass, rather than
+mapped from its few posed views.
 """
 
 from __future__ import annotations
@@ -31,6 +37,7 @@ import math
 from collections import Counter
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field, replace
+from enum import StrEnum
 from pathlib import Path
 from types import TracebackType
 from typing import Any, ClassVar
@@ -54,7 +61,7 @@ from ingest.folders.base import DatasetLayout
 from ingest.intrinsics import CameraIntrinsics
 from ingest.readers import RecordingReader, TopicInfo, open_reader
 from ingest.sync import Match, StampSync
-from ingest.tf import TFBuffer, check_transform
+from ingest.tf import TFBuffer, Uncovered, check_transform
 from ingest.topics import (
     TopicSelection,
     depth_camera_info,
@@ -64,11 +71,25 @@ from ingest.topics import (
 )
 from ingest.undistort import Distortion, undistort
 
-__all__ = ["ReadOptions", "ReadStats", "RecordingFrames"]
+__all__ = ["PoseFrom", "ReadOptions", "ReadStats", "RecordingFrames"]
 
 _WORLD_FRAME_NAMES = ("map", "world", "odom")
 _CONVENTION_POSES = 500
 """Most TF poses the camera convention is judged on (evenly spread over the recording)."""
+
+
+class PoseFrom(StrEnum):
+    """Where a recording's views take their poses from (``describe()["pose"]``)."""
+
+    TF = "tf"
+    """TF's chain from the camera frame to the world frame."""
+    GIVEN = "given pose source"
+    """The ``--pose-source`` topic, composed with TF's chain to the camera."""
+    FOUND = "found pose source"
+    """The recording's odometry or pose topic, taken since TF moves nothing on the
+    camera's chain (a robot's static mount chain, on ``/tf`` or ``/tf_static``)."""
+    STATIC = "static pose"
+    """``--static-pose``: the identity for every view."""
 
 
 def _image_digest(msg: Any) -> bytes:
@@ -92,7 +113,10 @@ class ReadOptions:
     """CameraInfo topic of the colour camera; default auto-detected."""
     pose_source: str | None = None
     """Odometry or PoseStamped topic to use as the pose (its child frame, or for
-    PoseStamped the camera frame, is placed under its header frame); default TF only."""
+    PoseStamped the camera frame, is placed under its header frame at each message stamp,
+    instead of TF's transform into that frame, and composed with TF's chain from there to
+    the camera); default TF, or the recording's odometry where TF moves nothing on the
+    camera's chain."""
     world_frame: str | None = None
     """TF frame of the world; default map, world or odom if present, else the TF root."""
     camera_frame: str | None = None
@@ -237,6 +261,11 @@ class RecordingFrames:
         self._nearest_miss_ns: int | None = None
         self._last_pose: tuple[int, np.ndarray] | None = None
         """Stamp and camera position of the last frame yielded (for the speed bound)."""
+        self._pose_from: tuple[PoseFrom, str] | None = None
+        """Where the poses come from and why, once a pose source is placed (else TF's)."""
+        self._lone: list[str] = []
+        """Child frames of the /tf transforms kept moving though they have one sample only:
+        nothing else moves the camera (:meth:`ingest.tf.TFBuffer.thaw`)."""
 
     # -- pass 1 ---------------------------------------------------------------------------
     def __enter__(self) -> RecordingFrames:
@@ -287,7 +316,7 @@ class RecordingFrames:
             raise IngestError(msg)
         depth_info = None if o.depth_registered else depth_camera_info(self.topics, sel)
         # a pose topic TF may not need: read with the small topics, taken as the pose source
-        # if TF turns out to hold no moving transform (a static chain sent on /tf)
+        # if TF turns out to move nothing on the camera's chain (a static chain on /tf)
         candidate = None
         if not sel.pose_source and not o.static_pose and (found := pose_topics(self.topics)):
             candidate = found[0]
@@ -327,15 +356,9 @@ class RecordingFrames:
         self.camera_frame = o.camera_frame or self.camera_frame
         if depth_info and depth_intrinsics is not None:
             self._check_depth_registered(depth_info, depth_intrinsics, colour_frame)
-        if candidate and pose_samples and not self._tf.moving_after_freezing():
-            # TF holds only transforms that never change: the robot's motion is the pose
-            # topic's, the chain on /tf its mount (as with a chain on /tf_static)
-            self.selection = sel = replace(sel, pose_source=candidate)
-        if not o.static_pose and sel.pose_source and pose_samples:
-            self._tf.freeze_unchanging(single=True)
-            self._add_pose_source(pose_samples)
-        elif not o.static_pose:
-            self._tf.freeze_unchanging(single=False)
+        if not o.static_pose:
+            self._tf.freeze_unchanging()
+            self._place_pose_source(candidate, pose_samples)
         if not o.static_pose and self.camera_frame:
             self._resolve_world_frame()
         if o.static_pose:  # the camera frame is the world: any convention is consistent
@@ -390,16 +413,52 @@ class RecordingFrames:
         )
         raise IngestError(msg)
 
+    def _place_pose_source(
+        self, candidate: str | None, samples: list[decode.StampedTransform]
+    ) -> None:
+        """Put the pose source into TF: the one given (``--pose-source``), or the recording's
+        first odometry or pose topic (``candidate``) where TF moves nothing on the camera's
+        chain, as on a robot whose motion is on ``nav_msgs/Odometry`` and whose mount chain
+        is static (REP 105), wherever that chain was published."""
+        assert self.selection is not None
+        if candidate and samples:
+            still = self._tf.moving(self.camera_frame) if self.camera_frame else self._tf.moving()
+            if still:  # TF moves the camera itself: the odometry read along is not needed
+                return
+            self.selection = replace(self.selection, pose_source=candidate)
+        if self.selection.pose_source and samples:
+            self._add_pose_source(samples)
+        elif self.camera_frame and not self._tf.moving(self.camera_frame):
+            self._lone = self._tf.lone(self.camera_frame)
+            self._tf.thaw(self._lone)
+
     def _add_pose_source(self, samples: list[decode.StampedTransform]) -> None:
-        """Put the pose source's samples into TF, replacing TF's own transform to its child."""
+        """Put the pose source's samples into TF, replacing TF's own transform to its child:
+        a given source wins over whatever TF says moves that frame (said in
+        :meth:`describe`), and any chain TF holds from there to the camera, static or
+        moving, is composed with it."""
+        assert self.selection is not None
+        topic = self.selection.pose_source
         child = samples[0].child or self.camera_frame
         if not child:
-            msg = f"{self.path}: pose source {self.options.pose_source} is a PoseStamped and the camera frame is unknown; pass --camera-frame."
+            msg = f"{self.path}: pose source {topic} is a PoseStamped and the camera frame is unknown; pass --camera-frame."
             raise IngestError(msg)
+        parent = samples[0].parent
+        replaced = self._tf.describe_edge(child)
         self._tf.drop(child)
-        topic = self.selection.pose_source if self.selection else None
         for sample in samples:
             self._tf.add(sample._replace(child=child), static=False, topic=topic)
+        kind = PoseFrom.GIVEN if self.options.pose_source else PoseFrom.FOUND
+        why = (
+            f"--pose-source {topic} given"
+            if kind is PoseFrom.GIVEN
+            else f"{topic}, since TF moves nothing on the camera's chain"
+        )
+        instead = f", instead of TF's {replaced}" if replaced else ""
+        self._pose_from = (
+            kind,
+            f"{why}: it places {child!r} under {parent!r} at each message stamp{instead}",
+        )
 
     def _add_info(self, msg: Any, t: int) -> None:
         topic = self.selection.camera_info if self.selection else ""
@@ -463,12 +522,24 @@ class RecordingFrames:
         """The choices made, for ``care topics`` and the store's meta.json."""
         return {
             "topics": self.selection.as_dict() if self.selection else None,
+            "pose": self._describe_pose(),
             "world_frame": self.world_frame,
             "camera_frame": self.camera_frame,
             "camera_convention": self.convention.as_json() if self.convention else None,
             "label_names": list(self.label_names),
             "options": asdict(self.options),
         }
+
+    def _describe_pose(self) -> dict[str, str]:
+        """Where the views' poses come from and why (a given ``--pose-source`` wins over
+        TF's own transform of its frame, and says so)."""
+        if self.options.static_pose:
+            kind, reason = PoseFrom.STATIC, "--static-pose: the identity for every view"
+        elif self._pose_from is not None:
+            kind, reason = self._pose_from
+        else:
+            kind, reason = PoseFrom.TF, f"TF from {self.camera_frame!r} to {self.world_frame!r}"
+        return {"from": kind.value, "reason": reason}
 
     # -- pass 2 ---------------------------------------------------------------------------
     def __iter__(self) -> Iterator[Frame]:
@@ -507,6 +578,8 @@ class RecordingFrames:
                 yield frame
         self.stats.dropped.update(sync.dropped)
         self._nearest_miss_ns = sync.nearest_miss.get("depth")
+        if self._unposed() * 2 > self.stats.rgb_messages:
+            raise IngestError(self._why_unposed())
         if self.stats.frames == 0:
             raise IngestError(self._why_empty())
 
@@ -597,9 +670,65 @@ class RecordingFrames:
             return f"{self.path}: no colour image on {sel.rgb} has a depth image on {sel.depth} within --max-dt {self.options.max_dt * 1e3:.0f} ms{near}; raise --max-dt or pass --depth TOPIC."
         if d["no_valid_depth"]:
             return f"{self.path}: depth topic {sel.depth} has no valid pixel (finite and > 0) in any of {d['no_valid_depth']} frames; check the depth topic and its encoding."
-        if d["no_pose"]:
-            return f"{self.path}: TF from {self.camera_frame!r} to {self.world_frame!r} covers none of the {d['no_pose']} colour stamps (transforms present: {self._tf.describe()}); check the recording's /tf or pass --static-pose."
+        if self._unposed():
+            return self._why_unposed()
         return f"{self.path}: no frame could be read ({dict(d)})."
+
+    def _unposed(self) -> int:
+        """Colour images dropped so far for want of a pose, whatever the reason."""
+        return sum(self.stats.dropped[reason.value] for reason in Uncovered)
+
+    def _drop_unposed(self, stamp: int) -> None:
+        """Count a view TF does not pose at ``stamp`` under why, and refuse the recording as
+        soon as most of its colour images surely have no pose: a map of the few posed views
+        is not what was recorded, and the fix (another pose source, another world frame) is
+        for the user to pass, not for ingest to guess."""
+        assert self.world_frame is not None
+        assert self.camera_frame is not None
+        tolerance = round(self.options.max_dt * 1e9)
+        reason = self._tf.uncovered(self.world_frame, self.camera_frame, stamp, tolerance)
+        self.stats.dropped[reason.value] += 1
+        if self.total and self._unposed() * 2 > self.total:  # a count of 0: known at the end
+            raise IngestError(self._why_unposed())
+
+    def _why_unposed(self) -> str:
+        """The one line refusing a recording whose views mostly have no pose: how many and
+        why, what TF covers, the frames it holds, the world frame chosen, what to pass."""
+        sel = self.selection
+        assert sel is not None
+        assert self.world_frame is not None
+        assert self.camera_frame is not None
+        total = max(self.total or 0, self.stats.rgb_messages)
+        reasons = ", ".join(
+            f"{r.value} {self.stats.dropped[r.value]}"
+            for r in Uncovered
+            if self.stats.dropped[r.value]
+        )
+        spans = self._tf.spans(self.world_frame, self.camera_frame)
+        covered = ", ".join(
+            f"{self._tf.parent(child)}->{child} {first / 1e9:.3f}-{last / 1e9:.3f} s"
+            for child, (first, last) in spans.items()
+        )
+        chosen = "given" if self.options.world_frame else "chosen"
+        using = f"; poses from {sel.pose_source}" if sel.pose_source else ""
+        others = [t for t in pose_topics(self.topics) if t != sel.pose_source]
+        world = "--world-frame FRAME (a frame whose tree covers the recording)"
+        fix = (
+            f"pass --pose-source {others[0]} (the recording's odometry/pose topics: {', '.join(others)}), or {world}"
+            if others
+            else f"the recording has no other odometry or pose topic: record the transforms that move the camera, or pass {world}"
+        )
+        if self._lone:
+            edges = ", ".join(f"{self._tf.parent(c)}->{c}" for c in self._lone)
+            fix += f"; if {edges} is a fixed mount, publish it on /tf_static"
+        return (
+            f"{self.path}: {self._unposed()} of {total} colour images on {sel.rgb} have no "
+            f"pose ({reasons}; colour stamps checked against the transforms' samples "
+            f"± --max-dt {self.options.max_dt * 1e3:g} ms): the moving transforms from camera "
+            f"frame {self.camera_frame!r} to world frame {self.world_frame!r} ({chosen}) "
+            f"cover only {covered}{using}; TF frames: {', '.join(sorted(self._tf.frames))}; "
+            f"{fix}."
+        )
 
     def _assemble(self, match: Match) -> Frame | None:
         try:
@@ -628,7 +757,7 @@ class RecordingFrames:
             return None
         pose = self._pose(match.stamp_ns)
         if pose is None:
-            self.stats.dropped["no_pose"] += 1
+            self._drop_unposed(match.stamp_ns)
             return None
         extras = {}
         for key, msg in match.secondary.items():

@@ -4,7 +4,12 @@ TF for a recording is small (a few transforms per frame), so ingest reads all of
 first pass and resolves camera poses in the second. Like tf2: every frame has one parent,
 ``/tf_static`` transforms hold at all times, dynamic ones are interpolated between their
 stamps (linear translation, ``scipy.spatial.transform.Slerp`` rotation) and not extrapolated
-beyond ``tolerance_ns`` past the first or last stamp.
+beyond ``tolerance_ns`` past the first or last stamp. Unlike tf2, a ``/tf`` transform whose
+samples are all one transform (published once, or again and again) is static too
+(:meth:`TFBuffer.freeze_unchanging`): drivers and replays send mount chains there, and
+kept dynamic such a chain would pose only the views within the tolerance of its stamps.
+One sample that nothing else on the camera's chain moves stays moving, though
+(:meth:`TFBuffer.thaw`): it is more likely a moving camera's only pose than a mount.
 
 One transform per frame and stamp: the same transform repeated (``/tf_static`` republished,
 a message recorded twice) adds nothing, but two different transforms for one (parent,
@@ -15,6 +20,7 @@ the pose of every view near that stamp, and no rule can tell the right one.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import NoReturn
 
 import numpy as np
@@ -23,7 +29,21 @@ from scipy.spatial.transform import Rotation, Slerp
 from care.errors import IngestError
 from ingest.decode import StampedTransform
 
-__all__ = ["TFBuffer", "check_transform"]
+__all__ = ["TFBuffer", "Uncovered", "check_transform"]
+
+
+class Uncovered(StrEnum):
+    """Why a view has no pose though TF joins the camera to the world: the moving
+    transforms of the chain have no sample within the tolerance of its stamp. The values
+    are the views' drop reasons (:attr:`ingest.source.ReadStats.dropped`)."""
+
+    BEFORE_FIRST = "no_pose_before_first_transform"
+    """Earlier than the first sample of a moving transform (minus the tolerance)."""
+    AFTER_LAST = "no_pose_after_last_transform"
+    """Later than the last sample of a moving transform (plus the tolerance)."""
+    BETWEEN = "no_pose_gap"
+    """After the last sample of one moving transform and before the first of another:
+    the chain's transforms cover times that never overlap there."""
 
 
 def check_transform(tf: StampedTransform, source: str = "TF") -> None:
@@ -50,6 +70,9 @@ class _Edge:
     rotations: list[np.ndarray] = field(default_factory=list)
     by_stamp: dict[int, tuple[int, str | None]] = field(default_factory=dict)
     """Stamp -> (index of its sample, the topic it came on), to find a second sample."""
+    frozen: bool = False
+    """Static since its samples never change (:meth:`TFBuffer.freeze_unchanging`), though
+    published as moving."""
     _arrays: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
     _slerp: Slerp | None = None
 
@@ -186,25 +209,50 @@ class TFBuffer:
         edge.rotations.append(tf.rotation)
         edge._arrays = edge._slerp = None
 
-    def freeze_unchanging(self, *, single: bool) -> list[str]:
+    def freeze_unchanging(self) -> list[str]:
         """Make static every edge whose samples are all one transform, wherever it was
-        published: a chain that ``static_transform_publisher`` or a driver sends on ``/tf``
-        (once, or again and again) is as static as one on ``/tf_static``. An edge with one
-        sample only counts where ``single`` (a pose source moves the robot, so a transform
-        published once is its mount; without one, a lone world transform is not stretched
-        over the whole recording). Returns the children made static."""
+        published: a mount chain that a driver, a ``static_transform_publisher`` replay or a
+        converted bag sends on ``/tf`` (once, or again and again) is as static as one on
+        ``/tf_static``. Kept dynamic, one such sample holds only within the tolerance of its
+        stamp, and every view away from it is dropped unposed. Returns the children made
+        static."""
         frozen = []
         for child, edge in self._edges.items():
-            if not edge.static and (single or len(edge.stamps) > 1) and _unchanging(edge):
-                edge.static = True
+            if not edge.static and _unchanging(edge):
+                edge.static = edge.frozen = True
                 edge._arrays = edge._slerp = None
                 frozen.append(child)
         return sorted(frozen)
 
-    def moving_after_freezing(self) -> list[str]:
-        """Children of the edges whose samples change (those :meth:`freeze_unchanging`
-        leaves dynamic), without freezing anything."""
-        return sorted(c for c, e in self._edges.items() if not e.static and not _unchanging(e))
+    def moving(self, frame: str | None = None) -> list[str]:
+        """Children of the edges whose samples change: all of them, or those on ``frame``'s
+        chain up to its root (what moves ``frame`` in its tree)."""
+        children = self._edges if frame is None else self._chain(frame)[:-1]
+        return sorted(c for c in children if not self._edges[c].static)
+
+    def lone(self, frame: str) -> list[str]:
+        """Children of the edges on ``frame``'s chain made static from a single sample."""
+        return sorted(
+            c
+            for c in self._chain(frame)[:-1]
+            if self._edges[c].frozen and len(self._edges[c].by_stamp) == 1
+        )
+
+    def thaw(self, children: list[str]) -> None:
+        """Make these frozen edges moving again: one sample that is all TF says of where the
+        camera is, with nothing else moving it, is a moving camera's only sample rather
+        than a mount, and stretched over the recording it would give every view its pose."""
+        for child in children:
+            edge = self._edges[child]
+            edge.static = edge.frozen = False
+            edge._arrays = edge._slerp = None
+
+    def describe_edge(self, child: str) -> str | None:
+        """``parent->child`` and whether it moves (None: TF has no transform into ``child``)."""
+        edge = self._edges.get(child)
+        if edge is None:
+            return None
+        return f"{'static' if edge.static else 'moving'} transform {edge.parent}->{child}"
 
     def drop(self, child: str) -> None:
         """Forget the transform into ``child`` (a pose source replaces it)."""
@@ -269,15 +317,40 @@ class TFBuffer:
         tree = self.tree(frame)
         return f"the tree of {frame!r} rooted at {tree[0]!r} ({', '.join(tree)})"
 
-    def sample_stamps(self, target: str, source: str) -> np.ndarray:
-        """Sorted stamps (ns) of the moving transforms on the chain joining ``source`` to
-        ``target``: where TF itself says where ``source`` is (empty: a static chain)."""
+    def _joining(self, target: str, source: str) -> list[str]:
+        """Children of the edges on the path joining ``source`` to ``target``."""
         self.check_connected(target, source)
         up_source, up_target = self._chain(source), self._chain(target)
         common = next(f for f in up_source if f in set(up_target))
-        children = up_source[: up_source.index(common)] + up_target[: up_target.index(common)]
+        return up_source[: up_source.index(common)] + up_target[: up_target.index(common)]
+
+    def sample_stamps(self, target: str, source: str) -> np.ndarray:
+        """Sorted stamps (ns) of the moving transforms on the chain joining ``source`` to
+        ``target``: where TF itself says where ``source`` is (empty: a static chain)."""
+        children = self._joining(target, source)
         stamps = [self._edges[c].arrays()[0] for c in children if not self._edges[c].static]
         return np.unique(np.concatenate(stamps)) if stamps else np.zeros(0, np.int64)
+
+    def spans(self, target: str, source: str) -> dict[str, tuple[int, int]]:
+        """First and last stamp (ns) of each moving transform joining ``source`` to
+        ``target``, by child frame: the poses exist where all of them overlap."""
+        spans = {}
+        for child in self._joining(target, source):
+            edge = self._edges[child]
+            if not edge.static:
+                stamps = edge.arrays()[0]
+                spans[child] = (int(stamps[0]), int(stamps[-1]))
+        return spans
+
+    def uncovered(self, target: str, source: str, time: int, tolerance_ns: int = 0) -> Uncovered:
+        """Why :meth:`lookup` has no pose at ``time``: before the first or after the last
+        sample of the moving transforms, or between two of them that never overlap."""
+        spans = self.spans(target, source).values()
+        before = any(time < first - tolerance_ns for first, _ in spans)
+        after = any(time > last + tolerance_ns for _, last in spans)
+        if before and after:
+            return Uncovered.BETWEEN
+        return Uncovered.AFTER_LAST if after else Uncovered.BEFORE_FIRST
 
     def lookup(
         self, target: str, source: str, times: np.ndarray, tolerance_ns: int = 0

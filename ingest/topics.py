@@ -59,7 +59,8 @@ class TopicSelection:
     camera_info: str | None
     """None where the intrinsics are given (``--intrinsics``) instead."""
     tf: tuple[str, ...] = ()
-    """TF topics; those named ``*tf_static`` are static (latched)."""
+    """TF topics; those named ``*tf_static`` are static (latched), and so is a transform
+    on the others whose samples never change (:meth:`ingest.tf.TFBuffer.freeze_unchanging`)."""
     pose_source: str | None = None
     """An Odometry or PoseStamped topic giving the pose, instead of or on top of TF."""
     extras: dict[str, str] = field(default_factory=dict)

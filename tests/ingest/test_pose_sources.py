@@ -1,24 +1,50 @@
-"""Pose sources as robots publish them: the camera's mount chain (base_link -> camera_link
--> camera_color_optical_frame) sent once on ``/tf`` rather than ``/tf_static`` (as many
-drivers and ``static_transform_publisher`` replays do), at the start or at the end of the
-recording, or again with every frame, with the motion on ``nav_msgs/Odometry``. Written
-through rosbags from the third-party living-room frames; every view's pose must equal the
-frames' own trajectory (1e-6), where before all but one view were dropped as unposed."""
+"""Pose sources as robots publish them, written from the third-party living-room frames
+through the real writers (rosbags for ROS 1 and rosbag2, mcap for a plain MCAP file).
+
+The camera's mount chain (base_link -> camera_link -> camera_color_optical_frame) sent on
+``/tf`` rather than ``/tf_static`` (as drivers and ``static_transform_publisher`` replays
+do), once at the start, once at the end or with every frame, with the motion on
+``nav_msgs/Odometry``: every view's pose must equal the frames' own trajectory (1e-6),
+where before all views but one were dropped as unposed. ``--pose-source`` composes with
+any chain, and wins over TF's own motion; views without a pose are counted by why, and a
+recording whose views mostly have none is refused in one line naming the fix.
+"""
 
 from __future__ import annotations
 
+import dataclasses
+from enum import StrEnum
 from pathlib import Path
 
 import numpy as np
 import pytest
+from rosbags.rosbag1 import Writer as Ros1Writer
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from scipy.spatial.transform import Rotation
 
-from ingest.source import ReadOptions, RecordingFrames
+from care.errors import IngestError
+from ingest.decode import StampedTransform
+from ingest.source import PoseFrom, ReadOptions, RecordingFrames
+from ingest.tf import TFBuffer, Uncovered
 
 OPTICAL = "camera_color_optical_frame"
 LINK_TO_OPTICAL_XYZW = (-0.5, 0.5, -0.5, 0.5)  # REP 103: camera_link -> optical
 BASE_TO_LINK_XYZ = (0.12, -0.03, 0.45)
 BASE_TO_LINK_XYZW = tuple(Rotation.from_euler("y", 8, degrees=True).as_quat())
+
+
+class Container(StrEnum):
+    ROS1 = "ros1"
+    ROS2 = "ros2"
+    MCAP = "mcap"
+
+
+class ChainAt(StrEnum):
+    """When the mount chain is published."""
+
+    START = "start"
+    END = "end"
+    EVERY_FRAME = "every frame"
 
 
 def _matrix(xyz, xyzw) -> np.ndarray:
@@ -28,83 +54,346 @@ def _matrix(xyz, xyzw) -> np.ndarray:
     return T
 
 
-def _bag(tmp_path: Path, h, frames, chain_at: str) -> Path:
-    base_to_optical = _matrix(BASE_TO_LINK_XYZ, BASE_TO_LINK_XYZW) @ _matrix(
-        (0.0, 0.0, 0.0), LINK_TO_OPTICAL_XYZW
-    )
+BASE_TO_OPTICAL = _matrix(BASE_TO_LINK_XYZ, BASE_TO_LINK_XYZW) @ _matrix(
+    (0.0, 0.0, 0.0), LINK_TO_OPTICAL_XYZW
+)
 
-    def chain(t: int) -> list:
-        return [
-            (
-                "/tf",
-                t,
-                h.tf_msg(t, "base_link", "camera_link", BASE_TO_LINK_XYZ, BASE_TO_LINK_XYZW),
-            ),
-            ("/tf", t, h.tf_msg(t, "camera_link", OPTICAL, (0.0, 0.0, 0.0), LINK_TO_OPTICAL_XYZW)),
-        ]
 
+# -- writers -----------------------------------------------------------------------------
+
+
+def _ros1_store():
+    store = get_typestore(Stores.ROS1_NOETIC)
+    if "tf2_msgs/msg/TFMessage" not in store.fielddefs:  # Noetic's store has tf's only
+        store.register(
+            get_types_from_msg(
+                "geometry_msgs/TransformStamped[] transforms\n", "tf2_msgs/msg/TFMessage"
+            )
+        )
+    return store
+
+
+def _as_ros1(msg, store):
+    """The ROS 1 message with ``msg``'s (ROS 2) values: fields by name (CameraInfo's ``K``
+    is ROS 2's ``k``), a header with a sequence number."""
+    cls = store.types[msg.__msgtype__]
+    values = {}
+    for f in dataclasses.fields(cls):
+        if f.name == "seq":
+            values[f.name] = 0
+            continue
+        value = getattr(msg, f.name) if hasattr(msg, f.name) else getattr(msg, f.name.lower())
+        if hasattr(value, "__msgtype__"):
+            value = _as_ros1(value, store)
+        elif isinstance(value, list):
+            value = [_as_ros1(v, store) if hasattr(v, "__msgtype__") else v for v in value]
+        values[f.name] = value
+    return cls(**values)
+
+
+def _write(container: Container, path: Path, h, msgs: list) -> Path:
+    """``(topic, t_ns, message)`` into a recording of ``container`` through its real writer."""
+    if container is Container.ROS2:
+        return h.write_bag(path, msgs)
+    if container is Container.ROS1:
+        path = path.with_suffix(".bag")
+        store = _ros1_store()
+        conns = {}
+        with Ros1Writer(path) as writer:
+            for topic, t, msg in msgs:
+                ros1 = _as_ros1(msg, store)
+                if topic not in conns:
+                    conns[topic] = writer.add_connection(topic, msg.__msgtype__, typestore=store)
+                writer.write(conns[topic], t, bytes(store.serialize_ros1(ros1, msg.__msgtype__)))
+        return path
+    from mcap.writer import Writer
+
+    path = path.with_suffix(".mcap")
+    with path.open("wb") as f:
+        writer = Writer(f)
+        writer.start(profile="ros2", library="care-maps tests")
+        schemas: dict[str, int] = {}
+        channels: dict[str, int] = {}
+        for topic, t, msg in msgs:
+            kind = msg.__msgtype__
+            if kind not in schemas:
+                msgdef, _ = h.TS.generate_msgdef(kind, ros_version=2)
+                schemas[kind] = writer.register_schema(kind, "ros2msg", msgdef.encode())
+            if topic not in channels:
+                channels[topic] = writer.register_channel(topic, "cdr", schemas[kind])
+            data = bytes(h.TS.serialize_cdr(msg, kind))
+            writer.add_message(channels[topic], log_time=t, data=data, publish_time=t)
+        writer.finish()
+    return path
+
+
+# -- recordings --------------------------------------------------------------------------
+
+
+def _chain(h, t: int, topic: str = "/tf") -> list:
+    return [
+        (topic, t, h.tf_msg(t, "base_link", "camera_link", BASE_TO_LINK_XYZ, BASE_TO_LINK_XYZW)),
+        (topic, t, h.tf_msg(t, "camera_link", OPTICAL, (0.0, 0.0, 0.0), LINK_TO_OPTICAL_XYZW)),
+    ]
+
+
+def _body(f) -> np.ndarray:
+    """odom_from_base_link that puts the camera where the trajectory has it."""
+    return f.cam_to_world @ np.linalg.inv(BASE_TO_OPTICAL)
+
+
+def _tf_pose(h, t: int, T: np.ndarray, parent: str, child: str):
+    q = Rotation.from_matrix(T[:3, :3]).as_quat()
+    return h.tf_msg(t, parent, child, tuple(T[:3, 3]), tuple(q))
+
+
+def _camera(h, f, depth_per_metre: float = 1000.0) -> list:
+    t = f.stamp_ns
+    info = h.camera_info_msg(t, f.K, f.width, f.height)
+    info.header.frame_id = OPTICAL
+    depth = np.round(f.depth_m * depth_per_metre).astype(np.uint16)
+    return [
+        ("/camera/color/camera_info", t, info),
+        ("/camera/color/image_raw", t, h.image_msg(t, f.rgb, "rgb8", OPTICAL)),
+        ("/camera/depth/image_raw", t, h.image_msg(t, depth, "16UC1", OPTICAL)),
+    ]
+
+
+def _robot(
+    h,
+    frames,
+    chain_at: ChainAt = ChainAt.START,
+    chain_topic: str = "/tf",
+    depth_per_metre: float = 1000.0,
+) -> list:
+    """The user's robot: the mount chain on ``chain_topic`` at ``chain_at``, the body's
+    motion on /odom (odom -> base_link)."""
     stamps = [f.stamp_ns for f in frames]
     msgs = []
-    if chain_at == "start":
-        msgs += chain(stamps[0])
-    elif chain_at == "end":
-        msgs += chain(stamps[-1])
+    if chain_at is ChainAt.START:
+        msgs += _chain(h, stamps[0], chain_topic)
+    elif chain_at is ChainAt.END:
+        msgs += _chain(h, stamps[-1], chain_topic)
     for f in frames:
         t = f.stamp_ns
-        if chain_at == "every frame":
-            msgs += chain(t)
-        info = h.camera_info_msg(t, f.K, f.width, f.height)
-        info.header.frame_id = OPTICAL
-        msgs += [
-            ("/odom", t, h.odometry_msg(t, f.cam_to_world @ np.linalg.inv(base_to_optical), "odom", "base_link")),
-            ("/camera/color/camera_info", t, info),
-            ("/camera/color/image_raw", t, h.image_msg(t, f.rgb, "rgb8", OPTICAL)),
-            ("/camera/depth/image_raw", t, h.image_msg(t, np.round(f.depth_m * 1000).astype(np.uint16), "16UC1", OPTICAL)),
-        ]  # fmt: skip
-    msgs.sort(key=lambda m: m[1])
-    return h.write_bag(tmp_path / f"robot_{chain_at.replace(' ', '_')}", msgs)
+        if chain_at is ChainAt.EVERY_FRAME:
+            msgs += _chain(h, t, chain_topic)
+        msgs.append(("/odom", t, h.odometry_msg(t, _body(f), "odom", "base_link")))
+        msgs += _camera(h, f, depth_per_metre)
+    return sorted(msgs, key=lambda m: m[1])
 
 
-@pytest.mark.parametrize("chain_at", ["start", "end", "every frame"])
-@pytest.mark.parametrize("given", [False, True])
-def test_a_static_chain_on_tf_with_odometry_poses_every_view(
-    tmp_path: Path, h, livingroom_root: Path, chain_at: str, given: bool
-) -> None:
-    frames = h.load_livingroom(livingroom_root, 24)[::3]
-    bag = _bag(tmp_path, h, frames, chain_at)
-    options = ReadOptions(pose_source="/odom") if given else ReadOptions()
+@pytest.fixture(scope="module")
+def frames(h, livingroom_root: Path) -> list:
+    """Eight living-room frames a tenth of a second apart, with their trajectory poses."""
+    return h.load_livingroom(livingroom_root, 24)[::3]
+
+
+def _read(bag: Path, options: ReadOptions | None = None) -> tuple[list, RecordingFrames]:
     with RecordingFrames(bag, options) as rf:
-        got = list(rf)
-        assert rf.selection.pose_source == "/odom"
-        assert rf.world_frame == "odom"
-        assert rf.camera_frame == OPTICAL
+        return list(rf), rf
+
+
+def _assert_trajectory(got, frames) -> None:
     assert len(got) == len(frames)
     for g, f in zip(got, frames, strict=True):
+        assert g.stamp_ns == f.stamp_ns
         np.testing.assert_allclose(g.cam_to_world, f.cam_to_world, atol=1e-6)
 
 
-def test_a_lone_world_transform_on_tf_is_not_stretched_over_the_recording(
-    tmp_path: Path, h, livingroom_root: Path
+# -- the user's case: a static chain once on /tf, the motion on /odom ---------------------
+
+
+@pytest.mark.parametrize("container", list(Container))
+@pytest.mark.parametrize("chain_at", [ChainAt.START, ChainAt.END])
+def test_a_chain_once_on_tf_with_odometry_poses_every_view(
+    tmp_path: Path, h, frames, container: Container, chain_at: ChainAt
 ) -> None:
-    # map -> camera sent once on /tf and nothing else: a moving camera's one sample, not a
-    # mount; frames away from it have no pose (and ingest says so), none gets that pose
-    frames = h.load_livingroom(livingroom_root, 12)[::3]
-    t0 = frames[0].stamp_ns
-    T = frames[0].cam_to_world
-    q = Rotation.from_matrix(T[:3, :3]).as_quat()
-    msgs = [("/tf", t0, h.tf_msg(t0, "map", OPTICAL, tuple(T[:3, 3]), tuple(q)))]
-    for f in frames:
-        t = f.stamp_ns
-        info = h.camera_info_msg(t, f.K, f.width, f.height)
-        info.header.frame_id = OPTICAL
-        msgs += [
-            ("/camera/color/camera_info", t, info),
-            ("/camera/color/image_raw", t, h.image_msg(t, f.rgb, "rgb8", OPTICAL)),
-            ("/camera/depth/image_raw", t, h.image_msg(t, np.round(f.depth_m * 1000).astype(np.uint16), "16UC1", OPTICAL)),
-        ]  # fmt: skip
-    msgs.sort(key=lambda m: m[1])
-    bag = h.write_bag(tmp_path / "lone", msgs)
+    bag = _write(container, tmp_path / "robot", h, _robot(h, frames, chain_at))
+    got, rf = _read(bag)
+    assert rf.selection.pose_source == "/odom"
+    assert rf.world_frame == "odom"
+    assert rf.camera_frame == OPTICAL
+    assert rf.describe()["pose"]["from"] == PoseFrom.FOUND
+    assert not rf.stats.dropped
+    _assert_trajectory(got, frames)
+
+
+def test_a_chain_repeated_on_tf_with_every_frame_is_static_too(tmp_path: Path, h, frames) -> None:
+    bag = _write(Container.ROS2, tmp_path / "robot", h, _robot(h, frames, ChainAt.EVERY_FRAME))
+    got, rf = _read(bag)
+    assert (rf.selection.pose_source, rf.world_frame) == ("/odom", "odom")
+    _assert_trajectory(got, frames)
+
+
+# -- --pose-source with any chain ----------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("container", "chain_topic"),
+    [(Container.ROS2, "/tf"), (Container.ROS1, "/tf"), (Container.MCAP, "/tf_static")],
+)
+def test_a_given_pose_source_composes_with_the_chain_wherever_published(
+    tmp_path: Path, h, frames, container: Container, chain_topic: str
+) -> None:
+    msgs = _robot(h, frames, ChainAt.START, chain_topic)
+    bag = _write(container, tmp_path / "robot", h, msgs)
+    got, rf = _read(bag, ReadOptions(pose_source="/odom"))
+    pose = rf.describe()["pose"]
+    assert pose["from"] == PoseFrom.GIVEN
+    assert "places 'base_link' under 'odom'" in pose["reason"]
+    assert rf.world_frame == "odom"
+    _assert_trajectory(got, frames)
+
+
+def test_a_given_pose_source_wins_over_tf_motion(tmp_path: Path, h, frames) -> None:
+    # TF moves base_link too (a drifting wheel odometry, 0.3 m off); /odom is the right one
+    drift = np.eye(4)
+    drift[0, 3] = 0.3
+    msgs = _robot(h, frames, ChainAt.START)
+    msgs += [
+        ("/tf", f.stamp_ns, _tf_pose(h, f.stamp_ns, drift @ _body(f), "odom", "base_link"))
+        for f in frames
+    ]
+    bag = _write(Container.ROS2, tmp_path / "robot", h, sorted(msgs, key=lambda m: m[1]))
+    # without the flag TF's own motion holds (it moves the camera, no topic is guessed)
+    got, rf = _read(bag)
+    assert rf.selection.pose_source is None
+    assert rf.describe()["pose"]["from"] == PoseFrom.TF
+    np.testing.assert_allclose(
+        got[0].cam_to_world[:3, 3], (drift @ frames[0].cam_to_world)[:3, 3], atol=1e-6
+    )
+    got, rf = _read(bag, ReadOptions(pose_source="/odom"))
+    pose = rf.describe()["pose"]
+    assert pose["from"] == PoseFrom.GIVEN
+    assert "instead of TF's moving transform odom->base_link" in pose["reason"]
+    _assert_trajectory(got, frames)
+
+
+def test_care_topics_says_which_pose_source_wins(tmp_path: Path, h, frames) -> None:
+    bag = _write(Container.ROS2, tmp_path / "robot", h, _robot(h, frames, ChainAt.END))
     with RecordingFrames(bag) as rf:
-        got = list(rf)
-        assert rf.stats.dropped["no_pose"] == len(frames) - 1
-    assert len(got) == 1
+        described = rf.describe()
+    assert described["topics"]["pose_source"] == "/odom"
+    assert described["pose"]["from"] == "found pose source"
+    assert "TF moves nothing on the camera's chain" in described["pose"]["reason"]
+
+
+# -- views without a pose: why, and a refusal naming the fix -------------------------------
+
+
+def _moving_tf_only(h, frames, posed: range, *, odom: bool) -> list:
+    """The chain on /tf_static, the body on /tf for the frames in ``posed`` only; /odom
+    (the whole trajectory) beside it when ``odom``."""
+    msgs = _chain(h, frames[0].stamp_ns, "/tf_static")
+    for k, f in enumerate(frames):
+        t = f.stamp_ns
+        if k in posed:
+            msgs.append(("/tf", t, _tf_pose(h, t, _body(f), "odom", "base_link")))
+        if odom:
+            msgs.append(("/odom", t, h.odometry_msg(t, _body(f), "odom", "base_link")))
+        msgs += _camera(h, f)
+    return sorted(msgs, key=lambda m: m[1])
+
+
+def test_views_outside_tf_are_counted_by_why(tmp_path: Path, h, frames) -> None:
+    msgs = _moving_tf_only(h, frames, range(2, 7), odom=False)
+    got, rf = _read(_write(Container.ROS2, tmp_path / "robot", h, msgs))
+    assert dict(rf.stats.dropped) == {
+        Uncovered.BEFORE_FIRST.value: 2,
+        Uncovered.AFTER_LAST.value: 1,
+    }
+    _assert_trajectory(got, frames[2:7])
+
+
+@pytest.mark.parametrize("odom", [True, False])
+def test_a_recording_mostly_without_poses_is_refused_naming_the_fix(
+    tmp_path: Path, h, frames, odom: bool
+) -> None:
+    bag = _write(
+        Container.ROS2, tmp_path / "robot", h, _moving_tf_only(h, frames, range(3), odom=odom)
+    )
+    with pytest.raises(IngestError) as err, RecordingFrames(bag) as rf:
+        list(rf)
+    line = str(err.value)
+    assert "\n" not in line
+    assert line.startswith(f"{bag}: 5 of 8 colour images on /camera/color/image_raw have no pose")
+    assert "no_pose_after_last_transform 5" in line
+    assert "world frame 'odom' (chosen)" in line
+    assert f"TF frames: base_link, {OPTICAL}, camera_link, odom" in line
+    assert "--world-frame" in line
+    if odom:
+        assert "pass --pose-source /odom" in line
+        # and what it names works
+        got, _ = _read(bag, ReadOptions(pose_source="/odom"))
+        _assert_trajectory(got, frames)
+    else:
+        assert "no other odometry or pose topic" in line
+
+
+def test_a_lone_world_transform_on_tf_is_not_stretched_over_the_recording(
+    tmp_path: Path, h, frames
+) -> None:
+    # map -> camera once on /tf and nothing else: more likely a moving camera's only sample
+    # than a mount: it poses the views near its stamp only, and the recording is refused as
+    # soon as most views surely have no pose
+    t0 = frames[0].stamp_ns
+    msgs = [("/tf", t0, _tf_pose(h, t0, frames[0].cam_to_world, "map", OPTICAL))]
+    msgs += [m for f in frames for m in _camera(h, f)]
+    bag = _write(Container.ROS2, tmp_path / "lone", h, sorted(msgs, key=lambda m: m[1]))
+    with pytest.raises(IngestError, match=r"^[^\n]*: 5 of 8 colour images .* have no pose") as err:
+        _read(bag)
+    line = str(err.value)
+    assert "no_pose_after_last_transform 5" in line
+    assert f"if map->{OPTICAL} is a fixed mount, publish it on /tf_static" in line
+
+
+def test_transforms_that_never_overlap_leave_a_gap() -> None:
+    buf = TFBuffer()
+    q = np.array([0.0, 0.0, 0.0, 1.0])
+    for k, t in enumerate((0, 10**8)):
+        buf.add(StampedTransform("map", "odom", t, np.array([k, 0.0, 0.0]), q), static=False)
+    for k, t in enumerate((6 * 10**8, 7 * 10**8)):
+        buf.add(StampedTransform("odom", "cam", t, np.array([0.0, k, 0.0]), q), static=False)
+    times = [0, 4 * 10**8, 7 * 10**8]
+    _, valid = buf.lookup("map", "cam", np.array(times))
+    assert not valid.any()
+    assert [buf.uncovered("map", "cam", t) for t in times] == [
+        Uncovered.BEFORE_FIRST,
+        Uncovered.BETWEEN,
+        Uncovered.AFTER_LAST,
+    ]
+
+
+# -- the rule itself ----------------------------------------------------------------------
+
+
+def test_only_transforms_that_never_change_are_static() -> None:
+    buf = TFBuffer()
+    q = np.array([0.0, 0.0, 0.0, 1.0])
+    buf.add(StampedTransform("base", "once", 5, np.ones(3), q), static=False)
+    for t in range(3):  # the same transform again, but for the last bits
+        xyz = np.ones(3) + 1e-9 * t
+        buf.add(StampedTransform("base", "repeated", t, xyz, -q), static=False)
+        buf.add(StampedTransform("base", "moving", t, np.full(3, t * 1e-3), q), static=False)
+    assert buf.freeze_unchanging() == ["once", "repeated"]
+    assert buf.moving() == ["moving"]
+    _, valid = buf.lookup("base", "once", np.array([-(10**12), 10**12]))
+    assert valid.all()
+
+
+# -- --depth-scale for recordings -----------------------------------------------------------
+
+
+def test_depth_in_tenths_of_a_millimetre_reads_with_depth_scale(tmp_path: Path, h, frames) -> None:
+    mm = _write(Container.ROS2, tmp_path / "mm", h, _robot(h, frames))
+    tenths = _write(
+        Container.ROS1, tmp_path / "tenths", h, _robot(h, frames, depth_per_metre=10_000)
+    )
+    reference, _ = _read(mm)
+    got, _ = _read(tenths, ReadOptions(depth_scale=10_000))
+    _assert_trajectory(got, frames)
+    for g, r in zip(got, reference, strict=True):
+        np.testing.assert_allclose(g.depth_m, r.depth_m, rtol=1e-6)
+    unscaled, _ = _read(tenths)  # read as millimetres: ten times too deep
+    np.testing.assert_allclose(unscaled[0].depth_m, 10 * reference[0].depth_m, rtol=1e-6)
