@@ -13,12 +13,55 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["DEFAULT_CAMERA_FRAME", "DEFAULT_WORLD_FRAME", "Frame"]
+from care.errors import CareError
+
+__all__ = [
+    "DEFAULT_CAMERA_FRAME",
+    "DEFAULT_WORLD_FRAME",
+    "FRAME_ID_FIELDS",
+    "Frame",
+    "FrameIdError",
+    "check_frame_id",
+]
 
 DEFAULT_WORLD_FRAME = "map"
 """The world frame of a recording whose transforms name none (REP 105's fixed frame)."""
 DEFAULT_CAMERA_FRAME = "camera_optical_frame"
 """The camera frame of a recording whose images name none (REP 103's optical convention)."""
+
+FRAME_ID_FIELDS = frozenset({"frame_id", "world_frame", "camera_frame"})
+"""Config fields that name a TF frame: every CLI option made from one is checked by
+:func:`check_frame_id` (``care_cli.options``), so ``--frame-id``, ``--world-frame`` and
+``--camera-frame`` refuse the same names with the same words."""
+
+
+class FrameIdError(CareError, ValueError):
+    """A name tf2 would not take as a frame id."""
+
+
+def check_frame_id(name: str) -> str:
+    """``name`` if tf2 takes it as a frame id; otherwise :class:`FrameIdError` saying why.
+
+    The one check of a frame id a user gives, so that a name is refused here, in one line,
+    rather than printed into a command or a goal that tf2 rejects later on the robot.
+    tf2's ``BufferCore::validateFrameId`` refuses an empty id and one that starts with
+    ``/`` (ROS 1's ``tf_prefix`` style, which tf2 dropped); whitespace and control
+    characters are refused too: no TF tree names a frame so, a shell command quoting it
+    would still hand tf2 a name no publisher uses, and ``map.yaml`` would not read back.
+    """
+    if not name:
+        reason = "it is empty (tf2 refuses an empty frame id)"
+    elif name.startswith("/"):
+        bare = name.lstrip("/")
+        reason = "tf2 frame ids do not start with '/'" + (f" (give {bare!r})" if bare else "")
+    elif any(c.isspace() for c in name):
+        reason = "it holds whitespace"
+    elif not name.isprintable():
+        reason = "it holds control characters"
+    else:
+        return name
+    msg = f"{name!r} is not a TF frame id: {reason}"
+    raise FrameIdError(msg)
 
 
 @dataclass(frozen=True, eq=False)

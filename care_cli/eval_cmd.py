@@ -22,7 +22,7 @@ import typer
 from care.encoders.base import EncoderOptions
 from care_cli.choices import EncoderName, MapKind
 from care_cli.ingest_cmd import read_options
-from care_cli.options import Options, config_options, with_choices
+from care_cli.options import Options, config_options, point_xy, with_choices
 from evaluate.config import EvalConfig, RunConfig
 from ingest.select import FrameSelection
 from ingest.source import ReadOptions
@@ -144,9 +144,11 @@ _GOAL = ("clearance", "frame_id", "allow_tight_goals")
 _TIGHT = {"allow_tight_goals": {"flags": ("--allow-tight-goals",)}}
 """One flag, not a switch both ways: off is the default a robot relies on."""
 _FROM = {"start": {"flags": ("--from",)}}
+_XY = {"start": point_xy}
+"""``--from``: one map position x,y, refused while the command line is read (naming ``--from``)."""
 
 
-@config_options("path", PathConfig, only=("start",), extra=_FROM)
+@config_options("path", PathConfig, only=("start",), extra=_FROM, parse=_XY)
 @config_options("goal", GoalConfig, only=_GOAL, extra=_TIGHT)
 @config_options("settings", BatchConfig, only=("top", "k", "attempts", "exclude_radius", "seed"),
                 extra=_BATCH)  # fmt: skip
@@ -275,7 +277,7 @@ def _summary(answer: Any, result: dict) -> list[str]:
     return lines
 
 
-@config_options("path", PathConfig, only=("start",), extra=_FROM)
+@config_options("path", PathConfig, only=("start",), extra=_FROM, parse=_XY)
 @config_options("goal", GoalConfig, only=_GOAL, extra=_TIGHT)
 @config_options("settings", ReplanConfig, extra={"k": _BATCH["k"]})
 def replan(
@@ -376,21 +378,21 @@ def _batch(
 
 
 def _visited(values: list[str]) -> tuple[list[int], list[tuple[float, float]]]:
-    """``--visited`` values: candidate ids and map positions ``x,y``."""
+    """``--visited`` values: candidate ids and map positions ``x,y`` (read by the one parser
+    of a map position, :func:`care_cli.options.point_xy`, as ``--from`` is)."""
     ids: list[int] = []
     places: list[tuple[float, float]] = []
     for value in values:
-        parts = [p.strip() for p in value.split(",")]
         try:
-            if len(parts) == 1:
-                ids.append(int(parts[0]))
-                continue
-            x, y = (float(p) for p in parts)
+            if "," in value:
+                places.append(point_xy(value))
+            else:
+                ids.append(int(value.strip()))
         except ValueError:
-            _fail(f"--visited {value!r}: give a candidate id (12) or a map position x,y (1.5,-2.0)")
-        if not (math.isfinite(x) and math.isfinite(y)):
-            _fail(f"--visited {value!r}: a position must be finite x,y in metres")
-        places.append((x, y))
+            _fail(
+                f"--visited {value!r}: give a candidate id (12) or a map position x,y (1.5,-2.0) "
+                "of finite metres"
+            )
     return ids, places
 
 

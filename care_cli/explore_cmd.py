@@ -15,7 +15,7 @@ from typing import Annotated
 
 import typer
 
-from care_cli.options import Options, config_options
+from care_cli.options import Options, config_options, point_xy
 from query.explore import ExploreConfig
 from query.goals import GoalConfig
 from query.paths import PathConfig
@@ -26,7 +26,7 @@ _FROM = {"start": {"flags": ("--from",)}}
 _VIEWS = {"views": {"min": 1}, "contest_k": {"min": 1}}
 
 
-@config_options("path", PathConfig, only=("start",), extra=_FROM)
+@config_options("path", PathConfig, only=("start",), extra=_FROM, parse={"start": point_xy})
 @config_options("goal", GoalConfig, only=("clearance", "frame_id"))
 @config_options("settings", ExploreConfig, extra=_VIEWS)
 def explore(

@@ -9,6 +9,9 @@ from typing import Annotated
 
 import typer
 
+from care.frames import check_frame_id
+from care_cli.options import parsed
+
 __all__ = ["register"]
 
 
@@ -19,7 +22,8 @@ def frame(
         typer.Option(
             help="Name of the frame goals and map.yaml are in: the recording's world frame, "
             "or a name for the map frame to publish (default: the world frame when it has "
-            "z up, else care_map). Give the same --frame-id to care query and care replan."
+            "z up, else care_map). Give the same --frame-id to care query and care replan.",
+            callback=parsed(check_frame_id),  # the check of every frame-id option
         ),
     ] = None,
     as_json: Annotated[

@@ -11,6 +11,12 @@ class and, where the CLI differs, how (an option name, a parser, a bound).
 hands the command an :class:`Options`: the values given on the command line, which win
 over a map's recorded settings, which win over the config's defaults
 (:meth:`Options.config`).
+
+Every refusal of an option's text names that option as the user typed it (``--from``, not
+the field ``start``): a parser raises ``ValueError`` with what is wrong, and :func:`parsed`
+hands it to click, which names the option it was reading.
+One parser per kind of value (:func:`point_xy`, :func:`care.frames.check_frame_id` for every
+field of :data:`care.frames.FRAME_ID_FIELDS`), reused by every option of that kind.
 """
 
 from __future__ import annotations
@@ -30,6 +36,7 @@ import typer
 
 from care.config import field_docs, recorded_fields
 from care.errors import CareError
+from care.frames import FRAME_ID_FIELDS, check_frame_id
 
 __all__ = [
     "GeneratedOption",
@@ -38,6 +45,8 @@ __all__ = [
     "csv_choices",
     "finite_numbers",
     "generated_options",
+    "parsed",
+    "point_xy",
     "with_choices",
 ]
 
@@ -126,7 +135,7 @@ def csv_choices(item: type, name: str) -> Callable[[str | None], tuple[Any, ...]
     return parse
 
 
-def _from_text(kind: type, name: str) -> Callable[[str], Any]:
+def _from_text(kind: type) -> Callable[[str], Any]:
     """The parser of a field whose type reads itself from the option's text (a classmethod
     ``from_text``, e.g. :class:`ingest.intrinsics.CameraIntrinsics`); text it refuses is a
     usage error (exit 2) naming the option."""
@@ -135,9 +144,48 @@ def _from_text(kind: type, name: str) -> Callable[[str], Any]:
         try:
             return kind.from_text(value)  # type: ignore[attr-defined]
         except CareError as err:
-            raise typer.BadParameter(str(err), param_hint=name) from err
+            raise typer.BadParameter(str(err)) from err
 
     return parse
+
+
+def point_xy(value: str) -> tuple[float, float]:
+    """``x,y``: a map position in metres (``--from``, a ``--visited`` place).
+
+    Checked here, while the command line is read, so the message names the option; a
+    config's own check (:class:`query.paths.PathConfig`) could only name its field."""
+    parts = [p.strip() for p in value.split(",")]
+    try:
+        x, y = (float(p) for p in parts)
+    except ValueError as err:
+        msg = f"{value!r}: give a map position x,y (1.5,-2.0), two numbers in metres"
+        raise ValueError(msg) from err
+    if not (math.isfinite(x) and math.isfinite(y)):
+        msg = f"{value!r}: a map position x,y must be two finite numbers of metres"
+        raise ValueError(msg)
+    return x, y
+
+
+def parsed(parse: Callable[[str], Any]) -> Callable[[Any], Any]:
+    """A typer ``callback`` that runs ``parse`` on an option's text (None: not given).
+
+    What ``parse`` refuses with ``ValueError`` (or ``typer.BadParameter``) becomes a usage
+    error, exit 2, in one line that click starts with the name of the option being read
+    (``Invalid value for '--from': ...``): the name the user typed, whatever the field is
+    called, and the same words for every option of a kind. A parser's own
+    :class:`care.errors.CareError` passes through (its message names the option itself)."""
+
+    def convert(value: Any) -> Any:
+        if value is None:
+            return None
+        try:
+            return parse(value)
+        except typer.BadParameter:
+            raise
+        except ValueError as err:
+            raise typer.BadParameter(str(err)) from err
+
+    return convert
 
 
 def _option(
@@ -146,7 +194,7 @@ def _option(
     """``(annotation, default, record)`` of the option for field ``f``."""
     help_ = (field_docs(cls)[f.name] or f.name.replace("_", " ")).replace("``", "")
     decls = tuple(extra.pop("flags", ()))
-    flag = "--" + name.replace("_", "-")
+    flag = decls[0].split("/")[0] if decls else "--" + name.replace("_", "-")
     inner = _optional(hint)
     if "type" in extra:  # a str field whose values an enum lists
         inner, hint = extra["type"], extra["type"] | None if inner is not hint else extra["type"]
@@ -155,14 +203,16 @@ def _option(
     if parse is None and item is not None:
         parse = csv_choices(item, flag)
     if parse is None and callable(getattr(inner, "from_text", None)):
-        parse = _from_text(inner, flag)
+        parse = _from_text(inner)
+    if parse is None and f.name in FRAME_ID_FIELDS and inner is str:
+        parse = check_frame_id
     enum_type = item if _is_enum(item) else inner if _is_enum(inner) else None
     choices = tuple(str(m.value) for m in enum_type) if enum_type else ()
     if choices:  # in the help text too: a narrow terminal cuts the metavar, not the help
         help_ = with_choices(help_, enum_type, many=item is not None)
     if parse is not None:  # read as text, converted by the parser, None: not given
         shown = "none" if f.default is None else _text(f.default)
-        kwargs = {"help": help_, "callback": _callback(parse), "show_default": shown, **extra}
+        kwargs = {"help": help_, "callback": parsed(parse), "show_default": shown, **extra}
         info = typer.Option(*(decls or (flag,)), **kwargs)
         record = GeneratedOption(name, cls, f.name, parsed=True, choices=choices)
         return Annotated[str | None, info], None, record
@@ -174,13 +224,6 @@ def _option(
     if enum_type is not None and default is not None and default is not ...:
         default = enum_type(default)
     return Annotated[hint, info], default, record
-
-
-def _callback(parse: Callable[[str], Any]) -> Callable[[Any], Any]:
-    def convert(value: Any) -> Any:
-        return None if value is None else parse(value)
-
-    return convert
 
 
 def config_options(

@@ -7,6 +7,7 @@ Its dataset options are generated from :class:`world.record.DatasetConfig`
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 from typing import Annotated
 
@@ -107,25 +108,36 @@ def make(
         msg = f"--gt-formats {','.join(unknown)}: choose from {', '.join(EXPORT_FORMATS)} or all"
         raise WorldError(msg)
     config = dataset.config(world=world)
-    index = make_dataset(config)
-    if set(formats) - {"native"}:
-        from truth.dataset_index import read_index
-        from truth.formats.native import read_native
-        from truth.load import export_ground_truth
+    likeness_entry: dict = {}
 
-        for entry in read_index(index.parent):
-            chosen = EXPORT_FORMATS if "all" in formats else formats
-            others = [f for f in chosen if f != "native"]  # make_dataset wrote the native files
-            export_ground_truth(read_native(entry.recording), entry.recording, others)
-    if measure:
-        from research.dataset_stats import measure_first_attempts
+    def finish(index: Path) -> None:
+        """The rest of the work, on the staged dataset: it is swapped in whole with it."""
+        if set(formats) - {"native"}:
+            from truth.dataset_index import read_index
+            from truth.formats.native import read_native
+            from truth.load import export_ground_truth
 
-        measure_first_attempts(index.parent, workers=config.workers)
+            for entry in read_index(index.parent):
+                chosen = EXPORT_FORMATS if "all" in formats else formats
+                others = [f for f in chosen if f != "native"]  # make_dataset wrote the native
+                export_ground_truth(read_native(entry.recording), entry.recording, others)
+        if measure:
+            from research.dataset_stats import measure_first_attempts
+
+            measure_first_attempts(index.parent, workers=config.workers)
+        if likeness:
+            from world.perception.likeness import record_likeness
+
+            start = time.perf_counter()  # printed, never written: the same input, the same bytes
+            likeness_entry.update(record_likeness(index.parent))
+            likeness_entry["seconds"] = time.perf_counter() - start
+
+    index = make_dataset(config, finish=finish)
     typer.echo(_statistics_line(index))
     if likeness:
-        from world.perception.likeness import likeness_table, record_likeness
+        from world.perception.likeness import likeness_table
 
-        entry = record_likeness(index.parent)
+        entry = likeness_entry
         typer.echo(
             f"CLIP likeness of {entry['recording']} ({entry['views']} views, "
             f"{entry['measured'].get('object_views', 0)} object segments, "

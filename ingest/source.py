@@ -47,7 +47,7 @@ import numpy as np
 from care.checks import check_numbers
 from care.config import member
 from care.errors import IngestError
-from care.frames import DEFAULT_WORLD_FRAME, Frame
+from care.frames import DEFAULT_WORLD_FRAME, Frame, check_frame_id
 from ingest import decode
 from ingest.conventions import (
     CameraConvention,
@@ -196,6 +196,9 @@ class ReadOptions:
             object.__setattr__(self, "camera_convention", convention)
         if isinstance(self.intrinsics, str):
             object.__setattr__(self, "intrinsics", CameraIntrinsics.from_text(self.intrinsics))
+        for frame in (self.world_frame, self.camera_frame):
+            if frame is not None:
+                check_frame_id(frame)  # the Python API refuses what the CLI refuses
         for name, enum in (
             ("pose_convention", PoseConvention),
             ("quaternion_order", QuaternionOrder),

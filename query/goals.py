@@ -33,7 +33,7 @@ import numpy as np
 import pyarrow.parquet as pq
 
 from care.errors import QueryError
-from care.frames import DEFAULT_WORLD_FRAME
+from care.frames import DEFAULT_WORLD_FRAME, check_frame_id
 from care.keys import GRID_SHAPE_KEY
 from care.store import META_FILE, StoreMeta, read_map_frame, read_table
 from fuse.layout import CELLS_TABLE, GridLayout
@@ -76,6 +76,8 @@ class GoalConfig:
         if not (math.isfinite(self.reach) and self.reach > 0):
             msg = f"goal reach must be a finite distance > 0 m, got {self.reach}"
             raise QueryError(msg)
+        if self.frame_id is not None:
+            check_frame_id(self.frame_id)  # the Python API refuses what the CLI refuses
 
 
 @dataclass(frozen=True)

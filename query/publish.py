@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from care.frames import check_frame_id
 from care.mapframe import MapFrame
 
 __all__ = [
@@ -61,7 +62,13 @@ def frame_plan(frame: MapFrame, world_frame: str, name: str | None = None) -> Fr
     ``name``: the frame a user wants the goals in. The world frame's own name gives goals in
     the world frame whatever it is (a 3-D pose where it is not z up); any other name is
     the map frame's, published under the world frame. Default: the world frame when it has
-    z up, else :data:`MAP_FRAME_ID`."""
+    z up, else :data:`MAP_FRAME_ID`.
+
+    Both names go into the commands and goals a robot stack runs, so a name tf2 would reject
+    is refused here (:func:`care.frames.check_frame_id`), not printed for tf2 to refuse."""
+    check_frame_id(world_frame)
+    if name is not None:
+        check_frame_id(name)
     aligned = frame.is_gravity_aligned
     if name is None:
         name = world_frame if aligned else MAP_FRAME_ID

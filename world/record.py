@@ -5,12 +5,18 @@ directories, or ``scene_000.bag``), each with its ground truth beside it
 (``scene_000.gt.parquet`` + ``scene_000.gt.json``), and an ``index.json`` listing them.
 Scenes are independent, so they are made in a process pool; a scene whose recording and
 ground truth already exist with the same settings is skipped, so re-running resumes.
+
+A dataset is whole or absent: it is made in a staged copy beside ``--out`` (the scenes of
+the previous version hard-linked in, so those up to date are kept) and swapped in as one
+unit (:func:`care.outputs.whole_output`), so a full disk, Ctrl-C or a kill leaves the
+previous dataset, or none, never a recording without its ground truth or ``index.json``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -25,8 +31,8 @@ from care.outputs import (
     OutputKind,
     atomic_write_text,
     check_file_output,
-    check_output,
     is_ours,
+    whole_output,
     write_marker,
 )
 from ingest.formats import RecordingFormat
@@ -281,33 +287,65 @@ def _make_one(config: DatasetConfig, index: int, progress: bool) -> RecordingSum
     return summary
 
 
-def make_dataset(config: DatasetConfig) -> Path:
-    """Make (or complete) the dataset of ``config``; returns the path of its ``index.json``."""
+def make_dataset(config: DatasetConfig, *, finish: Callable[[Path], object] | None = None) -> Path:
+    """Make (or complete) the dataset of ``config``; returns the path of its ``index.json``.
+
+    ``finish(index)``: more work on the dataset (ground truth in other formats, measured
+    statistics written into the index), run on the staged dataset before it is swapped in,
+    so that it is part of the one unit that appears whole or not at all."""
+    _check(config)
+    out = Path(config.out)
+    if config.rrd is not None:  # before rendering: a file that is not ours is never replaced
+        check_file_output(config.rrd)
+    _adopt(out)
+    with whole_output(out, OutputKind.DATASET) as staged:
+        index = _write_dataset(dataclasses.replace(config, out=staged))
+        if finish is not None:
+            finish(index)
+    if config.rrd is not None:
+        from world.viz import log_dataset
+
+        scenes = [scene_config_of(config, i) for i in range(config.scenes)]
+        log_dataset(
+            config.rrd,
+            scenes,
+            config.frames,
+            RenderConfig(width=config.width, height=config.height),
+        )
+    return out / INDEX_NAME
+
+
+def _check(config: DatasetConfig) -> None:
+    """Refuse, before anything is written, settings that cannot make a dataset."""
     if config.scenes < 1:
         msg = f"--scenes {config.scenes}: make at least one scene"
         raise WorldError(msg)
     if config.width < 16 or config.height < 16:
         msg = f"--width/--height {config.width}x{config.height}: images must be at least 16x16"
         raise WorldError(msg)
-    if config.frames is not None and config.frames < 1:  # before anything is written
+    if config.frames is not None and config.frames < 1:
         msg = f"--frames {config.frames}: record at least one frame (leave it out for 25 per room)"
         raise WorldError(msg)
     if config.num_rooms is not None and not 1 <= config.num_rooms <= 6:
         msg = f"--rooms {config.num_rooms}: the sample world makes 1 to 6 rooms"
         raise WorldError(msg)
-    out = Path(config.out)
-    # a dataset of ours is known by its index (the bundled sample is committed without the
-    # marker) and may be completed; a directory of the user's is never filled
-    ours = (out / INDEX_NAME).is_file() and b"care_sample_dataset" in (
-        out / INDEX_NAME
-    ).read_bytes()
-    if not ours:
-        check_output(out, kind=OutputKind.DATASET)
-    if config.rrd is not None:  # before rendering: a file that is not ours is never replaced
-        check_file_output(config.rrd)
-    out.mkdir(parents=True, exist_ok=True)
-    if not is_ours(out, OutputKind.DATASET):
+
+
+def _adopt(out: Path) -> None:
+    """Mark a dataset of ours that lacks the marker (the bundled sample is committed without
+    it; it is known by its index), so that it may be completed; a directory of the user's
+    is left alone (and refused by :func:`care.outputs.check_output`)."""
+    index = out / INDEX_NAME
+    if out.is_symlink() or is_ours(out) or not index.is_file():
+        return
+    if b"care_sample_dataset" in index.read_bytes():
         write_marker(out, OutputKind.DATASET)
+
+
+def _write_dataset(config: DatasetConfig) -> Path:
+    """Make every scene of ``config`` in ``config.out`` (a staged directory) and write its
+    ``index.json``; returns the index's path."""
+    out = Path(config.out)
     summaries: dict[int, RecordingSummary] = {}
     workers = max(1, min(config.workers, config.scenes))
     bar = tqdm(total=config.scenes, desc="sample scenes", unit="scene", disable=not config.progress)
@@ -354,16 +392,6 @@ def make_dataset(config: DatasetConfig) -> Path:
     }
     index_path = out / INDEX_NAME
     atomic_write_text(index_path, json.dumps(index, indent=1))
-    if config.rrd is not None:
-        from world.viz import log_dataset
-
-        scenes = [scene_config_of(config, i) for i in range(config.scenes)]
-        log_dataset(
-            config.rrd,
-            scenes,
-            config.frames,
-            RenderConfig(width=config.width, height=config.height),
-        )
     return index_path
 
 

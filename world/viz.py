@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
+from care.outputs import write_atomic
 from care.viz import log_camera, open_recording, set_stamp
 from world.render import RenderConfig, intrinsics
 from world.scene import Scene, SceneConfig, generate_scene
@@ -98,15 +99,22 @@ def log_dataset(
     frames: int | None = None,
     render: RenderConfig | None = None,
 ) -> Path:
-    """Write ``rrd_path`` showing every scene of a dataset (regenerated from its seeds)."""
+    """Write ``rrd_path`` showing every scene of a dataset (regenerated from its seeds).
+
+    Written whole or not at all: into a staged temporary, renamed into place once complete
+    (:func:`care.outputs.write_atomic`), so a full disk or Ctrl-C leaves the earlier file."""
     render = render or RenderConfig()
-    rec = open_recording(APP_ID, Path(rrd_path))
-    x = 0.0
-    for i, config in enumerate(scenes):
-        scene = generate_scene(config)
-        poses = plan_trajectory(scene, frames)
-        log_scene(rec, f"scene_{i:03d}", scene, poses, np.array([x, 0.0, 0.0]), render)
-        x += float(scene.room_rects[:, 2].max()) + SCENE_GAP
-    rec.flush()
-    rec.disconnect()
+
+    def write(tmp: Path) -> None:
+        rec = open_recording(APP_ID, tmp)
+        x = 0.0
+        for i, config in enumerate(scenes):
+            scene = generate_scene(config)
+            poses = plan_trajectory(scene, frames)
+            log_scene(rec, f"scene_{i:03d}", scene, poses, np.array([x, 0.0, 0.0]), render)
+            x += float(scene.room_rects[:, 2].max()) + SCENE_GAP
+        rec.flush()
+        rec.disconnect()
+
+    write_atomic(Path(rrd_path), write)
     return Path(rrd_path)

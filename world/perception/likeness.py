@@ -22,7 +22,6 @@ targets and measurements side by side.
 from __future__ import annotations
 
 import json
-import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -395,7 +394,10 @@ def _json_number(value: float) -> float | int | None:
 def record_likeness(dataset: Path, *, views: int = LIKENESS_VIEWS, seed: int = 0) -> dict[str, Any]:
     """Measure the first recording of a ``care sample make`` dataset and keep the result in
     its ``index.json`` under ``statistics.likeness`` (the statistics, which targets are
-    missed, the views measured and the seconds it took); returns that entry."""
+    missed, the views measured); returns that entry.
+
+    Not the seconds it took: a file holds only what its input decides, so that making a
+    dataset twice gives the same bytes; the caller times it for the terminal."""
     from care.outputs import atomic_write_text
     from truth.dataset_index import INDEX_NAME
 
@@ -403,7 +405,6 @@ def record_likeness(dataset: Path, *, views: int = LIKENESS_VIEWS, seed: int = 0
     index_path = dataset / INDEX_NAME
     doc = json.loads(index_path.read_text())
     first = doc["recordings"][0]["recording"]
-    start = time.perf_counter()
     measured = measure_recording(dataset / first, views=views, seed=seed)
     entry = {
         "recording": first,
@@ -411,7 +412,6 @@ def record_likeness(dataset: Path, *, views: int = LIKENESS_VIEWS, seed: int = 0
         "encoder_seed": seed,
         "measured": {k: _json_number(v) for k, v in measured.items()},
         "off_target": off_target(measured),
-        "seconds": round(time.perf_counter() - start, 2),
     }
     doc.setdefault("statistics", {})["likeness"] = entry
     atomic_write_text(index_path, json.dumps(doc, indent=1))

@@ -1,0 +1,62 @@
+"""``care sample make`` leaves a dataset whole or absent: under a full disk (a file-size
+limit) and Ctrl-C, no recording without its ground truth or ``index.json``, the earlier
+dataset byte for byte as it was, and the message that says so is true."""
+
+from __future__ import annotations
+
+import json
+import signal
+import time
+from pathlib import Path
+
+import pytest
+
+TINY = ("sample", "make", "--scenes", "1", "--rooms", "1", "--width", "32", "--height", "24",
+        "--frames", "2", "--workers", "1", "--no-likeness")  # fmt: skip
+LIMIT = 100_000
+"""Bytes: room for the recording (~11 KB), not for its ground truth (~0.5 MB)."""
+
+
+def _whole(dataset: Path) -> None:
+    """Every recording the index lists is there with its ground truth."""
+    index = json.loads((dataset / "index.json").read_text())
+    for entry in index["recordings"]:
+        name = entry["name"]
+        assert (dataset / entry["recording"]).exists()
+        assert (dataset / f"{name}.gt.parquet").is_file(), name
+        assert (dataset / f"{name}.gt.json").is_file(), name
+
+
+def test_full_disk_leaves_no_dataset(fx, tmp_path: Path) -> None:
+    out = tmp_path / "ds"
+    done = fx.care_process(*TINY, "--out", out, fsize=LIMIT)
+    fx.assert_fault(done.returncode, done.stderr, r"file-size limit reached.*nothing half-written",
+                    clean=(tmp_path,))  # fmt: skip
+    assert not out.exists()
+    assert fx.care_process(*TINY, "--out", out).returncode == 0
+    _whole(out)
+
+
+def test_full_disk_keeps_the_earlier_dataset(fx, tmp_path: Path) -> None:
+    out = tmp_path / "ds"
+    assert fx.care_process(*TINY, "--out", out).returncode == 0
+    before = fx.snapshot(out)
+    done = fx.care_process(*TINY, "--seed", "5", "--out", out, fsize=LIMIT)
+    fx.assert_fault(done.returncode, done.stderr, r"file-size limit", intact=before,
+                    clean=(tmp_path,))  # fmt: skip
+
+
+@pytest.mark.parametrize("after", [0.8, 1.6, 2.4])
+def test_ctrl_c_leaves_a_whole_dataset_or_none(fx, tmp_path: Path, after: float) -> None:
+    out = tmp_path / "ds"
+    proc = fx.care_popen(*TINY[:-1], "--out", out)  # with the likeness step: a longer run
+    time.sleep(after)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=30)
+    if proc.returncode != 0:
+        fx.assert_fault(proc.returncode, err, r"^error: interrupted", exit_code=130)
+    if out.exists():
+        _whole(out)
+    assert fx.care_process(*TINY, "--out", out).returncode == 0
+    _whole(out)
+    assert not fx.leftovers(tmp_path)
