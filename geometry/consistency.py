@@ -395,6 +395,8 @@ class Verdict:
     """The agreement with :attr:`mistake` undone."""
     views: int = 0
     pairs: int = 0
+    floor: dict[str, object] | None = None
+    """:func:`floor_support` of the sample (None: not looked for)."""
 
     @property
     def passed(self) -> bool:
@@ -409,6 +411,8 @@ class Verdict:
             **self.given.as_json(),
             "tolerance": {"relative": AGREE_RELATIVE, "absolute_m": AGREE_ABSOLUTE_M},
         }
+        if self.floor is not None:
+            out["floor"] = self.floor
         if self.mistake is not None and self.hypothesis is not None and self.better is not None:
             out["likelier"] = {
                 "mistake": self.mistake.value,
@@ -541,3 +545,41 @@ def _clearly_better(got: Agreement, given: Agreement) -> bool:
         and given.residual >= NOISE_RESIDUAL
         and got.residual * RESIDUAL_RATIO <= given.residual
     )
+
+
+FLOOR_POINTS = 5_000
+"""Depth points the floor is looked for among (evenly taken from the sample)."""
+CAMERA_HEIGHT_M = (0.05, 3.0)
+"""Metres above the floor a ground robot's or a hand-held camera is held at."""
+
+
+def floor_support(samples: Sequence[DepthSample]) -> dict[str, object]:
+    """Whether the sample's points hold a floor under its cameras, as fuse will look for it
+    (:func:`geometry.mapframe.estimate_map_frame`): the share of points on it and the
+    cameras' median height above it. Depth in other units puts the cameras metres under or
+    kilometres over the floor, and a floor missing altogether is what ``care fuse`` would
+    ask ``--up-axis`` for: said at ingest, where the depth's units can still be named."""
+    from geometry.mapframe import FloorNotFoundError, estimate_map_frame
+    from geometry.planes import along
+
+    clouds = []
+    for s in samples:
+        points = _points(s, 1.0, 1.0)
+        clouds.append(points @ s.pose[:3, :3].T + s.pose[:3, 3])
+    points = np.concatenate(clouds) if clouds else np.zeros((0, 3))
+    if len(points) > FLOOR_POINTS:
+        points = points[np.linspace(0, len(points) - 1, FLOOR_POINTS).astype(int)]
+    poses = np.stack([s.pose for s in samples]) if samples else np.zeros((0, 4, 4))
+    try:
+        frame = estimate_map_frame(points, poses)
+    except FloorNotFoundError:
+        return {"found": False}
+    up = np.asarray(frame.up)
+    height = float(np.median(along(poses[:, :3, 3], up) - frame.floor))
+    low, high = CAMERA_HEIGHT_M
+    return {
+        "found": True,
+        "share": round(float(frame.floor_fraction), 4),
+        "camera_height_m": round(height, 3),
+        "plausible": bool(low <= height <= high),
+    }

@@ -17,7 +17,7 @@ the check's memory and time do not grow with the recording.
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +30,7 @@ from geometry.consistency import (
     Mistake,
     Status,
     Verdict,
+    floor_support,
     judge,
     subsample,
 )
@@ -124,7 +125,8 @@ def check_geometry(sampler: GeometrySampler, reading: SourceReading) -> Verdict:
     for run in sampler.samples():
         samples += run
     runs = [len(run) for run in sampler.samples()]
-    return judge(samples, reading.mistakes(), runs=runs)
+    verdict = judge(samples, reading.mistakes(), runs=runs)
+    return replace(verdict, floor=floor_support(samples)) if samples else verdict
 
 
 def source_reading(path: Path, frames: Any, options: Any) -> SourceReading:
@@ -175,6 +177,11 @@ def describe_verdict(verdict: dict[str, Any] | Verdict) -> str:
     )
     rng = v.get("median_range_m")
     depth = f", median depth {rng:.2f} m" if rng is not None else ""
+    floor = v.get("floor")
+    if floor is not None and floor.get("found"):
+        depth += f", floor {_percent(floor['share'])} of points, cameras {floor['camera_height_m']:.2f} m above it"
+    elif floor is not None:
+        depth += ", no floor under the cameras"
     if status == Status.AGREE:
         return f"geometry consistent: {figures}{depth}"
     if status == Status.UNJUDGED:

@@ -211,3 +211,29 @@ def test_agreement_is_symmetric_in_the_pair_order(every5) -> None:
     a = agreement(every5, [(0, 3)], Hypothesis("as given"))
     b = agreement(every5, [(3, 0)], Hypothesis("as given"))
     assert a == b
+
+
+def test_the_floor_holds_the_cameras_only_in_the_right_units(every5) -> None:
+    from geometry.consistency import floor_support
+
+    right = floor_support(every5)
+    assert right["found"]
+    assert right["plausible"]
+    # the floor measured directly: a least-squares plane (SVD) through the lowest 5 % of the
+    # world points along the cameras' mean up, and the cameras' distances to it
+    points = []
+    for s in every5:
+        v, u = np.nonzero(s.depth > 0)
+        z = s.depth[v, u].astype(np.float64)
+        cam = np.stack([(u - s.K[0, 2]) * z / s.K[0, 0], (v - s.K[1, 2]) * z / s.K[1, 1], z], 1)
+        points.append(cam @ s.pose[:3, :3].T + s.pose[:3, 3])
+    cloud = np.concatenate(points)
+    up = -np.mean([s.pose[:3, 1] for s in every5], axis=0)
+    low = cloud[cloud @ up <= np.percentile(cloud @ up, 5)]
+    centre = low.mean(axis=0)
+    normal = np.linalg.svd(low - centre)[2][-1]
+    normal *= np.sign(normal @ up)
+    heights = np.array([(s.pose[:3, 3] - centre) @ normal for s in every5])
+    assert right["camera_height_m"] == pytest.approx(np.median(heights), abs=0.1)
+    wrong = floor_support([replace(s, depth=s.depth * 1000) for s in every5])
+    assert not (wrong["found"] and wrong["plausible"])
