@@ -192,24 +192,23 @@ def describe_verdict(verdict: dict[str, Any] | Verdict) -> str:
     return f"geometry inconsistent: {figures}{depth}"
 
 
+def _other(current: Any, members: list[Any]) -> Any:
+    """The other member of a two-member convention enum than ``current`` (the first, the
+    datasets' own, when None)."""
+    first, second = members
+    return first if current is second else second
+
+
 def _fix(verdict: Verdict, reading: SourceReading, K: np.ndarray | None) -> str:
     """The option (or file field) that reads the source as ``verdict``'s likelier reading."""
     mistake, h = verdict.mistake, verdict.hypothesis
     assert mistake is not None
     assert h is not None
     if mistake is Mistake.POSES_INVERTED:
-        other = (
-            PoseConvention.CAMERA_TO_WORLD
-            if reading.pose_convention is PoseConvention.WORLD_TO_CAMERA
-            else PoseConvention.WORLD_TO_CAMERA
-        )
+        other = _other(reading.pose_convention, list(PoseConvention))
         return f"the poses look {other}: pass --pose-convention {other}"
     if mistake is Mistake.QUATERNION_ORDER:
-        other = (
-            QuaternionOrder.XYZW
-            if reading.quaternion_order is QuaternionOrder.WXYZ
-            else QuaternionOrder.WXYZ
-        )
+        other = _other(reading.quaternion_order, list(QuaternionOrder))
         return f"the pose quaternions look written {' '.join(other.value)}: pass --quaternion-order {other}"
     if mistake is Mistake.BODY_AXES:
         return "the camera frame looks x forward, y left, z up (a body frame): pass --camera-convention body"
