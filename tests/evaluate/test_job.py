@@ -209,7 +209,11 @@ def test_cli_eval_query_replan(dataset, tmp_path) -> None:
         check=True,
     )
     assert "class 'chair'" in q.stdout
-    assert len(q.stdout.strip().splitlines()) == 5
+    lines = q.stdout.strip().splitlines()
+    rows = [line for line in lines if line.split()[0].isdigit()]
+    assert [row.split()[0] for row in rows] == ["1", "2", "3"]  # --top 3
+    # a map without obstacle layers: the answer says no path or clearance was checked
+    assert "no paths and no clearance check" in lines[-1]
     r = subprocess.run(
         [
             *run,
