@@ -72,15 +72,47 @@ def config_json(config: Any, exclude: Iterable[str] = ()) -> str:
     return canonical_json(config_fields(config, exclude))
 
 
+def _reached_files(root: Path) -> list[Path]:
+    """Every file under the directory ``root`` as a reader reaches it: links to files and to
+    folders followed (a dataset shares its big ``image/`` folder by a link), each real folder
+    entered once (a link back up the tree is not a loop), sorted by their relative names'
+    parts (the order ``sorted(root.rglob("*"))`` gave, so a tree without links keeps its
+    digest)."""
+    found: list[tuple[tuple[str, ...], Path]] = []
+    seen: set[tuple[int, int]] = set()
+
+    def walk(folder: Path, rel: tuple[str, ...]) -> None:
+        try:
+            st = folder.stat()
+        except OSError:
+            return  # a dangling link: nothing a reader could read either
+        if (st.st_dev, st.st_ino) in seen:
+            return
+        seen.add((st.st_dev, st.st_ino))
+        for entry in folder.iterdir():
+            parts = (*rel, entry.name)
+            if entry.is_dir():  # follows a link to a folder
+                walk(entry, parts)
+            elif entry.is_file():  # follows a link to a file
+                found.append((parts, entry))
+        seen.discard((st.st_dev, st.st_ino))  # a folder linked twice (not a cycle) is read twice
+
+    walk(root, ())
+    return [path for _, path in sorted(found, key=lambda item: item[0])]
+
+
 def content_digest(path: Path) -> dict[str, Any]:
     """``{"size", "blake2b"}`` of a file, or of every file of a directory (with their
-    relative names, sorted): what a recording *is*, wherever it lies."""
+    relative names, sorted): what a recording *is*, wherever it lies. Links are followed,
+    to folders too: the digest covers what a reader of the folder reads, so a dataset whose
+    ``image/`` is a link to shared storage is stale once an image there changes."""
     path = Path(path)
-    files = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
+    is_dir = path.is_dir()
+    files = _reached_files(path) if is_dir else [path]
     h = hashlib.blake2b(digest_size=16)
     size = 0
     for p in files:
-        if path.is_dir():
+        if is_dir:
             h.update(p.relative_to(path).as_posix().encode() + b"\0")
         with p.open("rb") as f:
             while chunk := f.read(_CHUNK):

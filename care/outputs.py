@@ -9,10 +9,13 @@ or one of its ancestors is refused in one line before any work (:func:`check_out
 One writer at a time: :func:`output_lock` takes an advisory ``fcntl.flock`` on a hidden
 sibling ``.<name>.lock``; a second writer waits for the first and then finds its work done.
 
-Temporaries are named ``.<name>.tmp-<pid>`` (also ``.old-<pid>``, ``.building-<pid>``),
-removed on every error path (:func:`staged`), and those of processes that no longer run are
-swept at the start of the next run in the same place (:func:`sweep_stale`), except the
-previous version ``.<name>.old-<pid>`` of an output that is itself missing: it is put back.
+Temporaries are named ``.<name>.tmp-<pid>`` (also ``.old-<pid>``, ``.building-<pid>``;
+:func:`temporary`, with ``<name>`` cut short and a hash added when the whole would pass the
+file system's name limit), removed on every error path (:func:`staged`), and those of
+processes that no longer run are swept by the next run in the same place, an up-to-date one
+too (:func:`sweep_stale`, from :func:`check_output`), except the previous version
+``.<name>.old-<pid>`` of an output that is itself missing: it is put back. An output whose
+name or path is too long for its temporaries is refused before any work (:func:`check_length`).
 
 An output of many files (an evaluation) changes as one unit (:func:`whole_output`): the new
 version is staged whole in ``.<name>.tmp-<pid>`` and swapped in (:func:`swap_in`), so a kill
@@ -45,10 +48,14 @@ from care.errors import CareError, OutputError
 
 __all__ = [
     "MARKER",
+    "NAME_MAX",
+    "PATH_MAX",
     "REBUILD",
     "OutputKind",
+    "Staging",
     "atomic_write_text",
     "check_file_output",
+    "check_length",
     "check_output",
     "damaged",
     "disk_full",
@@ -67,6 +74,7 @@ __all__ = [
     "staged",
     "swap_in",
     "sweep_stale",
+    "temporary",
     "whole_output",
     "write_atomic",
     "write_marker",
@@ -89,6 +97,28 @@ class OutputKind(StrEnum):
     """``care run``'s stores, Rerun files and evaluation."""
 
 
+class Staging(StrEnum):
+    """What a temporary beside an output holds (the ``<tag>`` of ``.<name>.<tag>-<pid>``)."""
+
+    TMP = "tmp"
+    """A new version being written."""
+    OLD = "old"
+    """The previous version, moved aside while the new one goes in (:func:`swap_in`)."""
+    BUILDING = "building"
+    """A map being built inside a store."""
+
+
+NAME_MAX = 255
+"""Bytes in one file name (Linux, macOS and the usual file systems)."""
+PATH_MAX = 4096
+"""Bytes in a path handed to the system, its closing NUL included (Linux)."""
+_PID_DIGITS = 7
+"""Digits of the largest process id (Linux's ``pid_max`` is at most 4194304)."""
+_ROOM = len(".") + len(f".{Staging.BUILDING}-") + _PID_DIGITS + len(".lock")
+"""Bytes a temporary's or lock's name adds to its output's name, at most."""
+_HASH_HEX = 16
+"""Hex digits of the hash that stands for the cut part of a long name."""
+
 _STALE = re.compile(r"^\..+\.(?:tmp|old|building)-(\d+)(?:\.[A-Za-z0-9]+)?$")
 """Names of staged temporaries: ``.<name>.tmp-<pid>`` (optionally with a suffix)."""
 
@@ -106,6 +136,62 @@ REBUILD = {
     "scene_points": "care fuse instances {store} --overwrite",
 }
 """Table name -> the command that rebuilds it (``{store}``, ``{recording}`` filled in)."""
+
+
+def _stem(name: str) -> str:
+    """The part of a temporary's name that stands for output ``name``: the name itself, or,
+    where ``.<name>.building-<pid>`` would pass :data:`NAME_MAX`, its start and a hash of
+    the whole (a 250-byte name still gets temporaries, each still naming its output)."""
+    raw = os.fsencode(name)
+    if len(raw) + _ROOM <= NAME_MAX:
+        return name
+    digest = hashlib.blake2b(raw, digest_size=_HASH_HEX // 2).hexdigest()
+    return f"{os.fsdecode(raw[: NAME_MAX - _ROOM - _HASH_HEX - 1])}~{digest}"
+
+
+def temporary(path: Path, tag: Staging = Staging.TMP) -> Path:
+    """This process's temporary sibling ``.<name>.<tag>-<pid>`` of output ``path``, within
+    the name limit however long ``path``'s name (:func:`_stem`)."""
+    path = Path(path)
+    return path.with_name(f".{_stem(path.name)}.{Staging(tag)}-{os.getpid()}")
+
+
+def _lock_path(out: Path) -> Path:
+    """The lock file of output ``out`` (:func:`output_lock`)."""
+    return out.parent / f".{_stem(out.name)}.lock"
+
+
+def check_length(path: Path, flag: str, *, full_name: bool = False) -> None:
+    """Refuse, in one line and before any work, an output whose path or name the system
+    would refuse (``ENAMETOOLONG`` half-way through the work otherwise): a name over
+    :data:`NAME_MAX` bytes, a path over :data:`PATH_MAX` with its temporaries' room.
+    ``full_name``: its writer stages it as ``.<name>.tmp-<pid>`` in full, not cut short
+    (:func:`temporary`), so its name must leave room for that too."""
+    path = Path(path)
+    raw = os.fsencode(Path.cwd() / path)  # as given: resolving it may fail
+    if len(raw) + _ROOM >= PATH_MAX:
+        msg = (
+            f"{flag} {_shown(path)}: path of {len(raw)} bytes, too long for this system "
+            f"(its temporaries need {len(raw) + _ROOM} of at most {PATH_MAX - 1}); choose "
+            "a shorter path"
+        )
+        raise OutputError(msg)
+    for part in path.parts:
+        size = len(os.fsencode(part))
+        limit = NAME_MAX - _ROOM if full_name and part == path.name else NAME_MAX
+        if size > limit:
+            what = "name" if part == path.name else "folder name"
+            msg = (
+                f"{flag} {_shown(path)}: {what} of {size} bytes, longer than the {limit} "
+                f"this output may have (file names hold at most {NAME_MAX}); choose a shorter name"
+            )
+            raise OutputError(msg)
+
+
+def _shown(path: Path) -> str:
+    """``path`` as a line may show it: a long one cut in the middle."""
+    text = str(path)
+    return text if len(text) <= 120 else f"{text[:60]}...{text[-50:]}"
 
 
 def pid_alive(pid: int) -> bool:
@@ -150,12 +236,12 @@ def sweep_stale(directory: Path, name: str | None = None) -> list[Path]:
         return removed
     for entry in sorted(entries, key=lambda e: _OLD.match(e.name) is None):  # .old-<pid> first
         m = _STALE.match(entry.name)
-        if m is None or (name is not None and not entry.name.startswith(f".{name}.")):
+        if m is None or (name is not None and not entry.name.startswith(f".{_stem(name)}.")):
             continue
         pid = int(m.group(1))
         if pid == os.getpid() or pid_alive(pid):
             continue
-        if _restore(entry):
+        if _restore(entry, name) or _unnamed_old(entry, name):
             continue
         remove_path(entry)
         removed.append(entry)
@@ -166,12 +252,24 @@ _OLD = re.compile(r"^\.(?P<name>.+)\.old-(?P<pid>\d+)$")
 """The previous version of output ``<name>``, moved aside by process ``<pid>``."""
 
 
-def _restore(entry: Path) -> bool:
-    """Put a dead process's ``.<name>.old-<pid>`` back as ``<name>`` if that is missing."""
+def _unnamed_old(entry: Path, name: str | None) -> bool:
+    """Whether ``entry`` is a previous version whose output cannot be told from its cut-short
+    name (:func:`_stem`) here: it is left for a run that knows the name."""
+    m = _OLD.match(entry.name)
+    return m is not None and name is None and m.group("name") != _stem(m.group("name"))
+
+
+def _restore(entry: Path, name: str | None = None) -> bool:
+    """Put a dead process's ``.<name>.old-<pid>`` back as ``<name>`` if that is missing
+    (``name``: the output's full name, for a cut-short temporary's)."""
     m = _OLD.match(entry.name)
     if m is None or pid_alive(int(m.group("pid"))) or int(m.group("pid")) == os.getpid():
         return False
-    target = entry.with_name(m.group("name"))
+    if name is None:
+        name = m.group("name")
+    if m.group("name") != _stem(name):
+        return False
+    target = entry.with_name(name)
     if os.path.lexists(target):
         return False
     try:
@@ -200,7 +298,7 @@ def restore_stale(path: Path) -> bool:
         return False
     for entry in entries:
         m = _OLD.match(entry.name)
-        if m is not None and m.group("name") == path.name and _restore(entry):
+        if m is not None and m.group("name") == _stem(path.name) and _restore(entry, path.name):
             return True
     return False
 
@@ -257,7 +355,7 @@ def staged(path: Path, *, directory: bool = False) -> Iterator[Path]:
     becomes :func:`disk_full`'s one-line error, after the temporary has been removed.
     """
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    tmp = temporary(path)
     remove_path(tmp)
     if directory:
         tmp.mkdir(parents=True)
@@ -344,7 +442,7 @@ def swap_in(new: Path, out: Path) -> None:
     else:
         remove_path(new)  # the previous version
         return
-    old = out.with_name(f".{out.name}.old-{os.getpid()}")
+    old = temporary(out, Staging.OLD)
     remove_path(old)
     out.rename(old)
     try:
@@ -537,6 +635,7 @@ def check_output(
     existing non-empty directory without our marker of ``kind``.
     """
     out = Path(out)
+    check_length(out, flag)
     refuse_link(out, flag)
     resolved = out.resolve()
     for inp in inputs:
@@ -568,6 +667,18 @@ def check_output(
     if not os.access(existing, os.W_OK | os.X_OK):
         msg = f"{flag} {out}: permission denied: cannot write in {existing} (fix its permissions or choose another {flag})"
         raise OutputError(msg)
+    sweep_dead(out)
+
+
+def sweep_dead(out: Path) -> None:
+    """Sweep what runs that no longer exist left where ``out`` is written: its temporaries
+    beside it, and those inside it if it is a directory of ours (a map's, a cached scene's).
+    Done by every run, an up-to-date one too, without the lock: only a dead process's
+    temporaries go, and no live writer touches those."""
+    out = Path(out)
+    sweep_stale(out.parent, out.name)
+    if out.is_dir() and not out.is_symlink() and is_ours(out):
+        sweep_stale(out)
 
 
 _RRD_MAGIC = (b"RRF0", b"RRF1", b"RRF2")
@@ -583,6 +694,7 @@ def check_file_output(
     """Refuse an output file that is a symbolic link (:func:`refuse_link`), a directory, an
     input, or an existing file of other content (one whose first bytes are not ``magic``)."""
     path = Path(path)
+    check_length(path, flag, full_name=True)  # the .rrd writers stage it under its full name
     refuse_link(path, flag)
     resolved = path.resolve()
     for inp in inputs:
@@ -616,7 +728,7 @@ def output_lock(out: Path, *, wait: bool = True) -> Iterator[None]:
     """
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    lock_path = out.parent / f".{out.name}.lock"
+    lock_path = _lock_path(out)
     while True:
         fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
         try:
@@ -642,9 +754,7 @@ def output_lock(out: Path, *, wait: bool = True) -> Iterator[None]:
     try:
         os.ftruncate(fd, 0)
         os.pwrite(fd, str(os.getpid()).encode(), 0)
-        sweep_stale(out.parent, out.name)
-        if out.is_dir() and is_ours(out):
-            sweep_stale(out)
+        sweep_dead(out)
         try:
             yield
         except OSError as err:  # a full disk the staged writers did not already report
@@ -694,7 +804,7 @@ def whole_output(out: Path, kind: OutputKind, inputs: Iterable[Path] = ()) -> It
     check_output(out, kind=kind, inputs=inputs)
     with output_lock(out):
         check_output(out, kind=kind, inputs=inputs)
-        tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
+        tmp = temporary(out)
         remove_path(tmp)
         try:
             if out.is_dir():

@@ -37,6 +37,7 @@ import pyarrow.parquet as pq
 
 from care.codecs import StoreEncoding, decode_jpeg, encode_jpeg, jpeg_size
 from care.errors import StoreError
+from care.fingerprint import fingerprint
 from care.frames import Frame
 from care.keys import (
     ENCODER_DIM_KEY,
@@ -57,6 +58,7 @@ from care.outputs import (
     remove_path,
     staged,
     swap_in,
+    temporary,
     write_marker,
 )
 
@@ -66,6 +68,7 @@ __all__ = [
     "FEATURES_SCHEMA",
     "FEATURES_SCHEMA_LISTS",
     "MAP_FRAME_FILE",
+    "MAP_FRAME_STORE_FIELD",
     "META_FILE",
     "META_VERSION",
     "SCHEMA_VERSION",
@@ -83,11 +86,15 @@ __all__ = [
     "features_encoding",
     "group_rows",
     "iter_batches",
+    "map_frame_json",
+    "map_frame_owner",
+    "map_frame_record",
     "open_writer",
     "read_map_frame",
     "read_schema",
     "read_table",
     "source_recording",
+    "store_identity",
     "views_encoding",
     "write_table_atomic",
 ]
@@ -223,13 +230,62 @@ def reading(path: Path) -> Iterator[None]:
 
 
 def _check_version(schema: pa.Schema, path: Path) -> None:
+    """Refuse a table of another schema version, and a store table whose columns are not
+    those of a layout this program writes (:func:`layout_problem`), in one line naming it."""
     found = (schema.metadata or {}).get(SCHEMA_VERSION_KEY)
-    if found is None or int(found) != SCHEMA_VERSION:
+    if found is None or not found.isdigit() or int(found) != SCHEMA_VERSION:
         msg = (
-            f"{path}: schema version {found.decode() if found else 'missing'}, this program "
-            f"reads version {SCHEMA_VERSION}; rebuild it with the matching `care` command."
+            f"{path}: schema version {found.decode(errors='replace') if found else 'missing'}, "
+            f"this program reads version {SCHEMA_VERSION}; rebuild it with the matching `care` "
+            "command."
         )
         raise StoreError(msg)
+    problem = layout_problem(schema, path)
+    if problem is not None:
+        raise StoreError(problem)
+
+
+def _layouts() -> dict[str, tuple[pa.Schema, ...]]:
+    return {
+        "views.parquet": (VIEWS_SCHEMA, VIEWS_SCHEMA_PNG),
+        "features.parquet": (FEATURES_SCHEMA, FEATURES_SCHEMA_LISTS),
+        "text.parquet": (TEXT_SCHEMA,),
+    }
+
+
+def layout_problem(schema: pa.Schema, path: Path) -> str | None:
+    """What keeps the store table ``path`` from being read as one of the layouts this
+    program writes: a column missing or of another type, or one it does not know (None:
+    a layout it reads; not a store table: None).
+
+    A store table has one writer (:class:`StoreWriter`), so its columns are exact: a
+    missing one was a ``KeyError`` deep in a reader, an unknown one means another program
+    (or a hand) wrote it, and neither is what ``meta.json`` describes."""
+    path = Path(path)
+    layouts = _layouts().get(path.name)
+    if layouts is None or not (path.parent / META_FILE).is_file():
+        return None
+    found = {f.name: f.type for f in schema}
+    best = min(layouts, key=lambda lay: len(set(lay.names) ^ set(found)))
+    missing = [n for n in best.names if n not in found]
+    extra = [n for n in found if n not in best.names]
+    wrong = [
+        f"{f.name} is {found[f.name]}, not {f.type}"
+        for f in best
+        if f.name in found and not found[f.name].equals(f.type)
+    ]
+    what = [
+        *(["missing " + ", ".join(missing)] if missing else []),
+        *(["unknown column " + ", ".join(extra)] if extra else []),
+        *wrong,
+    ]
+    if not what:
+        return None
+    table = path.name.removesuffix(".parquet")
+    return (
+        f"{path}: not a {table} table this program reads ({'; '.join(what)}); rebuild the "
+        f"store with {rebuild_hint(path.parent, table)}"
+    )
 
 
 CHECKED = {"page_checksum_verification": True}
@@ -482,18 +538,14 @@ class StoreMeta:
                 f"rebuild the store with {rebuild_hint(where.parent, 'meta')}"
             )
             raise StoreError(msg)
-        if data.get("schema_version") != SCHEMA_VERSION:
-            msg = (
-                f"{where.parent}: store schema version {data.get('schema_version')}, this "
-                f"program reads {SCHEMA_VERSION}; re-run `care ingest`."
-            )
-            raise StoreError(msg)
-        if data.get("meta_version") != META_VERSION:
-            msg = (
-                f"{where.parent}: store metadata layout {data.get('meta_version')}, this "
-                f"program reads {META_VERSION}; re-run `care ingest`."
-            )
-            raise StoreError(msg)
+        for field, ours in (("schema_version", SCHEMA_VERSION), ("meta_version", META_VERSION)):
+            if data.get(field) != ours:
+                msg = (
+                    f"{where}: {field.replace('_', ' ')} {data.get(field)}, this program "
+                    f"reads {ours}; "
+                    f"rebuild the store with {rebuild_hint(where.parent, 'meta')}"
+                )
+                raise StoreError(msg)
         try:
             enc = data.get("encoder")
             source = data.get("source")
@@ -569,7 +621,7 @@ class StoreWriter:
         self.encoding = StoreEncoding(encoding)
         self.kept_jpeg = 0
         """Views whose colour is the recording's own JPEG bytes (not encoded again)."""
-        self.tmp = self.path.with_name(f".{self.path.name}.tmp-{os.getpid()}")
+        self.tmp = temporary(self.path)  # within the name limit however long the name
         self.num_views = 0
         self._views: list[dict[str, Any]] = []
         self._features: list[dict[str, Any]] = []
@@ -780,21 +832,71 @@ def _in_frame(to_map: np.ndarray | None, cam_to_world: list[float]) -> np.ndarra
 
 
 MAP_FRAME_FILE = "map_frame.json"
-"""The store's map frame (:class:`care.mapframe.MapFrame` and the options it was found with)."""
+"""The store's map frame (:class:`care.mapframe.MapFrame`, the options it was found with and
+the identity of the store it was found for, :attr:`Store.identity`)."""
+
+MAP_FRAME_STORE_FIELD = "store"
+"""The field of ``map_frame.json`` naming the store it belongs to (:attr:`Store.identity`)."""
 
 
-def read_map_frame(store: Path) -> MapFrame:
+def store_identity(meta: StoreMeta) -> str:
+    """What a store *is*, as 16 hex digits: a hash of its tables' recorded sizes and
+    checksums (``meta.json``). The same store copied elsewhere, or built again to the same
+    bytes, keeps it; another recording, other options, another ingest do not."""
+    return fingerprint(meta.tables, length=16)
+
+
+def map_frame_json(frame: MapFrame, options: dict[str, Any], store: Store) -> str:
+    """The text of ``map_frame.json`` for ``frame`` found in ``store`` with ``options``:
+    the frame carries the store's identity, so a frame copied from another store is refused
+    (:func:`read_map_frame`), not used."""
+    record = {"options": options, "frame": frame.as_json(), MAP_FRAME_STORE_FIELD: store.identity}
+    return json.dumps(record, indent=2)
+
+
+def map_frame_record(store: Path) -> dict[str, Any] | None:
+    """``map_frame.json`` of the store directory ``store`` as JSON (None: absent or not a
+    JSON object)."""
+    path = Path(store) / MAP_FRAME_FILE
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def map_frame_owner(record: dict[str, Any], meta: StoreMeta) -> bool:
+    """Whether the map frame ``record`` (:func:`map_frame_record`) was found for the store
+    ``meta`` describes."""
+    return record.get(MAP_FRAME_STORE_FIELD) == store_identity(meta)
+
+
+def read_map_frame(store: Path, meta: StoreMeta | None = None) -> MapFrame:
     """The gravity-aligned map frame of the store directory ``store`` (``map_frame.json``,
     written by its first fusion; the world frame itself until then), checked: every reader
-    of positions goes through here, so a damaged frame is one line, not a failed solver."""
+    of positions goes through here, so a damaged frame, or one found for another store
+    (``meta``: the store's, read when not given), is one line, not a failed solver or
+    positions in another store's frame."""
     path = Path(store) / MAP_FRAME_FILE
     if not path.is_file():
         return MapFrame.identity()
     try:
-        frame = MapFrame.from_json(json.loads(path.read_text())["frame"])
+        record = json.loads(path.read_text())
+        frame = MapFrame.from_json(record["frame"])
     except (OSError, ValueError, KeyError, TypeError) as err:
         msg = f"{path}: unreadable map frame ({err}); delete it and re-run `care fuse`"
         raise StoreError(msg) from err
+    if meta is None and (Path(store) / META_FILE).is_file():
+        meta = StoreMeta.read(Path(store))
+    if meta is not None and not map_frame_owner(record, meta):
+        found = record.get(MAP_FRAME_STORE_FIELD)
+        whose = (
+            f"found for another store ({found}; this store is {store_identity(meta)})"
+            if found
+            else "of no store it names (an earlier care's, or copied from another store)"
+        )
+        msg = f"{path}: a map frame {whose}; re-run `care fuse grid {store}` to find this store's"
+        raise StoreError(msg)
     if not (np.isfinite(frame.map_from_world).all() and np.isfinite(frame.floor)):
         msg = (
             f"{path}: the map frame holds non-finite numbers; delete it and re-run "
@@ -805,7 +907,8 @@ def read_map_frame(store: Path) -> MapFrame:
 
 
 class Store:
-    """A complete store on disk; opening checks completeness and schema version."""
+    """A complete store on disk; opening checks completeness, schema version and the store
+    tables' columns (:func:`layout_problem`)."""
 
     def __init__(self, path: Path) -> None:
         self.path = Path(path)
@@ -813,10 +916,31 @@ class Store:
         bad = damaged(self.path, self.meta.tables, checksum=False)
         if bad:
             raise damaged_table(self.path / bad[0])
+        for name in sorted(set(self.meta.tables) & set(_layouts())):
+            # each table's footer: a column missing or unknown is one line naming the
+            # table here, whatever reads the store, not a KeyError in the reader that needs it
+            read_schema(self.path / name)
 
     @property
     def num_views(self) -> int:
         return self.meta.num_views
+
+    @property
+    def identity(self) -> str:
+        """What the store is (:func:`store_identity`): the id its map frame records."""
+        return store_identity(self.meta)
+
+    @property
+    def stamp(self) -> bytes:
+        """What a map records of the store it was built from: the store's identity and its
+        map frame. An ingest that changes the views or features, or another frame, makes
+        every map stale; the same store copied to another directory or machine, or rebuilt
+        to the same bytes, does not."""
+        frame = self.map_frame
+        if frame.is_identity:
+            return self.identity.encode()
+        matrix = ",".join(repr(float(v)) for v in frame.map_from_world.reshape(-1))
+        return f"{self.identity}|{matrix}".encode()
 
     def verify(self) -> list[str]:
         """Messages about every damaged table of the store and its maps (empty: all whole).
@@ -854,7 +978,7 @@ class Store:
     def map_frame(self) -> MapFrame:
         """The store's gravity-aligned map frame (``map_frame.json``, written by the first
         fusion; the world frame itself until then)."""
-        return read_map_frame(self.path)
+        return read_map_frame(self.path, self.meta)
 
     def poses(self, *, in_map: bool = True) -> np.ndarray:
         """(V, 4, 4) camera poses in view order: camera-to-map (``in_map``), or camera-to-world

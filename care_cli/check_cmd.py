@@ -12,11 +12,18 @@ __all__ = ["register"]
 
 
 def _store_problems(path: Path) -> list[str]:
+    """Every damaged file of the store ``path`` and every map file of another store or
+    build (:func:`fuse.provenance.map_problems`): a file copied from another store is named
+    as that, not as damaged, and an intact file is not named for it."""
     from care.errors import CareError
     from care.store import Store
+    from fuse.provenance import map_problems
 
     try:
-        return Store(path).verify()
+        store = Store(path)
+        foreign = map_problems(store)
+        named = {line.split(": ")[0] for line in foreign}
+        return foreign + [line for line in store.verify() if line.split(": ")[0] not in named]
     except CareError as err:  # Store raises StoreError
         return [str(err)]
 

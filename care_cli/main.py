@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import _thread
 import atexit
+import contextlib
 import datetime
 import errno
 import json
@@ -27,21 +28,24 @@ import typer
 from care.errors import CareError
 from care.notices import print_notices
 from care_cli import INTERRUPTED as _INTERRUPTED
-from care_cli import INTERRUPTED_LINE as _INTERRUPTED_LINE
 from care_cli import stop_while_loading
 from care_cli.options import finite_numbers
 from runtime.malloc import keep_freed_memory
+from runtime.signals import STOPS, WORKER_GRACE_S, exit_code, stop_line
 from runtime.threads import Work, use_threads
 
 _GRACE_S = 0.8
-"""How long a Ctrl-C may take to unwind (staged outputs removed on the way) before the
-process leaves anyway: a long call in compiled code does not see the KeyboardInterrupt
-until it returns. What such an exit leaves is a temporary named for a dead process, which
-the next run in that place sweeps."""
+"""How long an interruption (Ctrl-C, SIGTERM, SIGHUP: :data:`runtime.signals.STOPS`) may
+take to unwind (staged outputs removed on the way, workers stopped) before the process
+leaves anyway: a long call in compiled code does not see the KeyboardInterrupt until it
+returns. What such an exit leaves is a temporary named for a dead process, which the next
+run in that place sweeps."""
 
 
 _SAID = threading.Event()
 """Set once the interruption's line is on stderr (it is said once, whoever says it)."""
+_stopped_by: int | None = None
+"""The signal that interrupted this run (the first one), which sets its line and exit code."""
 _PROGRAM = (__name__ == "__main__" or sys.argv[0].rsplit("/", 1)[-1] == "care") and (
     __import__("multiprocessing").parent_process() is None
 )
@@ -52,15 +56,48 @@ _PID = os.getpid()
 _watchdog: threading.Timer | None = None
 
 
+def _signum() -> int:
+    """The signal this run was interrupted by (a KeyboardInterrupt of unknown origin is
+    Ctrl-C's)."""
+    return signal.SIGINT if _stopped_by is None else _stopped_by
+
+
+def _say(*, raw: bool = False) -> None:
+    """Print the interruption's line, once; a closed terminal (SIGHUP) may refuse it.
+    ``raw``: straight to file descriptor 2, from another thread than the main one (which may
+    hold ``sys.stderr``'s lock)."""
+    if _SAID.is_set():
+        return
+    _SAID.set()
+    with contextlib.suppress(OSError, ValueError):
+        if raw:
+            os.write(2, stop_line(_signum()))
+        else:
+            typer.echo(stop_line(_signum()).decode().rstrip(), err=True)
+
+
+def _stop_workers(grace: float | None) -> None:
+    """:func:`runtime.parallel.stop_workers`, if that module is loaded (without it no worker
+    was started; importing it from a signal handler could find it half-imported)."""
+    parallel = sys.modules.get("runtime.parallel")
+    stop = getattr(parallel, "stop_workers", None)
+    if stop is not None:
+        with contextlib.suppress(Exception):
+            stop(grace=grace)
+
+
 def _stop_now(signum: int, frame: object) -> None:
-    """Leave at once with exit code 130: the end of the grace after a Ctrl-C, or a Ctrl-C
-    while the program exits."""
+    """Leave at once with exit code 128 + N: the end of the grace after an interruption, or
+    an interruption while the program exits. The workers are killed first: left alone they
+    would run their tasks to the end."""
+    global _stopped_by
     if os.getpid() != _PID:  # a forked worker: the program says it
-        os._exit(_INTERRUPTED)
-    if not _SAID.is_set():
-        _SAID.set()
-        os.write(2, _INTERRUPTED_LINE)
-    os._exit(_INTERRUPTED)
+        os._exit(exit_code(signum))
+    if _stopped_by is None:
+        _stopped_by = signum
+    _stop_workers(0.0)
+    _say(raw=True)
+    os._exit(exit_code(_signum()))
 
 
 __all__ = ["app", "main", "one_line"]
@@ -107,6 +144,10 @@ def one_line(err: BaseException) -> str | None:
         from care.outputs import disk_full
 
         return str(disk_full(Path(err.filename or "."), 0, err))
+    if isinstance(err, OSError) and err.errno == errno.ENAMETOOLONG:
+        name = str(err.filename)
+        name = name if len(name) <= 120 else f"{name[:60]}...{name[-50:]}"
+        return f"{name}: file name or path too long for this system; choose a shorter one"
     if isinstance(err, OSError) and err.errno == errno.EROFS:
         return f"{err.filename}: read-only file system; choose a writable output path"
     if isinstance(err, MemoryError):
@@ -145,12 +186,15 @@ def _write_traceback(err: BaseException) -> Path:
 
 
 def _interrupt(signum: int, frame: object) -> None:
-    """Ctrl-C while a command runs: unwind with KeyboardInterrupt (every staged output is
-    removed on the way), and leave within :data:`_GRACE_S` of the first Ctrl-C whatever
-    happens."""
-    global _watchdog
+    """Ctrl-C, SIGTERM or SIGHUP while a command runs: tell the workers to stop, unwind with
+    KeyboardInterrupt (every staged output is removed on the way), and leave within
+    :data:`_GRACE_S` of the first signal whatever happens."""
+    global _watchdog, _stopped_by
     if os.getpid() != _PID:  # a forked worker: its task ends, the program decides
         raise KeyboardInterrupt
+    if _stopped_by is None:
+        _stopped_by = signum
+    _stop_workers(None)  # signals only: the pools' own locks may be held right now
     if _watchdog is None:
         _watchdog = threading.Timer(_GRACE_S, _stop_now, args=(signum, None))
         _watchdog.daemon = True
@@ -169,51 +213,72 @@ def _raise_again(unraisable: Any) -> None:
     sys.__unraisablehook__(unraisable)
 
 
+def _handlers_before() -> dict[int, Any]:
+    """The handler of each interrupting signal before this run (ours of an earlier run in
+    this process, or the loading one, count as the default)."""
+    before = {}
+    for signum in STOPS:
+        handler = signal.getsignal(signum)
+        if handler in (_stop_now, stop_while_loading, _interrupt):
+            handler = signal.default_int_handler if signum == signal.SIGINT else signal.SIG_DFL
+        before[signum] = handler
+    return before
+
+
+def _answered(before: dict[int, Any]) -> list[int]:
+    """The interrupting signals this run answers: those not ignored when it started (a job
+    started with one ignored, by ``nohup`` or ``cmd &`` in a script, keeps ignoring it)."""
+    return [signum for signum, handler in before.items() if handler is not signal.SIG_IGN]
+
+
 def main() -> None:
     """Run the CLI, turning every fault into one line and a non-zero exit."""
     if threading.current_thread() is not threading.main_thread():
         _main()
         return
-    global _watchdog
+    global _watchdog, _stopped_by
     _SAID.clear()
-    _watchdog = None  # no Ctrl-C yet in this run
-    previous = signal.getsignal(signal.SIGINT)
-    if previous in (_stop_now, stop_while_loading):
-        previous = signal.default_int_handler
-    if previous is not signal.SIG_IGN:  # a job started to ignore Ctrl-C keeps ignoring it
-        signal.signal(signal.SIGINT, _interrupt)
-        if _PROGRAM:
-            sys.unraisablehook = _raise_again
+    _watchdog, _stopped_by = None, None  # no interruption yet in this run
+    before = _handlers_before()
+    for signum in _answered(before):
+        signal.signal(signum, _interrupt)
+    if _PROGRAM and signal.SIGINT in _answered(before):
+        sys.unraisablehook = _raise_again
     try:
         _main()
     except SystemExit as done:
         if not _PROGRAM:
             raise
-        _leave(done.code)
+        _leave(done.code, _answered(before))
     finally:
-        if previous is not signal.SIG_IGN:
-            signal.signal(signal.SIGINT, previous)
+        for signum in _answered(before):
+            signal.signal(signum, before[signum])
         if _watchdog is not None:
             _watchdog.cancel()
 
 
 def _exit_interrupted() -> None:
-    """Exit code 130 once the outputs are unwound."""
+    """Exit code 128 + N once the outputs are unwound and the workers have ended (they
+    unwind their own tasks meanwhile; one that takes longer is killed)."""
+    _stop_workers(WORKER_GRACE_S)
     if _PROGRAM:  # the outputs are unwound; an interpreter whose KeyboardInterrupt went
         # through an exec() of text (numpy's and scipy's imports do) would end by the
-        # signal instead of exit code 130 (CPython's unhandled-interrupt flag)
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(_INTERRUPTED)
-    sys.exit(_INTERRUPTED)
+        # signal instead of exit code 128 + N (CPython's unhandled-interrupt flag)
+        with contextlib.suppress(OSError, ValueError):
+            sys.stdout.flush()
+            sys.stderr.flush()
+        os._exit(exit_code(_signum()))
+    sys.exit(exit_code(_signum()))
 
 
-def _leave(code: object) -> None:
-    """End the program with ``code`` here, with Ctrl-C still answered, instead of in the
-    interpreter's teardown: that resets the signal handlers before it frees the modules
-    (torch's take a while), and a Ctrl-C then would end the process by the signal, without
-    its line. The exit functions (a local Ray's shutdown, the pools' joins) run first."""
-    signal.signal(signal.SIGINT, _stop_now)
+def _leave(code: object, answered: list[int]) -> None:
+    """End the program with ``code`` here, with the interrupting signals still answered,
+    instead of in the interpreter's teardown: that resets the signal handlers before it
+    frees the modules (torch's take a while), and a signal then would end the process by
+    it, without its line. The exit functions (a local Ray's shutdown, the pools' joins) run
+    first."""
+    for signum in answered:
+        signal.signal(signum, _stop_now)
     atexit._run_exitfuncs()
     sys.stdout.flush()
     sys.stderr.flush()
@@ -247,17 +312,13 @@ def _main() -> None:
         typer.echo(f"error: {_first_line(err.format_message())} (see `{command} --help`)", err=True)
         sys.exit(err.exit_code)
     except (KeyboardInterrupt, typer.Abort):
-        if not _SAID.is_set():
-            _SAID.set()
-            typer.echo(_INTERRUPTED_LINE.decode().rstrip(), err=True)
+        _say()
         _exit_interrupted()
     except Exception as err:
         if _watchdog is not None and os.getpid() == _PID:
-            # after a Ctrl-C, whatever failed next failed because of it (an import cut
-            # half-way fails again when retried): it is the interruption that is reported
-            if not _SAID.is_set():
-                _SAID.set()
-                typer.echo(_INTERRUPTED_LINE.decode().rstrip(), err=True)
+            # after an interruption, whatever failed next failed because of it (an import
+            # cut half-way fails again when retried): it is the interruption that is reported
+            _say()
             _exit_interrupted()
         if debug:
             raise

@@ -25,7 +25,6 @@ committed last. Building one always goes the same way, and only here:
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,11 +38,12 @@ from care.errors import FuseError
 from care.fingerprint import canonical_json, config_json, fingerprint
 from care.keys import VOCABULARY_KEY
 from care.maps import MapKind
-from care.outputs import damaged, record_table
+from care.outputs import damaged, record_table, temporary
 from care.store import Store, read_schema
 from fuse.frame import ensure_map_frame, store_stamp
-from fuse.keys import STORE_KEY, config_json_key, config_key
+from fuse.keys import STORE_KEY, build_key, config_json_key, config_key
 from fuse.measures import candidate_metadata
+from fuse.provenance import map_problems
 from fuse.schemas import MAP_SCHEMAS, VIEW_TABLE_SCHEMAS, schema_problems, view_table_problems
 from fuse.vocabulary import vocabulary_text
 from runtime.execution import Execution
@@ -109,12 +109,19 @@ class MapSpec:
     def metadata(
         self, store: Store, config: MapConfig, vocabulary: tuple[str, ...]
     ) -> dict[bytes, bytes]:
-        """Schema metadata of every table of the map built from ``store`` with ``config``."""
+        """Schema metadata of every table of the map built from ``store`` with ``config``:
+        with the store's stamp and the build's id (:func:`fuse.keys.build_key`), so each
+        table says which store and which build it belongs to."""
+        stamp = store_stamp(store)
+        config_fp = self.config_fingerprint(config)
         return {
             **candidate_metadata(vocabulary, config.logit_scale, store.encoder.name),
-            config_key(self.kind): self.config_fingerprint(config).encode(),
+            config_key(self.kind): config_fp.encode(),
             config_json_key(self.kind): self.config_json(config).encode(),
-            STORE_KEY: store_stamp(store),
+            STORE_KEY: stamp,
+            build_key(self.kind): fingerprint(
+                self.kind, config_fp, stamp.decode(), length=16
+            ).encode(),
         }
 
     def is_current(self, store: Store, metadata: dict[bytes, bytes]) -> bool:
@@ -133,7 +140,10 @@ class MapSpec:
                 return False
         found = schema.metadata or {}
         keys = (config_key(self.kind), STORE_KEY, VOCABULARY_KEY)
-        return all(found.get(k) == metadata[k] for k in keys)
+        if not all(found.get(k) == metadata[k] for k in keys):
+            return False
+        # every table of this one build, its query sidecar current: else rebuilt
+        return not map_problems(store, self.kind)
 
 
 class StagedMap:
@@ -150,7 +160,7 @@ class StagedMap:
             msg = f"{table!r} is not a table of the {self.spec.kind} map"
             raise ValueError(msg)
         final = self.store.table_path(table)
-        tmp = final.with_name(f".{final.name}.tmp-{os.getpid()}")
+        tmp = temporary(final)
         self._staged[table] = tmp
         return tmp
 

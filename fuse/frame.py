@@ -10,17 +10,23 @@ outputs agree. ``care fuse ... --up-axis/--floor-z`` replaces it (and so rebuild
 from __future__ import annotations
 
 import contextlib
-import json
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
-from care.fingerprint import fingerprint
 from care.mapframe import MapFrame, UpAxis
 from care.outputs import atomic_write_text
-from care.store import MAP_FRAME_FILE, EncodedDepth, Store
+from care.store import (
+    MAP_FRAME_FILE,
+    MAP_FRAME_STORE_FIELD,
+    EncodedDepth,
+    Store,
+    map_frame_json,
+    map_frame_owner,
+    map_frame_record,
+)
 from geometry.mapframe import estimate_map_frame
 from geometry.transforms import backproject, transform_points
 
@@ -97,24 +103,41 @@ def ensure_map_frame(
 ) -> MapFrame:
     """The store's map frame: the one in ``map_frame.json`` when ``up_axis`` is None (the
     default: keep what an earlier step found), else found anew with these options; found
-    with ``auto`` when there is none yet. Written atomically."""
+    with ``auto`` when there is none yet. Written atomically, with the store's identity.
+
+    A frame found for another store (copied in) is found again, with ``auto``; one that
+    names no store (an earlier care's) again with the options it records, which give the
+    same frame, so its maps stay current."""
     store = Store(store_path)
     path = store.path / MAP_FRAME_FILE
+    record = map_frame_record(store.path)
+    ours = record is not None and map_frame_owner(record, store.meta)
     if up_axis is None:
-        if path.is_file():
+        if path.is_file() and (ours or record is None):  # unreadable: the reader says so
             return store.map_frame
-        up_axis = UpAxis.AUTO
+        up_axis, floor_z = UpAxis.AUTO, None
+        if record is not None and not ours:
+            up_axis, floor_z = _unstamped_options(record)
     options = {"up_axis": up_axis.value, "floor_z": floor_z}
-    if path.is_file():
-        try:
-            if json.loads(path.read_text()).get("options") == options:
-                return store.map_frame
-        except (OSError, ValueError):
-            pass  # unreadable: found again below
+    if ours and record is not None and record.get("options") == options:
+        return store.map_frame
     points, poses = sample_points(store)
     frame = estimate_map_frame(points, poses, up_axis=up_axis, floor=floor_z)
-    atomic_write_text(path, json.dumps({"options": options, "frame": frame.as_json()}, indent=2))
+    atomic_write_text(path, map_frame_json(frame, options, store))
     return frame
+
+
+def _unstamped_options(record: dict) -> tuple[UpAxis, float | None]:
+    """The options a map frame of an earlier care (naming no store) was found with, to find
+    it again the same way; ``auto`` for another store's frame, or options not understood."""
+    options = record.get("options")
+    if MAP_FRAME_STORE_FIELD in record or not isinstance(options, dict):
+        return UpAxis.AUTO, None
+    try:
+        floor = options.get("floor_z")
+        return UpAxis(options.get("up_axis")), None if floor is None else float(floor)
+    except (TypeError, ValueError):
+        return UpAxis.AUTO, None
 
 
 @contextlib.contextmanager
@@ -171,13 +194,5 @@ def check_height_band(store: Store, z_min: float, z_max: float, decoders: int = 
 
 
 def store_stamp(store: Store) -> bytes:
-    """What a map records of the store it was built from: the content of the store's tables
-    (their recorded sizes and checksums) and its map frame. An ingest that changes the
-    views or features, or another frame, makes every map stale; the same store copied to
-    another directory or machine, or rebuilt to the same bytes, does not."""
-    content = fingerprint(store.meta.tables, length=16)
-    frame = store.map_frame
-    if frame.is_identity:
-        return content.encode()
-    matrix = ",".join(repr(float(v)) for v in frame.map_from_world.reshape(-1))
-    return f"{content}|{matrix}".encode()
+    """What a map records of the store it was built from (:attr:`care.store.Store.stamp`)."""
+    return store.stamp

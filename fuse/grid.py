@@ -60,6 +60,7 @@ from fuse.build import MapBuild, MapSpec, build_map
 from fuse.cells import CellIndex, ViewSamples, pack_cells, unpack_cells, view_samples
 from fuse.config import GridConfig
 from fuse.frame import DECODERS, check_height_band
+from fuse.keys import STORE_KEY, build_key
 from fuse.layout import CELLS_TABLE, GridLayout
 from fuse.measures import MAX_TOP_CLASSES
 from fuse.pixels import warm_up
@@ -93,10 +94,15 @@ VIEWS_GROUP_ROWS = 1 << 20
 """Rows per row group of ``cell_views.parquet`` (16 bytes a row: 16 MiB held at most)."""
 
 
-def cell_views_schema() -> pa.Schema:
+def cell_views_schema(metadata: dict[bytes, bytes] | None = None) -> pa.Schema:
     """``cell_views.parquet``: one row per (view, cell) sample, the columns declared in
-    :data:`fuse.schemas.CELL_VIEWS_FIELDS`, all plain numbers (polars, duckdb)."""
-    return pa.schema(CELL_VIEWS_FIELDS, metadata={SCHEMA_VERSION_KEY: str(SCHEMA_VERSION).encode()})
+    :data:`fuse.schemas.CELL_VIEWS_FIELDS`, all plain numbers (polars, duckdb). Its
+    metadata: the store's stamp and the build's id of the grid's ``metadata`` (what the
+    samples belong to, :mod:`fuse.provenance`), not the grid's vocabulary or config."""
+    own = {k: v for k, v in (metadata or {}).items() if k in (STORE_KEY, build_key(MapKind.GRID))}
+    return pa.schema(
+        CELL_VIEWS_FIELDS, metadata={SCHEMA_VERSION_KEY: str(SCHEMA_VERSION).encode(), **own}
+    )
 
 
 def grid_image(
@@ -139,8 +145,8 @@ class _ViewsWriter:
     to the next (small blocks kept alive between the views' temporaries fragmented the
     heap: 180 MiB more peak memory on a 79k-cell floor)."""
 
-    def __init__(self, path: Path) -> None:
-        self._schema = cell_views_schema()
+    def __init__(self, path: Path, metadata: dict[bytes, bytes]) -> None:
+        self._schema = cell_views_schema(metadata)
         self._columns = {
             f.name: np.empty(VIEWS_GROUP_ROWS, f.type.to_pandas_dtype()) for f in self._schema
         }
@@ -274,6 +280,7 @@ def _fuse_views(
     capacity: int,
     *,
     views_path: Path | None = None,
+    views_metadata: dict[bytes, bytes] | None = None,
     index: CellIndex | None = None,
 ) -> _FirstPass:
     """The streaming pass: every view's samples, those of cells ``0..capacity-1`` into
@@ -285,7 +292,8 @@ def _fuse_views(
     index = CellIndex() if index is None else index
     layers = _CellLayers() if build else None
     later: dict[int, list[int]] = {}
-    with nullcontext() if views_path is None else _ViewsWriter(views_path) as writer:
+    views = None if views_path is None else _ViewsWriter(views_path, views_metadata or {})
+    with nullcontext() if views is None else views as writer:
         for view_id, samples in _view_samples(store, config, run, text):
             ids = index.lookup(samples.keys) if build else _known_cells(store, index, samples.keys)
             if ids.size and ids.max() >= capacity:
@@ -559,7 +567,9 @@ def _fuse_grid(build: MapBuild, config: GridConfig, run: Execution) -> None:
     capacity = cells_per_pass(run, dim, len(text))
     sums = CandidateSums(dim, text, config.logit_scale, limit=capacity)
     views = build.staged.path(CELL_VIEWS_TABLE)
-    first = _fuse_views(store, config, run, sums, capacity, views_path=views)
+    first = _fuse_views(
+        store, config, run, sums, capacity, views_path=views, views_metadata=build.metadata
+    )
     del sums  # first.sums holds it, until _cell_columns lets it go
     if first.index.size == 0:
         msg = (

@@ -13,6 +13,7 @@ from collections.abc import Mapping
 __all__ = [
     "CLOUD_CONFIG_KEY",
     "STORE_KEY",
+    "build_key",
     "config_json_key",
     "config_key",
     "recorded_settings",
@@ -22,6 +23,14 @@ STORE_KEY = b"care.store.created"
 """The stamp of the store a map was built from (:func:`fuse.frame.store_stamp`)."""
 CLOUD_CONFIG_KEY = b"care.cloud.config"
 """The fingerprint of the scene-cloud settings ``scene_points.parquet`` was made with."""
+
+
+def build_key(kind: str) -> bytes:
+    """Metadata key of the id of the build a ``kind`` map's table came from (its store's
+    stamp and the config it was built with, as one hash): every table of one build carries
+    the same id, and a recompute keeps it, so a table of another build (copied, or left by
+    an older map) is told from the map's own (:mod:`fuse.provenance`)."""
+    return f"care.{kind}.build".encode()
 
 
 def config_key(kind: str) -> bytes:

@@ -38,6 +38,7 @@ from fuse.config import GridConfig
 from fuse.frame import store_stamp
 from fuse.keys import STORE_KEY, config_json_key
 from fuse.measures import MAX_TOP_CLASSES, candidate_metadata
+from fuse.provenance import check_map_files
 from fuse.sidecar import SidecarWriter, sidecar_path
 from fuse.vocabulary import vocabulary_text
 from runtime.execution import DEFAULT_EXECUTION, Execution
@@ -146,6 +147,8 @@ def recompute_candidates(
     features (the instance map's ``instance_views.parquet``, :func:`sums_from_views`)."""
 
     def columns(store: Store, table: pa.Table, text: np.ndarray, scale: float) -> pa.Table:
+        # this store's map and its own build's per-view rows, before anything is rewritten
+        check_map_files(store, [table_name, views_table], sidecar=False, error=FuseError)
         sums = sums_from_views(
             store.table_path(views_table),
             id_column,

@@ -13,15 +13,16 @@ when a query touches them):
   for queries that need features and for the top-k category criterion.
 
 ``index.json``, written last, names the map table metadata it belongs to
-(:func:`fingerprint`), so a sidecar left over from an older map (a ``--recompute``) or an
-unfinished one is never used.
+(:func:`fingerprint`: the store's stamp, the config and the vocabulary), so a sidecar of
+another map (left over, or copied from another store) is never used: the reader refuses it
+in one line naming it (:func:`sidecar_problem`), and ``care fuse grid`` rebuilds it. An
+unfinished one never has the sidecar's name.
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
-import os
 import shutil
 from pathlib import Path
 from typing import BinaryIO
@@ -29,12 +30,21 @@ from typing import BinaryIO
 import numpy as np
 import pyarrow as pa
 
+from care.errors import StoreError
 from care.fingerprint import fingerprint as content_fingerprint
 from care.keys import LOGIT_SCALE_KEY, VOCABULARY_KEY
 from care.maps import MapKind
+from care.outputs import rebuild_hint, temporary
 from fuse.keys import STORE_KEY, config_key
 
-__all__ = ["FINGERPRINT_KEYS", "SidecarWriter", "fingerprint", "read_sidecar", "sidecar_path"]
+__all__ = [
+    "FINGERPRINT_KEYS",
+    "SidecarWriter",
+    "fingerprint",
+    "read_sidecar",
+    "sidecar_path",
+    "sidecar_problem",
+]
 
 FINGERPRINT_KEYS = (
     VOCABULARY_KEY,
@@ -80,7 +90,7 @@ class SidecarWriter:
         metadata: dict[bytes, bytes],
     ) -> None:
         self.path = Path(path)
-        self.tmp = self.path.with_name(f".{self.path.name}.tmp-{os.getpid()}")
+        self.tmp = temporary(self.path)
         shutil.rmtree(self.tmp, ignore_errors=True)
         self.tmp.mkdir(parents=True)
         self.n, self.dim, self.num_top, self.num_classes = num_candidates, dim, num_top, num_classes
@@ -153,21 +163,51 @@ class SidecarWriter:
         shutil.rmtree(self.tmp, ignore_errors=True)
 
 
-def read_sidecar(table_path: Path, metadata: dict[bytes, bytes]) -> dict[str, np.ndarray] | None:
-    """The memory-mapped arrays of ``table_path``'s sidecar, or None when there is none or
-    it belongs to another version of the map."""
-    folder = sidecar_path(table_path)
+def _open_sidecar(folder: Path, metadata: dict[bytes, bytes]) -> dict[str, np.ndarray] | str:
+    """The sidecar's memory-mapped arrays, or why they do not describe the map table of
+    ``metadata``."""
     try:
         index = json.loads((folder / _INDEX).read_text())
-        if index.get("fingerprint") != fingerprint(metadata):
-            return None
+    except (OSError, ValueError) as err:
+        return f"no readable {_INDEX} ({err.__class__.__name__})"
+    if not isinstance(index, dict) or index.get("fingerprint") != fingerprint(metadata):
+        return "the query cache of another map (another store, build or vocabulary)"
+    try:
         out = {
             name: np.load(folder / f"{name}.npy", mmap_mode="r")
             for name in ("feature", "top_classes", "log_confidence")
         }
-    except (OSError, ValueError):
-        return None
+    except (OSError, ValueError) as err:
+        return f"unreadable arrays ({str(err).splitlines()[0][:120]})"
     n = int(index.get("num_candidates", -1))
     if len(out["feature"]) != n or out["log_confidence"].shape[1:] != (n,):
-        return None
+        return f"arrays of other sizes than the {n} candidates its index names"
     return out
+
+
+def sidecar_problem(table_path: Path, metadata: dict[bytes, bytes]) -> str | None:
+    """One line on ``table_path``'s sidecar when there is one that does not describe the
+    table of ``metadata`` (None: none, or a current one), naming it and what rebuilds it."""
+    folder = sidecar_path(table_path)
+    if not folder.is_dir():
+        return None
+    found = _open_sidecar(folder, metadata)
+    return _line(folder, Path(table_path), found) if isinstance(found, str) else None
+
+
+def _line(folder: Path, table: Path, why: str) -> str:
+    return f"{folder}: {why}, not of {table.name}; rebuild it with {rebuild_hint(table.parent, table.name)}"
+
+
+def read_sidecar(table_path: Path, metadata: dict[bytes, bytes]) -> dict[str, np.ndarray] | None:
+    """The memory-mapped arrays of ``table_path``'s sidecar, or None when there is none (a
+    map made without one, or a recompute cut short before writing it). One that belongs to
+    another version of the map is refused (:func:`sidecar_problem`), not ignored: it is a
+    file of the map that is not what the map says."""
+    folder = sidecar_path(table_path)
+    if not folder.is_dir():
+        return None
+    found = _open_sidecar(folder, metadata)
+    if isinstance(found, str):
+        raise StoreError(_line(folder, Path(table_path), found))
+    return found

@@ -43,7 +43,7 @@ from care.outputs import (
     damaged,
     output_lock,
 )
-from care.store import META_FILE, SCHEMA_VERSION, Store, StoreMeta, StoreWriter
+from care.store import META_FILE, SCHEMA_VERSION, Store, StoreWriter
 from ingest.consistency import (
     GeometrySampler,
     check_geometry,
@@ -184,8 +184,8 @@ def _up_to_date(job: _Job, fp: str, key: str = "fingerprint") -> bool:
     out = job.out
     if job.run.overwrite or not (out / META_FILE).is_file():
         return False
-    try:
-        meta = StoreMeta.read(out)
+    try:  # a store whose tables a reader refuses (another layout) is rebuilt, not kept
+        meta = Store(out).meta
     except StoreError:
         return False
     # same inputs, and every table as it was committed (size and checksum): a damaged

@@ -15,7 +15,6 @@ the trajectory is logged as the path so far at every frame.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +22,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from care.frames import DEFAULT_CAMERA_FRAME, DEFAULT_WORLD_FRAME, Frame
+from care.outputs import temporary
 from care.viz import depth_png, jpeg, open_scene_recording, panels, set_stamp
 from geometry.transforms import backproject, transform_points
 from ingest.write import CAMERA_FRAME, WORLD_FRAME
@@ -128,7 +128,7 @@ class IngestLogger:
         scene: str | None = None,
     ) -> None:
         self.path = Path(rrd_path)
-        self.tmp = self.path.with_name(f".{self.path.name}.tmp-{os.getpid()}")
+        self.tmp = temporary(self.path)  # within the name limit however long the name
         self.scene = scene or self.path.name.split(".")[0]
         self.rec = open_scene_recording(self.tmp, self.scene)
         self.every = max(1, int(every))

@@ -22,7 +22,8 @@ import pyarrow as pa
 from care.errors import QueryError
 from care.keys import ENCODER_NAME_KEY, GRID_CELL_SIZE_KEY
 from care.maps import MapKind
-from care.store import read_schema, read_table
+from care.store import META_FILE, Store, read_schema, read_table
+from fuse.provenance import MAIN_TABLES, check_map_files
 from fuse.schemas import QUERY_COLUMNS, schema_problems
 from fuse.sidecar import read_sidecar
 from query.store_text import StoreText
@@ -40,8 +41,8 @@ __all__ = [
 ]
 
 
-MAP_TABLES: dict[MapKind, str] = {MapKind.INSTANCES: "instances", MapKind.GRID: "cells"}
-"""Map kind -> table name in the store directory."""
+MAP_TABLES: dict[MapKind, str] = MAIN_TABLES
+"""Map kind -> table name in the store directory (:data:`fuse.provenance.MAIN_TABLES`)."""
 
 MEASURES = ("entropy", "stderr", "pwkl")
 """Per-candidate uncertainty columns the strategies choose by."""
@@ -413,13 +414,16 @@ def load_map(
     A map with a current query sidecar (:mod:`fuse.sidecar`) opens in milliseconds at a
     million cells: only the narrow columns are decoded, the rest is memory-mapped. Free text
     is embedded by the store's own model (``weights`` if its weights directory moved), loaded
-    at the first free-text query.
+    at the first free-text query. A map table of another store or map frame, or a sidecar of
+    another map, is refused in one line naming it (:mod:`fuse.provenance`), never read.
     """
     store = Path(store)
     if kind not in MAP_TABLES:
         msg = f"unknown map kind {kind!r}; choose one of {', '.join(MAP_TABLES)}"
         raise QueryError(msg)
     path = store / f"{MAP_TABLES[kind]}.parquet"
+    if (store / META_FILE).is_file():  # a store's map: built from this store, as it is
+        check_map_files(Store(store), [MAP_TABLES[kind]])
     schema = read_schema(path)
     problem = schema_problems(schema, kind, path, columns=QUERY_COLUMNS[kind])
     if problem is not None:

@@ -7,6 +7,12 @@ process settings as the ``care`` program (:func:`setup_worker`: the allocator of
 :mod:`runtime.malloc`, the thread pools of :mod:`runtime.threads`): as the process pool's
 initializer, and as Ray's ``worker_process_setup_hook``. The tasks are pure functions of
 their arguments, so the outputs are the same, bit for bit, whichever runner ran them.
+
+An interrupted run (Ctrl-C, SIGTERM, SIGHUP: :mod:`runtime.signals`) stops its workers
+within a second: :func:`stop_workers` signals every live pool's workers at once, each
+unwinds its task and leaves (:func:`runtime.signals.in_task`), and the program waits for
+them (killing any that outlast :data:`runtime.signals.WORKER_GRACE_S`) before it exits;
+a run's Ray tasks are cancelled.
 """
 
 from __future__ import annotations
@@ -15,15 +21,25 @@ import contextlib
 import os
 import signal
 import socket
+import time
+import weakref
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
 from contextvars import ContextVar
 from dataclasses import dataclass, field, replace
+from multiprocessing.context import SpawnContext, SpawnProcess
 from pathlib import Path
 from typing import Any, TypeVar
 
 from care.errors import CareError
 from runtime.execution import Backend, Execution
+from runtime.signals import (
+    STOPS,
+    WORKER_GRACE_S,
+    answer_stops_in_worker,
+    in_task,
+    release_semaphores,
+)
 
 __all__ = [
     "RAY_HOOK",
@@ -35,6 +51,7 @@ __all__ = [
     "setup_worker",
     "start_task",
     "stop_pool",
+    "stop_workers",
 ]
 
 T = TypeVar("T")
@@ -144,20 +161,127 @@ def open_runner(runner: Runner) -> Iterator[Runner]:
         pool.shutdown()
 
 
-def stop_pool(pool: ProcessPoolExecutor) -> None:
-    """Cancel the pool's waiting tasks and end its workers now. What a worker was staging
-    stays as a temporary named for its (now dead) process, swept by the next run there."""
-    pool.shutdown(wait=False, cancel_futures=True)
-    for process in list((getattr(pool, "_processes", None) or {}).values()):
-        with contextlib.suppress(OSError, ValueError):
+_LIVE: weakref.WeakSet[ProcessPoolExecutor] = weakref.WeakSet()
+"""Every process pool this process started and has not dropped (:func:`stop_workers`)."""
+_STARTED: weakref.WeakSet[Any] = weakref.WeakSet()
+"""Every pool worker this process started (:class:`_Worker`), known to :func:`stop_workers`
+even where the pool had not yet recorded it."""
+_RAY_PENDING: set[Any] = set()
+"""Object references of this process's Ray tasks that have not finished."""
+
+
+def _workers(pool: ProcessPoolExecutor) -> list[Any]:
+    """The pool's worker processes (read from a signal handler too: never raises)."""
+    try:
+        return list((getattr(pool, "_processes", None) or {}).values())
+    except RuntimeError:  # changed size while read: the manager thread replaced one
+        return []
+
+
+def _signal_workers(processes: list[Any]) -> None:
+    """Tell workers to stop (SIGTERM: each unwinds its task and leaves)."""
+    for process in processes:
+        with contextlib.suppress(OSError, ValueError, AttributeError):
             process.terminate()
 
 
-def _pool(workers: int) -> ProcessPoolExecutor:
-    import multiprocessing as mp
+def _await_workers(processes: list[Any], grace: float) -> None:
+    """Wait up to ``grace`` seconds for the workers to end; kill those still running."""
+    from multiprocessing.connection import wait
 
-    context = mp.get_context("spawn")  # no copy of the parent's threads and locks
-    return ProcessPoolExecutor(workers, mp_context=context, initializer=setup_worker)
+    deadline = time.monotonic() + grace
+    sentinels = []
+    for process in processes:
+        with contextlib.suppress(ValueError, AttributeError):
+            sentinels.append(process.sentinel)
+    while sentinels and (left := deadline - time.monotonic()) > 0:
+        for done in wait(sentinels, timeout=left):
+            sentinels.remove(done)
+    for process in processes:
+        with contextlib.suppress(OSError, ValueError, AttributeError):
+            if process.is_alive():
+                process.kill()
+
+
+def stop_pool(pool: ProcessPoolExecutor, grace: float = WORKER_GRACE_S) -> None:
+    """Cancel the pool's waiting tasks and end its workers now: each unwinds its task (its
+    temporaries removed) and leaves; one still running after ``grace`` seconds is killed,
+    and what it was staging stays as a temporary named for its dead process, swept by the
+    next run there."""
+    processes = _workers(pool)
+    _signal_workers(processes)
+    with contextlib.suppress(RuntimeError):
+        pool.shutdown(wait=False, cancel_futures=True)
+    _await_workers(processes, grace)
+
+
+def stop_workers(*, grace: float | None = None) -> None:
+    """Stop every worker this process started: the pools' (:func:`stop_pool`) and its Ray
+    tasks (cancelled). ``grace=None``: only signal the pools' workers, without waiting or
+    touching the pools' locks (safe in a signal handler, whatever the main thread was
+    doing); else wait up to ``grace`` seconds for them and kill the rest."""
+    try:
+        processes = list(_STARTED)
+    except RuntimeError:  # changed while read (a signal handler's read): the pools' own
+        processes = [p for pool in list(_LIVE) for p in _workers(pool)]
+    _signal_workers(processes)
+    if grace is None:
+        return
+    _cancel_ray(list(_RAY_PENDING))
+    _await_workers(processes, grace)
+    for pool in list(_LIVE):
+        with contextlib.suppress(Exception):
+            pool.shutdown(wait=False, cancel_futures=True)
+    release_semaphores()
+
+
+def _cancel_ray(refs: list[Any]) -> None:
+    """Cancel Ray tasks now (their worker processes killed; a temporary one was staging is
+    named for a dead process, swept by the next run there)."""
+    if not refs:
+        return
+    import ray
+
+    for ref in refs:
+        with contextlib.suppress(Exception):
+            ray.cancel(ref, force=True)
+        _RAY_PENDING.discard(ref)
+
+
+class _Worker(SpawnProcess):
+    """A pool's worker, started with the interrupting signals held: one that came while it
+    starts would cut the hand-over of its start-up data, and the half-started process, not
+    yet known to the pool, would print a traceback; held, the signal is answered as soon as
+    the worker is one the pool can stop."""
+
+    def start(self) -> None:
+        held = signal.pthread_sigmask(signal.SIG_BLOCK, STOPS)
+        try:
+            super().start()
+            _STARTED.add(self)  # known before a signal can stop the pool's book-keeping
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, held)
+
+
+class _WorkerContext(SpawnContext):
+    """Spawn (no copy of the parent's threads and locks), of :class:`_Worker` processes."""
+
+    Process = _Worker
+
+
+def _pool(workers: int) -> ProcessPoolExecutor:
+    pool = ProcessPoolExecutor(workers, mp_context=_WorkerContext(), initializer=_setup_pool_worker)
+    _LIVE.add(pool)
+    return pool
+
+
+def _setup_pool_worker() -> None:
+    """A pool worker's settings (:func:`setup_worker`), and its answer to SIGTERM and SIGHUP
+    (:func:`runtime.signals.answer_stops_in_worker`): Ray's workers keep Ray's own. The
+    signals its start held (inherited) are let through once it answers them."""
+    setup_worker()
+    answer_stops_in_worker()
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, STOPS)
 
 
 def openmp_threads() -> str:
@@ -195,8 +319,14 @@ def run_tasks(fn: Callable[[T], R], items: Sequence[T], runner: Runner) -> Itera
         for item in items:
             yield item, fn(item)
     else:
-        with _pool(runner.workers) as pool:
+        pool = _pool(runner.workers)
+        try:
             yield from _run_pool(fn, items, pool)
+        except KeyboardInterrupt:  # interrupted: stop the workers, do not wait for their tasks
+            stop_pool(pool)
+            raise
+        finally:
+            pool.shutdown()
 
 
 def start_task(fn: Callable[..., R], *args: Any, runner: Runner) -> Future[R]:
@@ -212,7 +342,7 @@ def start_task(fn: Callable[..., R], *args: Any, runner: Runner) -> Future[R]:
         _, task = _ray_task(runner)
         return _unwrapped(task.remote(fn, *args).future())
     if runner.executor is not None:
-        return runner.executor.submit(fn, *args)
+        return runner.executor.submit(in_task, fn, *args)
     done: Future[R] = Future()
     try:
         done.set_result(fn(*args))
@@ -237,7 +367,7 @@ def _unwrapped(future: Future) -> Future:
 
 
 def _run_pool(fn: Callable[[T], R], items: Sequence[T], pool: Executor) -> Iterator[tuple[T, R]]:
-    futures = {pool.submit(fn, item): item for item in items}
+    futures = {pool.submit(in_task, fn, item): item for item in items}
     for future in as_completed(futures):
         yield futures[future], future.result()
 
@@ -280,16 +410,24 @@ def _run_ray(fn: Callable[[T], R], items: Sequence[T], runner: Runner) -> Iterat
     ray, task = _ray_task(runner)
     refs = {task.remote(fn, item): item for item in items}
     pending = list(refs)
-    while pending:
-        done, pending = ray.wait(pending, num_returns=1)
-        try:
-            result = ray.get(done[0])
-        except ray.exceptions.RayTaskError as err:
-            own = _own_error(err)
-            if own is err:
-                raise
-            raise own from None
-        yield refs[done[0]], result
+    _RAY_PENDING.update(pending)
+    try:
+        while pending:
+            done, pending = ray.wait(pending, num_returns=1)
+            _RAY_PENDING.discard(done[0])
+            try:
+                result = ray.get(done[0])
+            except ray.exceptions.RayTaskError as err:
+                own = _own_error(err)
+                if own is err:
+                    raise
+                raise own from None
+            yield refs[done[0]], result
+    except KeyboardInterrupt:  # interrupted: end the tasks, do not wait for them
+        _cancel_ray(pending)
+        raise
+    finally:
+        _RAY_PENDING.difference_update(pending)
 
 
 def _in_worker(fn: Callable[..., R], *args: Any) -> R:

@@ -23,6 +23,7 @@ import resource
 import shutil
 import subprocess
 import sys
+import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -31,6 +32,9 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 PROGRESS = re.compile(r"\d+%\|.*\| *[\d?]+/[\d?]+ \[|^[\w ]+: \d+it \[\d\d:\d\d, ")
 """A tqdm bar's frame: with a total (``40%|####  | 2/5 [``), or without (``scenes: 0it [00:00, ``)."""
+BAR_FRAME = re.compile(r"^.*?\d+%\|[^|]*\| *[\d?]+/[\d?]+ \[[^\]]*\]")
+"""A whole tqdm frame at the start of a line: a worker's bar, left unfinished when the run
+was stopped, and the program's line written after it."""
 TMP_NAME = re.compile(r"^\..+\.(tmp|old|building)-\d+")
 
 
@@ -81,6 +85,60 @@ def care_popen(*args: object) -> subprocess.Popen[str]:
         text=True,
         preexec_fn=_drop_dac,
     )
+
+
+WAIT_S = 120.0
+"""How long a test waits for a state it signals at: generous, for a loaded CI machine."""
+
+
+def wait_for(
+    proc: subprocess.Popen[str], seen: Callable[[], object], timeout: float = WAIT_S
+) -> bool:
+    """Poll until ``seen()`` is true while ``proc`` runs: whether it was (False: ``proc``
+    ended first). A fault test signals at a state it can see (a temporary appearing, a module
+    loaded), never after a fixed delay, which a busy machine stretches past any margin."""
+    deadline = time.monotonic() + timeout
+    while proc.poll() is None and time.monotonic() < deadline:
+        try:
+            if seen():
+                return proc.poll() is None
+        except OSError:  # a path that vanished while looked at
+            pass
+        time.sleep(0.002)
+    assert time.monotonic() < deadline, f"not seen within {timeout} s"
+    return False
+
+
+def loading(proc: subprocess.Popen[str]) -> Callable[[], bool]:
+    """The program is loading its modules: numpy's compiled core is mapped (the first big
+    import, past the interpreter's own start-up)."""
+    maps = Path(f"/proc/{proc.pid}/maps")
+    return lambda: "_multiarray_umath" in maps.read_text()
+
+
+def appears(folder: Path, pattern: str) -> Callable[[], bool]:
+    """A path matching ``pattern`` exists in ``folder`` (a temporary, a lock, a table)."""
+    return lambda: any(Path(folder).glob(pattern))
+
+
+def children(pid: int) -> set[int]:
+    """The processes whose parent is ``pid`` (its workers, multiprocessing's resource
+    tracker)."""
+    found = set()
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        with contextlib.suppress(OSError, ValueError, IndexError):
+            if int(stat.read_text().rsplit(")", 1)[1].split()[1]) == pid:
+                found.add(int(stat.parent.name))
+    return found
+
+
+def alive(pid: int) -> bool:
+    """Whether ``pid`` runs (a zombie is not running)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return False
+    return state != "Z"
 
 
 @pytest.fixture
@@ -134,7 +192,8 @@ def assert_fault(
     lines = [
         seen
         for line in err.split("\n")
-        if (seen := line.rsplit("\r", 1)[-1].strip()) and not PROGRESS.search(seen)
+        if (seen := BAR_FRAME.sub("", line.rsplit("\r", 1)[-1]).strip())
+        and not PROGRESS.search(seen)
     ]
     assert len(lines) == 1, err
     assert lines[0].startswith("error: "), lines[0]
@@ -330,6 +389,11 @@ def fx():
     return SimpleNamespace(
         care_process=care_process,
         care_popen=care_popen,
+        wait_for=wait_for,
+        loading=loading,
+        appears=appears,
+        children=children,
+        alive=alive,
         snapshot=snapshot,
         leftovers=leftovers,
         assert_fault=assert_fault,

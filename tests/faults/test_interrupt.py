@@ -3,32 +3,46 @@ the program loads, while it works, while it writes. What it was writing is remov
 the earlier output is as it was.
 
 Each case starts ``care`` as its own process (as a shell does) and sends SIGINT at a
-spread of moments over the command's run; the line must come within a second, allowing
-this test some slack for a loaded machine.
+spread of moments over the command's run, each a state the test can see (the program
+loading its modules, its lock taken, its temporary staged, its output committed) rather
+than a fixed delay, which a loaded machine stretches past any margin; the line must come
+within a second, allowing this test some slack for a loaded machine.
 """
 
 from __future__ import annotations
 
 import signal
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
 pytestmark = pytest.mark.slow
 
-MOMENTS = (0.15, 0.5, 1.0, 1.8, 2.6)
-"""Seconds after the start at which Ctrl-C comes (the program loads for the first ~0.5 s)."""
 WITHIN = 1.5
 """Seconds from Ctrl-C to exit: the program's grace is 0.8 s (care_cli.main._GRACE_S)."""
 
 
-def _interrupt(fx, args: tuple[object, ...], after: float) -> tuple[int | None, str, float]:
-    """Run ``care ARGS``, Ctrl-C it ``after`` seconds in: (exit code, stderr, seconds the
+def _changed(path: Path) -> Callable[[], bool]:
+    """``path`` was replaced (a new file committed over it) or appeared."""
+    path = Path(path)
+    before = (path.stat().st_ino, path.stat().st_mtime_ns) if path.exists() else None
+    return lambda: path.exists() and (path.stat().st_ino, path.stat().st_mtime_ns) != before
+
+
+MOMENTS = ("loading", "locked", "staged", "committed")
+"""States at which Ctrl-C comes: the program loading its modules, holding its output's lock,
+writing its temporary, and having committed its output (about to exit)."""
+
+
+def _interrupt(
+    fx, args: tuple[object, ...], at: Callable[[object], Callable[[], bool]]
+) -> tuple[int | None, str, float]:
+    """Run ``care ARGS``, Ctrl-C it once ``at(proc)()`` holds: (exit code, stderr, seconds the
     exit took after the signal; 0 when it had finished before)."""
     proc = fx.care_popen(*args)
-    time.sleep(after)
-    if proc.poll() is not None:
+    if not fx.wait_for(proc, at(proc)):
         _, err = proc.communicate()
         return proc.returncode, err, 0.0
     sent = time.monotonic()
@@ -53,21 +67,33 @@ def _check(fx, code: int | None, err: str, took: float) -> None:
     assert took < WITHIN, took
 
 
-@pytest.mark.parametrize("after", MOMENTS)
-def test_ctrl_c_during_fuse_grid_overwrite(fx, copy_good, after: float) -> None:
+@pytest.mark.parametrize("moment", MOMENTS)
+def test_ctrl_c_during_fuse_grid_overwrite(fx, copy_good, moment: str) -> None:
     store = copy_good("store")
     before = fx.snapshot(store)
-    code, err, took = _interrupt(fx, ("fuse", "grid", store, "--overwrite"), after)
+    at = {
+        "loading": fx.loading,
+        "locked": lambda _: fx.appears(store.parent, f".{store.name}.lock"),
+        "staged": lambda _: fx.appears(store, ".cell_views.parquet.tmp-*"),
+        "committed": lambda _: _changed(store / "cells.parquet"),
+    }[moment]
+    code, err, took = _interrupt(fx, ("fuse", "grid", store, "--overwrite"), at)
     _check(fx, code, err, took)
     assert fx.snapshot(store) == before  # the old map, or the same map built again
     assert fx.care_process("fuse", "grid", store).returncode == 0
     assert not fx.leftovers(store.parent)
 
 
-@pytest.mark.parametrize("after", MOMENTS)
-def test_ctrl_c_during_ingest(fx, recording: Path, tmp_path: Path, after: float) -> None:
+@pytest.mark.parametrize("moment", MOMENTS)
+def test_ctrl_c_during_ingest(fx, recording: Path, tmp_path: Path, moment: str) -> None:
     out = tmp_path / "store"
-    code, err, took = _interrupt(fx, ("ingest", recording, "--out", out), after)
+    at = {
+        "loading": fx.loading,
+        "locked": lambda _: fx.appears(tmp_path, ".store.lock"),
+        "staged": lambda _: fx.appears(tmp_path, ".store.tmp-*/views.parquet"),
+        "committed": lambda _: _changed(out / "meta.json"),
+    }[moment]
+    code, err, took = _interrupt(fx, ("ingest", recording, "--out", out), at)
     _check(fx, code, err, took)
     if out.exists():  # committed whole before the signal came, or not at all
         assert fx.care_process("check", out).returncode == 0
@@ -75,11 +101,15 @@ def test_ctrl_c_during_ingest(fx, recording: Path, tmp_path: Path, after: float)
     assert not fx.leftovers(tmp_path)
 
 
-@pytest.mark.parametrize("after", MOMENTS[1::2])
-def test_ctrl_c_during_eval_over_earlier_results(fx, good: Path, copy_good, after: float) -> None:
+@pytest.mark.parametrize("moment", MOMENTS[1:3])
+def test_ctrl_c_during_eval_over_earlier_results(fx, good: Path, copy_good, moment: str) -> None:
     ev = copy_good("eval")
     before = fx.snapshot(ev)
-    code, err, took = _interrupt(fx, ("eval", good / "store", "--out", ev, *fx.EVAL_FLAGS), after)
+    at = {
+        "locked": lambda _: fx.appears(ev.parent, f".{ev.name}.lock"),
+        "staged": lambda _: fx.appears(ev.parent, f".{ev.name}.tmp-*"),
+    }[moment]
+    code, err, took = _interrupt(fx, ("eval", good / "store", "--out", ev, *fx.EVAL_FLAGS), at)
     _check(fx, code, err, took)
     assert fx.snapshot(ev) == before  # the same inputs: the old results or identical new ones
     assert fx.care_process("eval", good / "store", "--out", ev, *fx.EVAL_FLAGS).returncode == 0
@@ -101,7 +131,7 @@ def test_a_job_started_to_ignore_ctrl_c_keeps_ignoring_it(fx, copy_good) -> None
         cwd=Path(__file__).resolve().parents[2], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
         text=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
     )  # fmt: skip
-    time.sleep(1.0)
+    assert fx.wait_for(proc, fx.appears(store.parent, f".{store.name}.lock")), proc.communicate()
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 0, err

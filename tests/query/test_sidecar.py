@@ -12,6 +12,7 @@ import pyarrow.parquet as pq
 import pytest
 from scipy.special import logsumexp
 
+from care.errors import StoreError
 from care.store import TEXT_SCHEMA, open_writer, write_table_atomic
 from fuse.measures import candidate_columns, candidate_metadata
 from fuse.sidecar import SidecarWriter, sidecar_path
@@ -91,15 +92,14 @@ def test_sidecar_map_equals_the_table_and_scipy(tmp_path) -> None:
     assert np.all(got[1, :3] < 0)  # ...and none is rounded up to certainty
 
 
-def test_stale_sidecar_is_ignored(tmp_path) -> None:
+def test_a_sidecar_of_another_map_is_refused_not_ignored(tmp_path) -> None:
     path, _ = _write_grid(tmp_path)
     index = sidecar_path(path) / "index.json"
     meta = json.loads(index.read_text())
     meta["fingerprint"] = "another map"
     index.write_text(json.dumps(meta))
-    cmap = load_map(tmp_path, "grid")
-    assert cmap.log_confidence_rows is None  # fell back to the table's columns
-    assert cmap.num_candidates == pq.read_metadata(path).num_rows
+    with pytest.raises(StoreError, match=r"cells\.query: the query cache of another map"):
+        load_map(tmp_path, "grid")
 
 
 @pytest.mark.parametrize("radius", [0.0, 0.05, 0.3, 1.0])
