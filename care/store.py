@@ -266,7 +266,15 @@ def layout_problem(schema: pa.Schema, path: Path) -> str | None:
     if layouts is None or not (path.parent / META_FILE).is_file():
         return None
     found = {f.name: f.type for f in schema}
-    best = min(layouts, key=lambda lay: len(set(lay.names) ^ set(found)))
+
+    def mismatch(layout: pa.Schema) -> tuple[int, int]:
+        names = len(set(layout.names) ^ set(found))
+        types = sum(1 for f in layout if f.name in found and not found[f.name].equals(f.type))
+        return names, types
+
+    # two encodings share column names (features: binary or a float16 list): the closest
+    # by names, then by types
+    best = min(layouts, key=mismatch)
     missing = [n for n in best.names if n not in found]
     extra = [n for n in found if n not in best.names]
     wrong = [

@@ -35,6 +35,8 @@ PROGRESS = re.compile(r"\d+%\|.*\| *[\d?]+/[\d?]+ \[|^[\w ]+: \d+it \[\d\d:\d\d,
 BAR_FRAME = re.compile(r"^.*?\d+%\|[^|]*\| *[\d?]+/[\d?]+ \[[^\]]*\]")
 """A whole tqdm frame at the start of a line: a worker's bar, left unfinished when the run
 was stopped, and the program's line written after it."""
+CURSOR = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
+"""A terminal control sequence (tqdm moves the cursor up over nested bars): not text."""
 TMP_NAME = re.compile(r"^\..+\.(tmp|old|building)-\d+")
 
 
@@ -192,7 +194,7 @@ def assert_fault(
     lines = [
         seen
         for line in err.split("\n")
-        if (seen := BAR_FRAME.sub("", line.rsplit("\r", 1)[-1]).strip())
+        if (seen := BAR_FRAME.sub("", CURSOR.sub("", line.rsplit("\r", 1)[-1])).strip())
         and not PROGRESS.search(seen)
     ]
     assert len(lines) == 1, err

