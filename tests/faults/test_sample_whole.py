@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import signal
-import time
 from pathlib import Path
 
 import pytest
@@ -46,13 +45,28 @@ def test_full_disk_keeps_the_earlier_dataset(fx, tmp_path: Path) -> None:
                     clean=(tmp_path,))  # fmt: skip
 
 
-@pytest.mark.parametrize("after", [0.8, 1.6, 2.4])
-def test_ctrl_c_leaves_a_whole_dataset_or_none(fx, tmp_path: Path, after: float) -> None:
+def _staged(tmp_path: Path, pattern: str):
+    """A file matching ``pattern`` inside the dataset's staging temporary."""
+    return lambda: any(p for d in tmp_path.glob(".ds.*-*") for p in d.glob(pattern))
+
+
+# the moments of a run a Ctrl-C lands in, each waited for (never a fixed delay): modules
+# loading, the dataset staged, a recording written into it, its ground truth written
+MOMENTS = {
+    "loading": lambda fx, proc, tmp_path: fx.loading(proc),
+    "staged": lambda fx, proc, tmp_path: fx.appears(tmp_path, ".ds.*-*"),
+    "recording written": lambda fx, proc, tmp_path: _staged(tmp_path, "*.mcap"),
+    "ground truth written": lambda fx, proc, tmp_path: _staged(tmp_path, "*.gt.parquet"),
+}
+
+
+@pytest.mark.parametrize("moment", list(MOMENTS))
+def test_ctrl_c_leaves_a_whole_dataset_or_none(fx, tmp_path: Path, moment: str) -> None:
     out = tmp_path / "ds"
     proc = fx.care_popen(*TINY[:-1], "--out", out)  # with the likeness step: a longer run
-    time.sleep(after)
-    proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=30)
+    if fx.wait_for(proc, MOMENTS[moment](fx, proc, tmp_path)):
+        proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
     if proc.returncode != 0:
         fx.assert_fault(proc.returncode, err, r"^error: interrupted", exit_code=130)
     if out.exists():
