@@ -31,7 +31,13 @@ from enum import StrEnum
 
 import numpy as np
 
-from geometry.transforms import BODY_FROM_OPTICAL, matrix_to_quaternion, quaternion_to_matrix
+from geometry.transforms import (
+    BODY_FROM_OPTICAL,
+    backproject,
+    matrix_to_quaternion,
+    project,
+    quaternion_to_matrix,
+)
 
 __all__ = [
     "AGREE_ABSOLUTE_M",
@@ -162,13 +168,19 @@ class PairAgreement:
     """Relative depth residuals ``(z - d) / d`` of the landed points."""
 
 
+def _focal(K: np.ndarray, focal_scale: float) -> np.ndarray:
+    """``K`` with both focal lengths scaled (the principal point stays: a focal length read
+    from another camera or resolution moves the rays' spread, not the image centre)."""
+    scaled = np.array(K, np.float64)
+    scaled[0, 0] *= focal_scale
+    scaled[1, 1] *= focal_scale
+    return scaled
+
+
 def _points(sample: DepthSample, depth_scale: float, focal_scale: float) -> np.ndarray:
-    d = sample.depth
-    v, u = np.nonzero(d > 0)
-    z = d[v, u].astype(np.float64) * depth_scale
-    K = sample.K
-    fx, fy = K[0, 0] * focal_scale, K[1, 1] * focal_scale
-    return np.stack([(u - K[0, 2]) * z / fx, (v - K[1, 2]) * z / fy, z], axis=1)
+    """Camera-frame points of the sample's valid pixels as a hypothesis reads them."""
+    # a point's coordinates are linear in its depth: scaled in float64 after back-projection
+    return backproject(sample.depth, _focal(sample.K, focal_scale))[0] * depth_scale
 
 
 def pair_agreement(
@@ -188,12 +200,9 @@ def pair_agreement(
         return PairAgreement(0, 0.0, 0.0, np.zeros(0))
     T = np.linalg.solve(second_pose, first_pose)  # second_from_first
     p = points @ T[:3, :3].T + T[:3, 3]
-    K = second.K
-    z = p[:, 2]
-    front = z > 1e-6
-    p, z = p[front], z[front]
-    u = np.rint(K[0, 0] * focal_scale * p[:, 0] / z + K[0, 2]).astype(np.int64)
-    v = np.rint(K[1, 1] * focal_scale * p[:, 1] / z + K[1, 2]).astype(np.int64)
+    p = p[p[:, 2] > 1e-6]  # in front of the second camera
+    uv, z = project(p, _focal(second.K, focal_scale))
+    u, v = np.rint(uv).astype(np.int64).T
     h, w = second.depth.shape
     inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
     d = np.zeros(len(z))
