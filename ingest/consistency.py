@@ -35,6 +35,7 @@ from geometry.consistency import (
     subsample,
 )
 from ingest.conventions import CameraConvention, PoseConvention, QuaternionOrder
+from ingest.folders.frames import FolderFrames
 
 __all__ = [
     "GeometrySampler",
@@ -134,7 +135,7 @@ def source_reading(path: Path, frames: Any, options: Any) -> SourceReading:
     read ``options``: what a verdict's fix is phrased against."""
     described = frames.describe()
     topics = described.get("topics") or {}
-    layout = getattr(frames, "layout", None)  # a dataset folder's (FolderFrames)
+    layout = frames.layout if isinstance(frames, FolderFrames) else None
     scale = options.depth_scale
     if scale is None and layout is not None:
         scale = topics.get("depth_scale")
