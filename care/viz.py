@@ -14,6 +14,7 @@ file weighs a fraction of the raw pixels.
 from __future__ import annotations
 
 import io
+import uuid
 from collections import Counter
 from pathlib import Path
 
@@ -32,6 +33,7 @@ __all__ = [
     "overview_eye",
     "panels",
     "rrd_entity_counts",
+    "send_blueprint",
     "set_stamp",
 ]
 
@@ -61,6 +63,27 @@ def open_recording(
         rec.send_recording_name(name)
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     return rec
+
+
+_LAYOUT_IDS = uuid.UUID("6c1d2a8e-4b7f-5e0a-9c3d-2f8e1b7a4c60")
+"""Namespace of the ids :func:`send_blueprint` gives a layout's views and containers."""
+
+
+def send_blueprint(rec: rr.RecordingStream, blueprint: rrb.Blueprint) -> None:
+    """Send ``blueprint`` with each view's and container's id derived from its place in the
+    layout, not the SDK's random ``uuid4``: the same layout then writes the same blueprint,
+    so a recording made twice holds the same rows (``tests/faults/test_same_bytes.py``)."""
+
+    def place(part: object, where: str) -> None:
+        part.id = uuid.uuid5(_LAYOUT_IDS, where)  # type: ignore[attr-defined]
+        for i, child in enumerate(getattr(part, "contents", None) or ()):
+            if hasattr(child, "blueprint_path"):  # a view or container, not an entity query
+                place(child, f"{where}/{i}")
+
+    root = getattr(blueprint, "root_container", None)
+    if root is not None:
+        place(root, "root")
+    rec.send_blueprint(blueprint)
 
 
 def open_scene_recording(rrd_path: Path, scene: str) -> rr.RecordingStream:

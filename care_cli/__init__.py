@@ -1,9 +1,10 @@
 """The ``care`` command-line program: sits on top and imports the stages.
 
 Importing the package is the first thing the program does (``python -m care_cli.main`` and
-the ``care`` script alike), so a Ctrl-C while it loads is handled from here on: one line and
-exit code 130 (:mod:`care_cli.main` takes over once a command runs), not a traceback from
-whichever import it interrupted.
+the ``care`` script alike), so a Ctrl-C, SIGTERM or SIGHUP while it loads is handled from
+here on: one line and exit code 128 + N (:mod:`care_cli.main` takes over once a command
+runs), not a traceback from whichever import it interrupted nor a silent death by the
+signal.
 """
 
 from __future__ import annotations
@@ -12,16 +13,16 @@ import os
 import signal
 import sys
 
+from runtime.signals import exit_code, stop_line
+
 INTERRUPTED = 130
 """Exit code of a run stopped by Ctrl-C (128 + SIGINT), as shells report it."""
-INTERRUPTED_LINE = b"error: interrupted; nothing half-written was left behind\n"
-"""What a Ctrl-C prints, whenever it comes."""
 
 
 def stop_while_loading(signum: int, frame: object) -> None:
-    """Ctrl-C before any command runs: nothing is written yet, so leave at once."""
-    os.write(2, INTERRUPTED_LINE)
-    os._exit(INTERRUPTED)
+    """An interruption before any command runs: nothing is written yet, so leave at once."""
+    os.write(2, stop_line(signum))
+    os._exit(exit_code(signum))
 
 
 def _is_program() -> bool:
@@ -30,5 +31,15 @@ def _is_program() -> bool:
     return sys.argv[:1] == ["-m"] or sys.argv[0].rsplit("/", 1)[-1] == "care"
 
 
-if _is_program() and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
-    signal.signal(signal.SIGINT, stop_while_loading)
+_DEFAULTS = {
+    signal.SIGINT: signal.default_int_handler,
+    signal.SIGTERM: signal.SIG_DFL,
+    signal.SIGHUP: signal.SIG_DFL,
+}
+"""The interrupting signals and their handlers where nothing changed them (one ignored, as
+``nohup`` asks, stays ignored)."""
+
+if _is_program():
+    for _signum, _default in _DEFAULTS.items():
+        if signal.getsignal(_signum) is _default:
+            signal.signal(_signum, stop_while_loading)

@@ -34,7 +34,7 @@ import pyarrow.compute as pc
 import rerun as rr
 import rerun.blueprint as rrb
 
-from care.viz import open_scene_recording, panels
+from care.viz import open_scene_recording, panels, send_blueprint
 from query.confidence import confidence
 from query.map import CandidateMap
 from replan.strategies import STRATEGIES, Criterion
@@ -599,7 +599,7 @@ def write_evaluation_rrd(
     charts = sorted({(r["map"], r["protocol"]) for r in summary.to_pylist() if r["map"] in maps})
     travel = sorted(k for k in _scene_curves(attempts, summary, scene) if k[0] in maps)
     if own:
-        rec.send_blueprint(evaluation_blueprint(charts, travel))
+        send_blueprint(rec, evaluation_blueprint(charts, travel))
     log_evaluation(
         rec, attempts, summary, maps, scene=scene, gt=gt, scene_points=points,
         scene_colours=colours,

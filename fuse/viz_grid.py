@@ -29,7 +29,7 @@ import rerun.blueprint as rrb
 from care.errors import FuseError
 from care.keys import LOGIT_SCALE_KEY, VOCABULARY_KEY
 from care.store import Store, read_table
-from care.viz import open_scene_recording, overview_eye, panels
+from care.viz import open_scene_recording, overview_eye, panels, send_blueprint
 from care.vocab import STRUCTURE_NAMES
 from fuse.grid import CELLS_TABLE, GridLayout, grid_image
 from fuse.measures import MEASURE_COLUMNS
@@ -295,8 +295,8 @@ def log_grid(
     )
     if own:
         grouped = layers[1 : 1 + len(targets)] if len(targets) > 1 else []
-        rec.send_blueprint(
-            map_blueprint(layers=layers, titles=titles, eye=overview_eye(xyz), grouped=grouped)
+        send_blueprint(
+            rec, map_blueprint(layers=layers, titles=titles, eye=overview_eye(xyz), grouped=grouped)
         )
     rec.log(GRID_CELLS_3D, rr.Points3D(xyz, colors=rgb, radii=layout.cell_size / 2), static=True)
     if own:

@@ -31,7 +31,7 @@ import rerun.blueprint as rrb
 
 from care.keys import VOCABULARY_KEY
 from care.store import Store, read_table
-from care.viz import log_camera, open_scene_recording, overview_eye, panels
+from care.viz import log_camera, open_scene_recording, overview_eye, panels, send_blueprint
 from geometry.labels import label_gap, spread_labels
 
 __all__ = [
@@ -132,7 +132,7 @@ def log_instances(store_path: Path, rrd: Path, *, scene: str | None = None) -> P
     vid = views.column("view_id").to_numpy()
     rank = views.column("rank").to_numpy()
     max_views = int(np.bincount(inst).max()) if len(inst) else 0
-    rec.send_blueprint(instances_blueprint(max_views, overview_eye(cloud.points)))
+    send_blueprint(rec, instances_blueprint(max_views, overview_eye(cloud.points)))
     rec.log(ENTITY_RGB, rr.Points3D(cloud.points, colors=cloud.colors), static=True)
 
     colours = _palette(max(n, 1))

@@ -23,7 +23,7 @@ import rerun.blueprint as rrb
 
 from care.frames import DEFAULT_CAMERA_FRAME, DEFAULT_WORLD_FRAME, Frame
 from care.outputs import temporary
-from care.viz import depth_png, jpeg, open_scene_recording, panels, set_stamp
+from care.viz import depth_png, jpeg, open_scene_recording, panels, send_blueprint, set_stamp
 from geometry.transforms import backproject, transform_points
 from ingest.write import CAMERA_FRAME, WORLD_FRAME
 
@@ -139,7 +139,7 @@ class IngestLogger:
 
     def _log_static(self, frame: Frame) -> None:
         rec = self.rec
-        rec.send_blueprint(ingest_blueprint(self.world_frame, self.camera_frame))
+        send_blueprint(rec, ingest_blueprint(self.world_frame, self.camera_frame))
         names = [self.world_frame, self.camera_frame, f"{self.camera_frame} image"]
         rec.log(
             TF_ENTITY,

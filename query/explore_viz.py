@@ -19,7 +19,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from care.store import Store
-from care.viz import log_camera, open_scene_recording, overview_eye, panels
+from care.viz import log_camera, open_scene_recording, overview_eye, panels, send_blueprint
 from fuse.grid import grid_image
 from fuse.measures import MEASURE_COLUMNS
 from fuse.viz_grid import LayerStyle, layer_entity, log_grid, log_layer
@@ -126,6 +126,6 @@ def log_exploration(store: Path, found: Exploration, rrd: Path) -> None:
     log_grid(store, rec=rec)
     title = _log_top_down(rec, found)
     _log_views(rec, store, found)
-    rec.send_blueprint(explore_blueprint(overview_eye(found.cmap.positions), title))
+    send_blueprint(rec, explore_blueprint(overview_eye(found.cmap.positions), title))
     rec.flush()
     rec.disconnect()

@@ -35,7 +35,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from care.errors import QueryError
-from care.viz import open_scene_recording, panels
+from care.viz import open_scene_recording, panels, send_blueprint
 from query.goals import FreeSpace, Goal
 from query.paths import Leg
 
@@ -313,7 +313,7 @@ def write_answer_rrd(
     around += [np.array([[*g.position[:2], 0.0] for g in answer.goals]).reshape(-1, 3)]
     if answer.start is not None:
         around.append(np.array([[*answer.start, 0.0]]))
-    rec.send_blueprint(answer_blueprint(_eye(np.vstack(around))))
+    send_blueprint(rec, answer_blueprint(_eye(np.vstack(around))))
     log_answer(rec, answer, floor=floor, scene=scene)
     rec.flush()
     rec.disconnect()

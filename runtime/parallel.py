@@ -21,6 +21,8 @@ import contextlib
 import os
 import signal
 import socket
+import sys
+import threading
 import time
 import weakref
 from collections.abc import Callable, Iterator, Sequence
@@ -166,8 +168,17 @@ _LIVE: weakref.WeakSet[ProcessPoolExecutor] = weakref.WeakSet()
 _STARTED: weakref.WeakSet[Any] = weakref.WeakSet()
 """Every pool worker this process started (:class:`_Worker`), known to :func:`stop_workers`
 even where the pool had not yet recorded it."""
+_STARTING = threading.Lock()
+"""Held while a worker starts: a program that stops waits for the hand-over of its start-up
+data to end (cut short, the half-started worker prints a traceback of its own)."""
+_STOPPING = threading.Event()
+"""Set once the program stops its workers: a worker started after is killed at once (until
+a new pool is made)."""
 _RAY_PENDING: set[Any] = set()
 """Object references of this process's Ray tasks that have not finished."""
+_RAY_LOCAL = False
+"""Whether this process started a local Ray (no cluster address): its processes are this
+run's, ended with it when it is stopped (:func:`stop_workers`)."""
 
 
 def _workers(pool: ProcessPoolExecutor) -> list[Any]:
@@ -227,12 +238,33 @@ def stop_workers(*, grace: float | None = None) -> None:
     _signal_workers(processes)
     if grace is None:
         return
-    _cancel_ray(list(_RAY_PENDING))
-    _await_workers(processes, grace)
+    _STOPPING.set()
+    starting = _STARTING.acquire(timeout=grace)  # no worker half-started from here on
+    try:
+        processes = list(_STARTED)
+        _signal_workers(processes)
+        _cancel_ray(list(_RAY_PENDING))
+        _await_workers(processes, grace)
+    finally:
+        if starting:
+            _STARTING.release()
     for pool in list(_LIVE):
         with contextlib.suppress(Exception):
             pool.shutdown(wait=False, cancel_futures=True)
+    _end_local_ray()
     release_semaphores()
+
+
+def _end_local_ray() -> None:
+    """Shut down the local Ray this process started (its agents would outlive a program
+    that leaves at once, as a stopped one does); a cluster's Ray is left running."""
+    global _RAY_LOCAL
+    ray = sys.modules.get("ray")
+    if not _RAY_LOCAL or ray is None:
+        return
+    _RAY_LOCAL = False
+    with contextlib.suppress(Exception):
+        ray.shutdown()
 
 
 def _cancel_ray(refs: list[Any]) -> None:
@@ -256,11 +288,34 @@ class _Worker(SpawnProcess):
 
     def start(self) -> None:
         held = signal.pthread_sigmask(signal.SIG_BLOCK, STOPS)
+        came: list[int] = []
+        ours = _defer_stops(came)
         try:
-            super().start()
-            _STARTED.add(self)  # known before a signal can stop the pool's book-keeping
+            with _STARTING:
+                super().start()
+                _STARTED.add(self)  # known before a signal can stop the pool's book-keeping
+                if _STOPPING.is_set():  # the program is stopping: this one never works
+                    self.kill()
         finally:
             signal.pthread_sigmask(signal.SIG_SETMASK, held)
+            for signum, handler in ours.items():
+                signal.signal(signum, handler)
+            if came:  # answered now, by the program's own handler
+                signal.raise_signal(came[0])
+
+
+def _defer_stops(came: list[int]) -> dict[int, Any]:
+    """While a worker starts in the main thread, note an interrupting signal instead of
+    answering it: the mask holds a signal back from this thread only, and Python runs a
+    handler in the main thread whichever thread received it, so the start-up's hand-over
+    (Python code) could be cut. Returns the handlers to put back."""
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    ours = {signum: signal.getsignal(signum) for signum in STOPS}
+    ours = {signum: handler for signum, handler in ours.items() if callable(handler)}
+    for signum in ours:
+        signal.signal(signum, lambda signum, frame: came.append(signum))
+    return ours
 
 
 class _WorkerContext(SpawnContext):
@@ -270,6 +325,7 @@ class _WorkerContext(SpawnContext):
 
 
 def _pool(workers: int) -> ProcessPoolExecutor:
+    _STOPPING.clear()  # new work (a caller that went on after a stop: a test)
     pool = ProcessPoolExecutor(workers, mp_context=_WorkerContext(), initializer=_setup_pool_worker)
     _LIVE.add(pool)
     return pool
@@ -381,13 +437,29 @@ def _ray(runner: Runner) -> Any:
     if not ray.is_initialized():
         if runner.address:
             _check_reachable(runner.address)
+        global _RAY_LOCAL
+        ours = {signum: signal.getsignal(signum) for signum in STOPS}
+        _RAY_LOCAL = not runner.address
         ray.init(
             address=runner.address,
             include_dashboard=False,
             log_to_driver=False,
             runtime_env=ray_runtime_env(),
         )
+        _answer_stops_again(ours)
     return ray
+
+
+def _answer_stops_again(ours: dict[int, Any]) -> None:
+    """Take the interrupting signals back from Ray: ``ray.init`` installs its own SIGTERM
+    handlers in this process (one exits 1 without a word, one prints a stack dump), which
+    leave the program's unwinding undone; the program's own, put back, stop the run as any
+    other (:mod:`runtime.signals`)."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    for signum, handler in ours.items():
+        if handler is not None:
+            signal.signal(signum, handler)
 
 
 def _ray_task(runner: Runner) -> tuple[Any, Any]:

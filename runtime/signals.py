@@ -80,6 +80,7 @@ def stop_task(signum: int, frame: object) -> None:
     tasks, leave at once. Only the first signal interrupts: a second one (the program's
     after the group's) would cut the unwinding short."""
     global _stopping
+    _quiet()
     if not _task_running:
         _leave(signum)
     if _stopping is not None:
@@ -89,6 +90,16 @@ def stop_task(signum: int, frame: object) -> None:
     timer.daemon = True
     timer.start()
     raise KeyboardInterrupt
+
+
+def _quiet() -> None:
+    """Send this stopped worker's stderr to nowhere: the program says the run was
+    interrupted, in its one line; what a library says while the worker unwinds (Rerun's
+    notice of a recording dropped unsaved, say) would only add lines to it."""
+    with contextlib.suppress(OSError):
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, 2)
+        os.close(null)
 
 
 def _leave(signum: int) -> None:
