@@ -40,12 +40,12 @@ def _store(path: Path | None) -> Path:
     if path is not None:
         return path
     store = ROOT / ".bench-cache" / "sample-store"
-    care = [sys.executable, "-m", "care_cli.main"]
+    care = [sys.executable, "-m", "care_maps.cli.main"]
     subprocess.run(
         [
             *care,
             "ingest",
-            ROOT / "data/sample/scene_000.mcap",
+            ROOT / "care_maps/data/sample/scene_000.mcap",
             "--out",
             store,
             "--encoder",
@@ -68,10 +68,10 @@ def main() -> None:
         import torch
 
         torch.set_num_threads(1)
-        from query import load_map
-        from replan import STRATEGIES
-        from replan.attempts import next_goal
-        from replan.batch import BatchConfig, BatchQuery, plan_batch
+        from care_maps.query import load_map
+        from care_maps.replan import STRATEGIES
+        from care_maps.replan.attempts import next_goal
+        from care_maps.replan.batch import BatchConfig, BatchQuery, plan_batch
 
         store = _store(args.store)
         cmap = load_map(store, "grid")

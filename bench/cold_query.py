@@ -2,7 +2,7 @@
 planner calls it.
 
 A store is ingested from the bundled sample recording (every 15th frame) with a CLIP of
-ViT-B/32's architecture and random weights (:mod:`care.encoders.random_clip`; a real
+ViT-B/32's architecture and random weights (:mod:`care_maps.core.encoders.random_clip`; a real
 ``--weights`` directory can be given instead), and its instance map built. Then each way
 runs ``--repeat`` times in fresh processes, and the best wall time is printed:
 
@@ -32,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.docs_section import add_docs_flag, recorded  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-SAMPLE = ROOT / "data" / "sample" / "scene_000.mcap"
+SAMPLE = ROOT / "care_maps" / "data" / "sample" / "scene_000.mcap"
 CLASS, FREE_TEXT = "chair", "somewhere to sit down"
 REPEAT = 3
 OFFLINE = {"HF_HUB_OFFLINE": "1", "TRANSFORMERS_OFFLINE": "1"}
@@ -40,9 +40,9 @@ OFFLINE = {"HF_HUB_OFFLINE": "1", "TRANSFORMERS_OFFLINE": "1"}
 _WHOLE_MODEL = """
 import sys
 from pathlib import Path
-from care.encoders.record import encoder_for_store
-from query.map import load_map
-from query.text import resolve_text
+from care_maps.core.encoders.record import encoder_for_store
+from care_maps.query.map import load_map
+from care_maps.query.text import resolve_text
 store = Path(sys.argv[1])
 cmap = load_map(store)
 match = resolve_text(cmap, sys.argv[2], embed=encoder_for_store(store).encode_text,
@@ -53,14 +53,14 @@ print(match.describe())
 
 def _store(workdir: Path, weights: Path | None) -> Path:
     """The bench's CLIP store (made once, reused while its inputs stay the same)."""
-    from care.encoders.random_clip import ClipSize, save_random_clip
+    from care_maps.core.encoders.random_clip import ClipSize, save_random_clip
 
     if weights is None:
         weights = workdir / "clip-vit-b32-random"
         if not weights.is_dir():
             save_random_clip(weights, size=ClipSize.VIT_B32)
     store = workdir / "store"
-    care = [sys.executable, "-m", "care_cli.main"]
+    care = [sys.executable, "-m", "care_maps.cli.main"]
     env = _env()
     subprocess.run(
         [*care, "ingest", SAMPLE, "--out", store, "--encoder", "clip",
@@ -102,7 +102,7 @@ def main() -> None:
     args = parser.parse_args()
     args.workdir.mkdir(parents=True, exist_ok=True)
     store = _store(args.workdir, args.weights)
-    care = [sys.executable, "-m", "care_cli.main", "query", str(store)]
+    care = [sys.executable, "-m", "care_maps.cli.main", "query", str(store)]
     with recorded("cold_query", write=not args.no_docs and args.repeat >= REPEAT):
         model = "given weights" if args.weights else "ViT-B/32 architecture, random weights"
         print(f"cold `care query` on the sample store (instances map; CLIP: {model}),")

@@ -9,8 +9,8 @@ encoding the store), best of ``--repeat`` runs:
 
 Side by side in the same run, on the same decoded views:
 
-- the check as ingest runs it (:class:`ingest.consistency.GeometrySampler` keeps runs of
-  views, :func:`geometry.consistency.judge` scores the reading as given and every usual
+- the check as ingest runs it (:class:`care_maps.ingest.consistency.GeometrySampler` keeps runs of
+  views, :func:`care_maps.geometry.consistency.judge` scores the reading as given and every usual
   mistake on subsampled depth);
 - the naive way: every consecutive pair of views, full-resolution depth, the reading as
   given only (no diagnosis).
@@ -32,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.docs_section import add_docs_flag, recorded  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-SAMPLE = ROOT / "data" / "sample" / "scene_000.mcap"
+SAMPLE = ROOT / "care_maps" / "data" / "sample" / "scene_000.mcap"
 LIVING_ROOM = ROOT.parent / "shared" / "data" / "rgbd" / "livingroom1_clean_micro"
 REPEAT = 3
 
@@ -47,12 +47,12 @@ def _best(repeat: int, work) -> float:
 
 
 def _row(name: str, source: Path, repeat: int) -> None:
-    from geometry.consistency import DepthSample, Hypothesis, agreement, judge
-    from ingest.consistency import GeometrySampler, source_reading
-    from ingest.folders.frames import open_frames
-    from ingest.pipeline import IngestConfig, run_ingest
-    from ingest.source import ReadOptions
-    from runtime.execution import Execution
+    from care_maps.geometry.consistency import DepthSample, Hypothesis, agreement, judge
+    from care_maps.ingest.consistency import GeometrySampler, source_reading
+    from care_maps.ingest.folders.frames import open_frames
+    from care_maps.ingest.pipeline import IngestConfig, run_ingest
+    from care_maps.ingest.source import ReadOptions
+    from care_maps.runtime.execution import Execution
 
     quiet = Execution(progress=False, overwrite=True)
     with tempfile.TemporaryDirectory() as tmp:
@@ -90,7 +90,7 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=REPEAT)
     add_docs_flag(parser)
     args = parser.parse_args()
-    from runtime.threads import Work, threads_for
+    from care_maps.runtime.threads import Work, threads_for
 
     with (
         recorded("consistency", write=not args.no_docs and args.repeat >= REPEAT),

@@ -38,7 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from bench.docs_section import add_docs_flag, recorded  # noqa: E402
-from world.record import DatasetConfig, make_dataset  # noqa: E402
+from care_maps.world.record import DatasetConfig, make_dataset  # noqa: E402
 
 
 def _outputs(out: Path) -> dict[str, bytes]:
@@ -88,7 +88,7 @@ def _cpu_of_children() -> float:
 
 def _run(dataset: Path, out: Path, seeds: int, how: list[str]) -> tuple[float, float]:
     """``care run`` in a fresh process: (wall seconds, CPU seconds)."""
-    cmd = [sys.executable, "-m", "care_cli.main", "run", str(dataset), "--out", str(out)]
+    cmd = [sys.executable, "-m", "care_maps.cli.main", "run", str(dataset), "--out", str(out)]
     cmd += ["--seeds", str(seeds), *how]
     t0, c0 = time.perf_counter(), _cpu_of_children()
     done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)

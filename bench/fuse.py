@@ -1,19 +1,19 @@
 """Fusion benchmarks: grid throughput vs a per-pixel loop, linear vs pairwise pwKL, memory.
 
 Run ``python bench/fuse.py`` (``--quick`` for a smaller run). Every figure runs on one
-thread for torch and BLAS alike (:mod:`runtime.threads`). Prints four tables:
+thread for torch and BLAS alike (:mod:`care_maps.runtime.threads`). Prints four tables:
 
-0. ``care fuse grid`` end to end (:func:`fuse.grid.build_grid` on a store written with the
+0. ``care fuse grid`` end to end (:func:`care_maps.fuse.grid.build_grid` on a store written with the
    project's store writer: read, fuse, write cell_views and cells): views/s at 640x480,
    stride 1, d = 512, 100 classes (targets at 200 views: >= 28 in one thread, >= 40 the
    default way), on today's 0.1 store (``png-lists``) and the default encoding
-   (``raw-zstd``, :mod:`care.codecs`) side by side with their size a view, all in one thread
+   (``raw-zstd``, :mod:`care_maps.core.codecs`) side by side with their size a view, all in one thread
    and the default way (views decoded and sampled ahead on two background threads, while
    the main thread merges), the maps compared value for value, peak memory per occupied cell, as the
    slope between a small and a large floor (target <= 15 KB);
 
 1. pixels fused per second with d = 512 features at pixel strides 8, 2 and 1, the
-   vectorised grid fusion (``fuse.cells.view_samples`` + ``fuse.accumulate.CandidateSums``)
+   vectorised grid fusion (``care_maps.fuse.cells.view_samples`` + ``care_maps.fuse.accumulate.CandidateSums``)
    against a naive per-pixel Python loop on the same frames, their ratio (target:
    >= 100x at stride 1), and the bound the samples' class logits put on it;
 2. mean pairwise symmetric KL, linear identity (streamed view by view) against the pairwise
@@ -40,13 +40,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.docs_section import add_docs_flag, recorded
 from bench.rss import peak_rss_mb
-from care.frames import Frame
-from fuse.accumulate import CandidateSums
-from fuse.cells import CellIndex, view_samples
-from fuse.config import GridConfig
-from fuse.keys import STORE_KEY
-from fuse.measures import pwkl_linear, pwkl_pairwise, pwkl_terms
-from runtime.malloc import keep_freed_memory
+from care_maps.core.frames import Frame
+from care_maps.fuse.accumulate import CandidateSums
+from care_maps.fuse.cells import CellIndex, view_samples
+from care_maps.fuse.config import GridConfig
+from care_maps.fuse.keys import STORE_KEY
+from care_maps.fuse.measures import pwkl_linear, pwkl_pairwise, pwkl_terms
+from care_maps.runtime.malloc import keep_freed_memory
 
 H, W = 480, 640
 FH, FW = 24, 32
@@ -128,8 +128,8 @@ def _features(rng: np.random.Generator, d: int) -> np.ndarray:
 def _grid_sums(text: np.ndarray) -> CandidateSums:
     """The state as ``build_grid``'s first pass makes it: limited to the cells the default
     memory budget holds (and so reserved at once, see :class:`CandidateSums`)."""
-    from fuse.grid import cells_per_pass
-    from runtime.execution import Execution
+    from care_maps.fuse.grid import cells_per_pass
+    from care_maps.runtime.execution import Execution
 
     limit = cells_per_pass(Execution(), text.shape[1], len(text))
     return CandidateSums(text.shape[1], text, 100.0, limit=limit)
@@ -194,7 +194,7 @@ def _fuse_naive(frames, feats, text, stride: int) -> dict:
 
 def _fused_pixels(frame: Frame, stride: int) -> int:
     """Valid depth pixels inside the height band: the pixels both methods actually fuse."""
-    from geometry.transforms import backproject, transform_points
+    from care_maps.geometry.transforms import backproject, transform_points
 
     points, _ = backproject(frame.depth_m, frame.K, stride)
     z = transform_points(frame.cam_to_world, points)[:, 2]
@@ -334,7 +334,7 @@ def bench_pwkl(n_cand: int, n: int, sizes: tuple[int, ...]) -> None:
 
 
 def _peak_child(num_frames: int, d: int, stride: int, queue) -> None:
-    from runtime.threads import Work, use_threads
+    from care_maps.runtime.threads import Work, use_threads
 
     use_threads(Work.FUSE)
     keep_freed_memory()
@@ -378,9 +378,9 @@ def _write_store(
     path: Path, num_frames: int, room: float, d: int, seed: int, encoding: str | None = None
 ) -> Path:
     """A store of synthetic views through the project's writer (as ``care ingest`` writes),
-    in ``encoding`` (:class:`care.codecs.StoreEncoding`; default the writer's)."""
-    from care.codecs import StoreEncoding
-    from care.store import EncoderInfo, StoreWriter
+    in ``encoding`` (:class:`care_maps.core.codecs.StoreEncoding`; default the writer's)."""
+    from care_maps.core.codecs import StoreEncoding
+    from care_maps.core.store import EncoderInfo, StoreWriter
 
     rng = np.random.default_rng(seed)
     text = _features(np.random.default_rng(99), d).reshape(-1, d)[:100]
@@ -396,9 +396,9 @@ def _write_store(
 
 def _build_child(store: str, read_ahead: int, queue) -> None:
     from bench.rss import current_rss_mb
-    from fuse.grid import GridConfig, build_grid
-    from runtime.execution import Execution
-    from runtime.threads import Work, use_threads
+    from care_maps.fuse.grid import GridConfig, build_grid
+    from care_maps.runtime.execution import Execution
+    from care_maps.runtime.threads import Work, use_threads
 
     use_threads(Work.FUSE)
     keep_freed_memory()
@@ -460,15 +460,15 @@ def _store_kb_per_view(store: Path, frames: int) -> float:
 def bench_end_to_end(sizes: tuple[tuple[int, float], ...], workdir: Path, d: int = 512) -> None:
     """``build_grid`` end to end in a fresh process per store and way, ``sizes`` (views,
     room edge in m), on the same views stored two ways (today's 0.1 store, ``png-lists``, and
-    the default, ``raw-zstd``: :mod:`care.codecs`): all in one thread (``read_ahead=0``: one
+    the default, ``raw-zstd``: :mod:`care_maps.core.codecs`): all in one thread (``read_ahead=0``: one
     core) and as ``care fuse grid`` runs by default (the store decoded and each view's
     samples made on two background threads while the main thread merges,
-    :func:`fuse.grid._view_samples`), the four maps compared value for value; memory as the
+    :func:`care_maps.fuse.grid._view_samples`), the four maps compared value for value; memory as the
     slope between the first and the last store (the fixed cost of the program cancels)."""
     import shutil
 
-    from care.codecs import StoreEncoding
-    from runtime.execution import Execution
+    from care_maps.core.codecs import StoreEncoding
+    from care_maps.runtime.execution import Execution
 
     ahead = Execution().read_ahead
     encodings = (StoreEncoding.PNG_LISTS, StoreEncoding.RAW_ZSTD)
@@ -535,7 +535,7 @@ def main() -> None:
     args = parser.parse_args()
     full = not (args.no_docs or args.quick or args.only)  # one table is not the whole run
     with recorded("fuse", write=full):
-        from runtime.threads import Work, use_threads
+        from care_maps.runtime.threads import Work, use_threads
 
         # like the naive loop: one core, torch and BLAS alike (and fair on a shared machine)
         use_threads(Work.FUSE)

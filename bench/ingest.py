@@ -3,7 +3,7 @@
 Each case runs in its own subprocess so its peak resident memory (``bench.rss``) is its own.
 Cases, from raw ``rgb8`` and from JPEG messages: the recording's messages read alone (the
 floor), streamed ingest without encoder into today's store (``png-lists``, the 0.1 encoding)
-and into the default (``raw-zstd``, :mod:`care.codecs`) side by side with the store's size
+and into the default (``raw-zstd``, :mod:`care_maps.core.codecs`) side by side with the store's size
 a view; the JPEG recording repeated 5 times (peak memory must not grow with length); the
 naive way (every message of the bag read into memory first) for the ratio; and the ``labels``
 encoder.
@@ -32,14 +32,14 @@ import json, sys, time
 from pathlib import Path
 from bench.rss import current_rss_mb, peak_rss_mb
 case = json.loads(sys.argv[1])
-from runtime.malloc import keep_freed_memory
+from care_maps.runtime.malloc import keep_freed_memory
 keep_freed_memory()  # as the care program does
 import numpy as np
-from care.codecs import StoreEncoding
-from ingest.pipeline import IngestConfig, run_ingest
-from ingest.readers import open_reader
-from ingest.select import FrameSelection
-from runtime.execution import Execution
+from care_maps.core.codecs import StoreEncoding
+from care_maps.ingest.pipeline import IngestConfig, run_ingest
+from care_maps.ingest.readers import open_reader
+from care_maps.ingest.select import FrameSelection
+from care_maps.runtime.execution import Execution
 # program start, untimed (as in bench/fuse.py): the modules ingest loads at its first frame
 # (readers, codecs, Pillow's plugins), by ingesting the recording's first 0.2 s elsewhere
 warm = IngestConfig(select=FrameSelection(end=0.2))
@@ -81,7 +81,7 @@ def _frames(count: int, repeat: int = 1, labelled: bool = False):
     import numpy as np
     from PIL import Image
 
-    from care.frames import Frame
+    from care_maps.core.frames import Frame
 
     lines = (DATA / "trajectory.log").read_text().split("\n")
     K = (
@@ -121,7 +121,7 @@ def _run(case: dict) -> dict:
 def _labels_available() -> bool:
     import importlib.util
 
-    return importlib.util.find_spec("world.perception.encoder") is not None
+    return importlib.util.find_spec("care_maps.world.perception.encoder") is not None
 
 
 def main() -> None:
@@ -133,8 +133,8 @@ def main() -> None:
     args = parser.parse_args()
     with recorded("ingest", write=not args.no_docs):
         sys.path.insert(0, str(ROOT))
-        from care.codecs import StoreEncoding
-        from ingest.write import write_recording
+        from care_maps.core.codecs import StoreEncoding
+        from care_maps.ingest.write import write_recording
 
         work = Path(args.workdir or tempfile.mkdtemp(prefix="care-bench-"))
         work.mkdir(parents=True, exist_ok=True)

@@ -3,12 +3,12 @@
 On square floors of 5 cm cells with 4 m rooms, walls, 1 m doors and clutter
 (``bench/query.py``'s ``_floor``, 0.2% of the cells obstacles: a robot of 0.3 m radius
 still gets through most of the floor), 100 objects at seeded places get their goals
-(approach points, :class:`query.goals.GoalMaker`'s rule) and the robot starts in the
+(approach points, :class:`care_maps.query.goals.GoalMaker`'s rule) and the robot starts in the
 middle of the floor. Timed:
 
-- the roadmap (:meth:`query.paths.Roadmap.from_free_space` and its graph): once per map
+- the roadmap (:meth:`care_maps.query.paths.Roadmap.from_free_space` and its graph): once per map
   and robot radius;
-- a query: one search from the start (:meth:`query.paths.Roadmap.travel`), the distance to
+- a query: one search from the start (:meth:`care_maps.query.paths.Roadmap.travel`), the distance to
   each of the 100 goals and the path to the nearest reachable one; first from a start the
   roadmap has not searched from (the search, nearly all of it), then again from the same
   start (the roadmap keeps its last searches: a batch, a walk's next leg, a second query);
@@ -47,7 +47,7 @@ TARGET_MS = 100.0
 
 def _goals(space, n: int, seed: int = 1) -> list:
     """Goals (approach points) for ``n`` objects at seeded places on the floor."""
-    from query.goals import Goal, GoalConfig
+    from care_maps.query.goals import Goal, GoalConfig
 
     config = GoalConfig()
     side = space.layout.shape[0] * space.layout.cell_size
@@ -132,8 +132,8 @@ def _networkx(roadmap, start_cell: int, goal_cells: np.ndarray) -> tuple[float, 
 
 def run(sizes, naive_max: int, library_max: int) -> None:
     from bench.query import _floor
-    from query.goals import GoalConfig
-    from query.paths import PathConfig, Roadmap
+    from care_maps.query.goals import GoalConfig
+    from care_maps.query.paths import PathConfig, Roadmap
 
     clearance, reach = GoalConfig().clearance, PathConfig().start_reach
     print(

@@ -2,8 +2,8 @@
 
 Synthetic grid maps of 5k, 50k, 500k and 1M cells (d = 512, 100 classes, 5 cm cells on a
 square floor, one class per 1 m block) are written with the fusion's own writers
-(``fuse.measures.candidate_columns`` chunk by chunk, ``care.store.open_writer``,
-``fuse.sidecar.SidecarWriter``) and cached under ``--workdir``. Each size then runs in a
+(``care_maps.fuse.measures.candidate_columns`` chunk by chunk, ``care_maps.core.store.open_writer``,
+``care_maps.fuse.sidecar.SidecarWriter``) and cached under ``--workdir``. Each size then runs in a
 fresh process (so memory figures are its own) and prints:
 
 - ``load_map`` time and the resident memory it added;
@@ -13,12 +13,12 @@ fresh process (so memory figures are its own) and prints:
   calls; the text embedding is included);
 - side by side, the plain way (``--legacy-max`` cells at most): the whole Parquet table
   decoded, confidence by an (N, d) product, and each failed attempt's exclusion a pass over
-  every cell (``replan.attempts.available_after``).
+  every cell (``care_maps.replan.attempts.available_after``).
 
 Targets: < 15 ms per attempt at 1M cells for a vocabulary class, < 50 ms for free text. Run: ``python bench/query.py`` (``--sizes 5000 50000`` for a quick look).
 
 A second table times the goal a navigation stack gets for an attempt
-(``query.goals.FreeSpace.approach``: the free cell nearest the object that keeps 0.3 m from
+(``care_maps.query.goals.FreeSpace.approach``: the free cell nearest the object that keeps 0.3 m from
 every obstacle) on floors of rooms with walls and clutter, at the same sizes and at 4M cells
 (100 m x 100 m): the clearance computed around the goal against a distance transform of the
 whole floor (the plain way), the two goals compared.
@@ -49,10 +49,10 @@ def write_map(folder: Path, n_cells: int, seed: int = 0) -> Path:
     """A synthetic grid store: cells.parquet (+ sidecar) and text.parquet, written in chunks."""
     import pyarrow as pa
 
-    from care.store import TEXT_SCHEMA, open_writer, write_table_atomic
-    from fuse.accumulate import COLUMN_CHUNK
-    from fuse.measures import candidate_columns, candidate_metadata
-    from fuse.sidecar import SidecarWriter, sidecar_path
+    from care_maps.core.store import TEXT_SCHEMA, open_writer, write_table_atomic
+    from care_maps.fuse.accumulate import COLUMN_CHUNK
+    from care_maps.fuse.measures import candidate_columns, candidate_metadata
+    from care_maps.fuse.sidecar import SidecarWriter, sidecar_path
 
     if (folder / "cells.parquet").is_file() and (folder / "text.parquet").is_file():
         return folder
@@ -115,7 +115,7 @@ def _best(fn, repeat: int = 5) -> float:
 
 def _visits(cmap, y: int, n: int) -> list[int]:
     """The first n attempts of an episode where every attempt fails."""
-    from replan.attempts import next_goal
+    from care_maps.replan.attempts import next_goal
 
     visited: list[int] = []
     for _ in range(n):
@@ -125,9 +125,9 @@ def _visits(cmap, y: int, n: int) -> list[int]:
 
 def _legacy_goal(cmap, y: int, visited: list[int]) -> int:
     """next_goal as it was: confidence by the (N, d) product, exclusion by full passes."""
-    from query.map import MEASURES
-    from replan.attempts import available_after
-    from replan.strategies import STRATEGIES, Situation, best_of, candidate_set
+    from care_maps.query.map import MEASURES
+    from care_maps.replan.attempts import available_after
+    from care_maps.replan.strategies import STRATEGIES, Situation, best_of, candidate_set
 
     conf = np.exp(cmap.log_confidence_of(np.array([y])))
     available = np.ones_like(conf, dtype=bool)
@@ -144,14 +144,14 @@ def _legacy_goal(cmap, y: int, visited: list[int]) -> int:
 
 def _run_size(folder: str, n_cells: int, legacy: bool, queue) -> None:
     from bench.rss import current_rss_mb
-    from runtime.threads import Work, use_threads
+    from care_maps.runtime.threads import Work, use_threads
 
     use_threads(Work.QUERY)
     import pyarrow.dataset  # noqa: F401  (pq.read_table imports it at first use: 0.5 s)
 
-    from query import load_map, resolve_text
-    from query.map import map_from_table
-    from replan.attempts import next_goal
+    from care_maps.query import load_map, resolve_text
+    from care_maps.query.map import map_from_table
+    from care_maps.replan.attempts import next_goal
 
     path = Path(folder)
     resolve_text_warm = resolve_text  # the sentence model loads at first use: not timed
@@ -190,8 +190,8 @@ def _run_size(folder: str, n_cells: int, legacy: bool, queue) -> None:
 def _floor(n: int, seed: int = 0, clutter: float = 0.01):
     """A square floor of about ``n`` 5 cm cells: 4 m rooms walled on two sides with a 1 m
     door each, and ``clutter`` of the cells obstacles, all seen."""
-    from fuse.layout import GridLayout
-    from query.goals import FreeSpace
+    from care_maps.fuse.layout import GridLayout
+    from care_maps.query.goals import FreeSpace
 
     side = int(np.sqrt(n))
     ix, iy = (a.reshape(-1) for a in np.meshgrid(np.arange(side), np.arange(side), indexing="ij"))
@@ -209,7 +209,7 @@ def bench_goals(sizes) -> None:
 
     from scipy import ndimage
 
-    from query.goals import FreeSpace, GoalConfig
+    from care_maps.query.goals import FreeSpace, GoalConfig
 
     @dataclass(frozen=True)
     class WholeFloor(FreeSpace):

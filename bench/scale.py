@@ -53,8 +53,8 @@ def _poses(size: float, rng: np.random.Generator) -> list[np.ndarray]:
 
 def write_floor(path: Path, size: float, seed: int = 0) -> int:
     """The synthetic floor store; returns its number of views (reused when complete)."""
-    from care.frames import Frame
-    from care.store import EncoderInfo, Store, StoreWriter
+    from care_maps.core.frames import Frame
+    from care_maps.core.store import EncoderInfo, Store, StoreWriter
 
     if (path / "meta.json").is_file():
         return Store(path).num_views
@@ -82,11 +82,11 @@ def _fuse_child(store: str, budget: int | None, cells_per_pass: int | None, queu
     import pyarrow.parquet as pq
 
     from bench.rss import peak_rss_mb
-    from fuse.grid import GridConfig, build_grid
-    from fuse.grid import cells_per_pass as capacity_of
-    from runtime.execution import Execution
-    from runtime.malloc import keep_freed_memory
-    from runtime.threads import Work, use_threads
+    from care_maps.fuse.grid import GridConfig, build_grid
+    from care_maps.fuse.grid import cells_per_pass as capacity_of
+    from care_maps.runtime.execution import Execution
+    from care_maps.runtime.malloc import keep_freed_memory
+    from care_maps.runtime.threads import Work, use_threads
 
     use_threads(Work.FUSE)
     keep_freed_memory()

@@ -30,12 +30,12 @@ sys.path.insert(0, str(ROOT))
 from bench.docs_section import add_docs_flag, recorded  # noqa: E402
 
 STARTS = ("off", "first_pose", "free_space")
-"""The travel starts timed (:class:`evaluate.config.TravelStart`), in the table's order."""
+"""The travel starts timed (:class:`care_maps.evaluate.config.TravelStart`), in the table's order."""
 
 
 def _stores(dataset: Path | None, out: Path) -> list[Path]:
     """Fused stores of ``dataset`` (``care run`` with the walks off, in a fresh process)."""
-    cmd = [sys.executable, "-m", "care_cli.main", "run", "--out", str(out), "--workers", "1",
+    cmd = [sys.executable, "-m", "care_maps.cli.main", "run", "--out", str(out), "--workers", "1",
            "--travel-start", "off", "--seeds", "1"]  # fmt: skip
     if dataset is not None:
         cmd.insert(4, str(dataset))
@@ -73,9 +73,9 @@ def _evaluate(stores: list[Path], start: str, out: Path) -> tuple[float, float, 
     """Wall and CPU time of the whole evaluation, CPU time of its attempts alone, the
     searches run and the queries with travel. CPU time (this process; the run is serial) is
     the figure that a shared machine's other work disturbs least."""
-    from evaluate.config import EvalConfig
-    from evaluate.job import run_eval, scenes_of
-    from runtime.execution import Execution
+    from care_maps.evaluate.config import EvalConfig
+    from care_maps.evaluate.job import run_eval, scenes_of
+    from care_maps.runtime.execution import Execution
 
     config = EvalConfig(travel_start=start)
     serial = Execution(workers=1, progress=False)
@@ -83,7 +83,7 @@ def _evaluate(stores: list[Path], start: str, out: Path) -> tuple[float, float, 
         t0, c0 = time.perf_counter(), time.process_time()
         report = run_eval(stores, config, out, run=serial)
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    from evaluate.job import evaluate_scene
+    from care_maps.evaluate.job import evaluate_scene
 
     c0 = time.process_time()
     for scene in scenes_of(stores):

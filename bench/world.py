@@ -21,12 +21,12 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.docs_section import add_docs_flag, recorded
-from ingest.write import write_recording
-from truth.formats.native import write_native
-from world.record import DatasetConfig, make_dataset, scene_config_of
-from world.render import RenderConfig, Renderer
-from world.scene import generate_scene
-from world.trajectory import plan_trajectory
+from care_maps.ingest.write import write_recording
+from care_maps.truth.formats.native import write_native
+from care_maps.world.record import DatasetConfig, make_dataset, scene_config_of
+from care_maps.world.render import RenderConfig, Renderer
+from care_maps.world.scene import generate_scene
+from care_maps.world.trajectory import plan_trajectory
 
 
 def _dataset(out: Path, scenes: int, workers: int, width: int, height: int) -> float:

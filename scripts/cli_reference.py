@@ -1,7 +1,7 @@
 """Write ``docs/cli.md``: every ``care`` command's ``--help``, as plain text.
 
 The page is generated from the command tree itself (the options come from the config
-dataclasses and :class:`runtime.execution.Execution`), so it cannot drift from the program:
+dataclasses and :class:`care_maps.runtime.execution.Execution`), so it cannot drift from the program:
 ``tests/test_docs.py`` compares the page with :func:`render`. After changing an option,
 run it again:
 
@@ -42,7 +42,7 @@ in the help; anything else is a usage error (exit code 2).
 def _command_tree():  # -> typer's click Group, imported late (the CLI's own imports)
     import typer
 
-    from care_cli import main as cli
+    from care_maps.cli import main as cli
 
     if not (cli.app.registered_commands or cli.app.registered_groups):
         cli._register()

@@ -1,4 +1,4 @@
-"""``python scripts/explore.py``: the command line of :mod:`research.explore` (its docstring says
+"""``python scripts/explore.py``: the command line of :mod:`care_maps.research.explore` (its docstring says
 what it does), run from a checkout."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from research.explore import main
+from care_maps.research.explore import main
 
 if __name__ == "__main__":
     main()

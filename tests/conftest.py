@@ -23,7 +23,7 @@ def shared_data() -> Path:
 def _save_tiny_clip(out: Path, layers: int) -> Path:
     """A real CLIP (random weights, seed 0) written with ``save_pretrained``: model, a real
     byte-level BPE tokenizer over a small vocabulary, and an image processor."""
-    from care.encoders.random_clip import save_random_clip
+    from care_maps.core.encoders.random_clip import save_random_clip
 
     return save_random_clip(out, layers=layers)
 
@@ -36,8 +36,8 @@ def save_tiny_clip():
 
 @pytest.fixture
 def run_cli(capsys: pytest.CaptureFixture[str]) -> Callable[..., tuple[int, str, str]]:
-    """Run ``care ARGS`` in-process through ``care_cli.main.main``: (exit code, stdout, stderr)."""
-    from care_cli import main as cli
+    """Run ``care ARGS`` in-process through ``care_maps.cli.main.main``: (exit code, stdout, stderr)."""
+    from care_maps.cli import main as cli
 
     def run(*args: str) -> tuple[int, str, str]:
         argv = sys.argv

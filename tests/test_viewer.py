@@ -19,8 +19,8 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from evaluate.pipeline import SAMPLE
-from evaluate.viz import first_failed_step
+from care_maps.evaluate.pipeline import SAMPLE
+from care_maps.evaluate.viz import first_failed_step
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "scripts" / "check_viewer.py"
@@ -56,7 +56,7 @@ def sample_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     if not (SAMPLE / "index.json").is_file():
         pytest.skip("the bundled sample is not present")
     out = tmp_path_factory.mktemp("viewer") / "out"
-    cmd = [sys.executable, "-m", "care_cli.main", "run", "--out", str(out), "--seeds", "2"]
+    cmd = [sys.executable, "-m", "care_maps.cli.main", "run", "--out", str(out), "--seeds", "2"]
     done = subprocess.run(
         [*cmd, "--workers", "1"], capture_output=True, text=True, timeout=900, check=False
     )
@@ -112,7 +112,7 @@ def test_answer_recordings_render_without_errors(
     rrd = tmp_path / f"scene_000.{command}.rrd"
     extra = ["--visited", "0"] if command == "replan" else []
     done = subprocess.run(
-        [sys.executable, "-m", "care_cli.main", command, str(store), "sofa", "--map",
+        [sys.executable, "-m", "care_maps.cli.main", command, str(store), "sofa", "--map",
          "instances", *extra, "--rrd", str(rrd)],
         capture_output=True, text=True, timeout=300, check=False,
     )  # fmt: skip

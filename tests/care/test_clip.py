@@ -19,10 +19,10 @@ import torch
 import torch.nn.functional as F
 from safetensors.torch import load_file
 
-from care.encoders import EncoderOptions, make_encoder
-from care.encoders.clip import ClipEncoder
-from care.errors import EncoderError
-from care.frames import Frame
+from care_maps.core.encoders import EncoderOptions, make_encoder
+from care_maps.core.encoders.clip import ClipEncoder
+from care_maps.core.errors import EncoderError
+from care_maps.core.frames import Frame
 
 PATCH = 8  # as in save_tiny_clip (tests/conftest.py)
 IMAGE = 32

@@ -1,4 +1,4 @@
-"""Encoders are found by name through the ``care.encoders`` entry points of the installed
+"""Encoders are found by name through the ``care_maps.core.encoders`` entry points of the installed
 packages: the built-ins and a user's own package alike, imported only when built."""
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from care.encoders import ENCODERS, ENTRY_POINT_GROUP, EncoderOptions, make_encoder
-from care.errors import EncoderError
+from care_maps.core.encoders import ENCODERS, ENTRY_POINT_GROUP, EncoderOptions, make_encoder
+from care_maps.core.errors import EncoderError
 
 PLUGIN = "care_test_user_vlm"
 """Module of the user's encoder package written by :func:`user_package`."""
@@ -20,7 +20,7 @@ PLUGIN = "care_test_user_vlm"
 _MODULE = """
 import numpy as np
 
-from care.encoders import Encoder
+from care_maps.core.encoders import Encoder
 
 
 class UserEncoder(Encoder):
@@ -44,7 +44,7 @@ NOT_AN_ENCODER = object
 @pytest.fixture
 def user_package(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Path]:
     """An installed distribution (``.dist-info`` on ``sys.path``) that declares two
-    ``care.encoders`` entry points: a real encoder and something that is not one."""
+    ``care_maps.core.encoders`` entry points: a real encoder and something that is not one."""
     (tmp_path / f"{PLUGIN}.py").write_text(_MODULE)
     dist = tmp_path / "care_test_user_vlm-0.1.dist-info"
     dist.mkdir()
@@ -67,9 +67,9 @@ def user_package(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Pa
 
 
 def test_builtins_are_entry_points() -> None:
-    assert ENCODERS["clip"] == "care.encoders.clip:ClipEncoder"
-    assert ENCODERS["precomputed"] == "care.encoders.precomputed:PrecomputedEncoder"
-    assert ENCODERS["labels"] == "world.perception.encoder:LabelsEncoder"
+    assert ENCODERS["clip"] == "care_maps.core.encoders.clip:ClipEncoder"
+    assert ENCODERS["precomputed"] == "care_maps.core.encoders.precomputed:PrecomputedEncoder"
+    assert ENCODERS["labels"] == "care_maps.world.perception.encoder:LabelsEncoder"
     assert list(ENCODERS) == sorted(ENCODERS)
 
 
@@ -99,9 +99,9 @@ def test_the_registry_imports_no_encoder() -> None:
     """Listing the encoders reads metadata only: neither torch (clip) nor the sample world
     (labels) is imported."""
     code = (
-        "import sys; from care.encoders import ENCODERS; names = list(ENCODERS); "
+        "import sys; from care_maps.core.encoders import ENCODERS; names = list(ENCODERS); "
         "heavy = [m for m in sys.modules if m.split('.')[0] in ('torch', 'transformers', 'world')"
-        " or m in ('care.encoders.clip', 'care.encoders.precomputed')]; "
+        " or m in ('care_maps.core.encoders.clip', 'care_maps.core.encoders.precomputed')]; "
         "print(names, heavy)"
     )
     out = subprocess.run(

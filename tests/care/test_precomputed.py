@@ -9,12 +9,12 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from care.encoders import EncoderOptions, make_encoder
-from care.encoders import precomputed as pre
-from care.encoders.precomputed import PrecomputedEncoder, text_path_for
-from care.errors import EncoderError
-from care.frames import Frame
-from care.store import Store, StoreWriter
+from care_maps.core.encoders import EncoderOptions, make_encoder
+from care_maps.core.encoders import precomputed as pre
+from care_maps.core.encoders.precomputed import PrecomputedEncoder, text_path_for
+from care_maps.core.errors import EncoderError
+from care_maps.core.frames import Frame
+from care_maps.core.store import Store, StoreWriter
 
 STAMPS = [1_000_000_000 + i * 100_000_000 for i in range(6)]
 FH, FW, D = 3, 4, 5
@@ -224,10 +224,10 @@ def test_cli_precomputed_store_from_listed_stamps(tmp_path: Path) -> None:
     import subprocess
     import sys
 
-    from fuse.grid import GridConfig, build_grid
+    from care_maps.fuse.grid import GridConfig, build_grid
 
-    rec = Path(__file__).resolve().parents[2] / "data" / "sample" / "scene_000.mcap"
-    care = [sys.executable, "-m", "care_cli.main"]
+    rec = Path(__file__).resolve().parents[2] / "care_maps" / "data" / "sample" / "scene_000.mcap"
+    care = [sys.executable, "-m", "care_maps.cli.main"]
     listed = subprocess.run([*care, "topics", rec, "--stamps"], capture_output=True, text=True)
     stamps = [int(s) for s in listed.stdout.split()]
     assert len(stamps) == 80

@@ -12,9 +12,9 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from care.errors import StoreError
-from care.frames import Frame
-from care.store import (
+from care_maps.core.errors import StoreError
+from care_maps.core.frames import Frame
+from care_maps.core.store import (
     EncoderInfo,
     Store,
     StoreWriter,

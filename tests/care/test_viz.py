@@ -9,7 +9,7 @@ import numpy as np
 import rerun as rr
 from PIL import Image
 
-from care.viz import APP_ID, depth_png, jpeg, open_scene_recording, overview_eye
+from care_maps.core.viz import APP_ID, depth_png, jpeg, open_scene_recording, overview_eye
 
 
 def test_depth_png_is_millimetres_in_16_bits() -> None:

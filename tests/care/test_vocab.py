@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from care.errors import EncoderError
-from care.vocab import bundled_vocabularies, load_vocabulary, mpcat40_of
+from care_maps.core.errors import EncoderError
+from care_maps.core.vocab import bundled_vocabularies, load_vocabulary, mpcat40_of
 
 
 def _column(path: Path, name: str) -> list[str]:

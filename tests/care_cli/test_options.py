@@ -20,12 +20,12 @@ import pyarrow.parquet as pq
 import pytest
 import typer.main
 
-from care_cli.options import Options, generated_options
+from care_maps.cli.options import Options, generated_options
 
 
 def _commands() -> Iterator[tuple[str, Any]]:
     """``(path, command)`` of every ``care`` command (typer's own click objects)."""
-    from care_cli.main import _register, app
+    from care_maps.cli.main import _register, app
 
     _register()
 
@@ -100,7 +100,7 @@ def test_an_unknown_choice_is_a_usage_error(run_cli, args: list[str], option: st
 
 
 def test_given_then_recorded_then_default() -> None:
-    from fuse.config import GridConfig
+    from care_maps.fuse.config import GridConfig
 
     recorded = GridConfig(stride=3, logit_scale=30.0).settings()
     given = Options(GridConfig, {"cell_size": 0.2, "stride": 2}, frozenset({"cell_size"}))

@@ -15,10 +15,10 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from care.store import META_VERSION, TEXT_SCHEMA, write_table_atomic
-from fuse.measures import candidate_columns, candidate_metadata
-from truth.formats.native import write_native
-from truth.model import GroundTruth, Room, instances_table
+from care_maps.core.store import META_VERSION, TEXT_SCHEMA, write_table_atomic
+from care_maps.fuse.measures import candidate_columns, candidate_metadata
+from care_maps.truth.formats.native import write_native
+from care_maps.truth.model import GroundTruth, Room, instances_table
 
 VOCAB = ["chair", "table", "sofa", "lamp", "bed"]
 OBJECTS = [  # (class, room, centre xy)

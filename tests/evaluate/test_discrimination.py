@@ -1,4 +1,4 @@
-"""The pair counts of :mod:`evaluate.discrimination` against sklearn's AUROC and a plain
+"""The pair counts of :mod:`care_maps.evaluate.discrimination` against sklearn's AUROC and a plain
 double loop; ties, strata, sums, rule directions and the second attempt's set by hand."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from sklearn.metrics import roc_auc_score
 
-from evaluate.discrimination import (
+from care_maps.evaluate.discrimination import (
     LOG_CONFIDENCE_WIDTH,
     Discrimination,
     PairCounts,
@@ -21,8 +21,8 @@ from evaluate.discrimination import (
     rule_discrimination,
     second_attempt_set,
 )
-from replan.attempts import run_attempts
-from replan.strategies import STRATEGIES, candidate_set
+from care_maps.replan.attempts import run_attempts
+from care_maps.replan.strategies import STRATEGIES, candidate_set
 
 
 def _loop_counts(success, member, values, prefer_high, strata=None) -> tuple[int, int, int]:

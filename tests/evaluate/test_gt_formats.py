@@ -14,11 +14,11 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from evaluate.groundtruth import GtSource
-from evaluate.job import EvalConfig, Scene, run_eval, scenes_of
-from runtime.execution import Execution
-from truth.formats.native import read_native
-from truth.load import EXPORT_FORMATS, export_ground_truth, find_beside
+from care_maps.evaluate.groundtruth import GtSource
+from care_maps.evaluate.job import EvalConfig, Scene, run_eval, scenes_of
+from care_maps.runtime.execution import Execution
+from care_maps.truth.formats.native import read_native
+from care_maps.truth.load import EXPORT_FORMATS, export_ground_truth, find_beside
 
 CONFIG = EvalConfig(seeds=2, bootstrap=50, k_instances=(2, 4), k_grid=(4, 8))
 ROOMLESS = ("scannet", "replica")
@@ -118,7 +118,7 @@ def test_gt_transform_brings_a_scan_into_the_map_frame(dataset: Path, tmp_path: 
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess:
-    cmd = [sys.executable, "-m", "care_cli.main", "eval", *args]
+    cmd = [sys.executable, "-m", "care_maps.cli.main", "eval", *args]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=300)
 
 
@@ -243,7 +243,7 @@ def test_care_run_refuses_bad_ground_truth_before_any_work(dataset: Path, tmp_pa
     bad = tmp_path / "boxes.yaml"
     bad.write_text("objects: [{class: chair, center: [1, 1], size: [1, 1, 1]}]\n")
     out = tmp_path / "out"
-    cmd = [sys.executable, "-m", "care_cli.main", "run", str(recording), "--out", str(out)]
+    cmd = [sys.executable, "-m", "care_maps.cli.main", "run", str(recording), "--out", str(out)]
     done = subprocess.run([*cmd, "--gt", str(bad)], capture_output=True, text=True, timeout=300)
     assert done.returncode == 1
     assert done.stderr.strip().splitlines() == [

@@ -13,13 +13,13 @@ import pytest
 from scipy.special import softmax
 from sklearn.metrics import roc_auc_score
 
-from care.errors import CareError, EvalError
-from care.store import read_table, write_table_atomic
-from evaluate.job import EvalConfig, evaluate_scene, run_eval, run_scenes, scenes_of
-from evaluate.report import auroc, per_query
-from query import load_map
-from runtime.execution import Backend, Execution
-from truth.formats.native import read_native
+from care_maps.core.errors import CareError, EvalError
+from care_maps.core.store import read_table, write_table_atomic
+from care_maps.evaluate.job import EvalConfig, evaluate_scene, run_eval, run_scenes, scenes_of
+from care_maps.evaluate.report import auroc, per_query
+from care_maps.query import load_map
+from care_maps.runtime.execution import Backend, Execution
+from care_maps.truth.formats.native import read_native
 
 SERIAL = Execution(workers=1, progress=False)
 RAY = Execution(backend=Backend.RAY, progress=False)
@@ -195,13 +195,13 @@ def test_a_failing_ray_task_is_its_own_one_line_error(dataset, tmp_path, ray_ses
         run_scenes(scenes, SMALL, tmp_path / "r", run=RAY)
     assert "cells.parquet" in str(err.value)
     assert "\n" not in str(err.value)
-    assert type(err.value).__module__ == "care.errors"  # not Ray's wrapper
+    assert type(err.value).__module__ == "care_maps.core.errors"  # not Ray's wrapper
 
 
 @pytest.mark.slow
 def test_cli_eval_query_replan(dataset, tmp_path) -> None:
     store = dataset / "stores" / "scene_0"
-    run = [sys.executable, "-m", "care_cli.main"]
+    run = [sys.executable, "-m", "care_maps.cli.main"]
     q = subprocess.run(
         [*run, "query", str(store), "Chair", "--top", "3"],
         capture_output=True,
@@ -271,7 +271,7 @@ def test_cli_eval_query_replan(dataset, tmp_path) -> None:
 def test_cli_eval_with_ray_matches_the_process_pool(dataset, tmp_path, ray_session) -> None:
     from typer.testing import CliRunner
 
-    from care_cli.main import _register, app
+    from care_maps.cli.main import _register, app
 
     _register()
     args = ["eval", str(dataset), "--seeds", "2", "--bootstrap", "20", "--k-instances", "2",
@@ -291,7 +291,7 @@ def test_unreachable_ray_cluster_is_one_clear_error(dataset, tmp_path) -> None:
     """Nothing listens on loopback port 1: one line at once, not minutes of Ray retries."""
     pytest.importorskip("ray")
     out = tmp_path / "out"  # not tmp_path itself: it holds the dataset, and is refused
-    run = [sys.executable, "-m", "care_cli.main", "eval", str(dataset), "--out", str(out)]
+    run = [sys.executable, "-m", "care_maps.cli.main", "eval", str(dataset), "--out", str(out)]
     bad = subprocess.run(
         [*run, "--ray-address", "127.0.0.1:1"], capture_output=True, text=True, timeout=60
     )

@@ -12,12 +12,18 @@ import pytest
 from statsmodels.stats.contingency_tables import mcnemar
 from statsmodels.stats.multitest import multipletests
 
-from evaluate.job import EvalConfig, run_eval
-from evaluate.paired import compare, comparison_rng, holm, mcnemar_exact, paired_bootstrap_ci
-from evaluate.report import per_query
-from evaluate.report.paired import paired_table
-from evaluate.scene_test import MIN_SCENES
-from runtime.execution import Execution
+from care_maps.evaluate.job import EvalConfig, run_eval
+from care_maps.evaluate.paired import (
+    compare,
+    comparison_rng,
+    holm,
+    mcnemar_exact,
+    paired_bootstrap_ci,
+)
+from care_maps.evaluate.report import per_query
+from care_maps.evaluate.report.paired import paired_table
+from care_maps.evaluate.scene_test import MIN_SCENES
+from care_maps.runtime.execution import Execution
 
 SERIAL = Execution(workers=1, progress=False)
 

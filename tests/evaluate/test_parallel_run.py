@@ -16,10 +16,10 @@ from pathlib import Path
 
 import pytest
 
-from evaluate.job import EvalConfig
-from evaluate.pipeline import RunConfig, run_all
-from runtime.execution import Backend, Execution
-from world.record import DatasetConfig, make_dataset
+from care_maps.evaluate.job import EvalConfig
+from care_maps.evaluate.pipeline import RunConfig, run_all
+from care_maps.runtime.execution import Backend, Execution
+from care_maps.world.record import DatasetConfig, make_dataset
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIG = RunConfig(evaluation=EvalConfig(attempts=2, seeds=1), rrd_ingest=False)
@@ -90,7 +90,7 @@ def _cluster_run(dataset: Path, out: Path) -> subprocess.CompletedProcess[str]:
             )
         )
         return subprocess.run(
-            [sys.executable, "-m", "care_cli.main", "run", str(dataset), "--out", str(out),
+            [sys.executable, "-m", "care_maps.cli.main", "run", str(dataset), "--out", str(out),
              "--seeds", "1", "--no-rrd-ingest", "--ray-address", f"127.0.0.1:{port}"],
             env=env, capture_output=True, text=True, timeout=180, cwd=ROOT,
         )  # fmt: skip
@@ -128,7 +128,7 @@ def _differences(expected: dict[str, bytes], out: Path) -> list[str]:
 
 def _rrd_counts(out: Path) -> dict[str, object]:
     """Entities and components logged in each Rerun file of a run (its bytes hold times)."""
-    from care.viz import rrd_entity_counts
+    from care_maps.core.viz import rrd_entity_counts
 
     return {p.name: rrd_entity_counts(p) for p in sorted(out.glob("*.rrd"))}
 
@@ -196,9 +196,9 @@ def test_failing_recording_is_one_line_and_the_others_complete(
 
 
 def test_workers_start_with_the_process_settings(ray_session: object) -> None:
-    """Pool and Ray workers run :func:`runtime.parallel.setup_worker` (its last step hides the
+    """Pool and Ray workers run :func:`care_maps.runtime.parallel.setup_worker` (its last step hides the
     workers' own progress bars), the driver does not."""
-    from runtime.parallel import Runner, openmp_threads, run_tasks
+    from care_maps.runtime.parallel import Runner, openmp_threads, run_tasks
 
     for runner in (Runner(workers=2), Runner(backend=Backend.RAY)):
         got = dict(run_tasks(os.getenv, ["TQDM_DISABLE", "OMP_NUM_THREADS"], runner))
@@ -212,13 +212,13 @@ def test_workers_start_with_the_process_settings(ray_session: object) -> None:
 def test_a_started_task_runs_on_the_runner_and_keeps_its_one_line_error(
     ray_session: object,
 ) -> None:
-    """:func:`runtime.parallel.start_task` (the report draws its plots so): on an open pool or
+    """:func:`care_maps.runtime.parallel.start_task` (the report draws its plots so): on an open pool or
     on Ray the task runs in a worker while the caller goes on; without either, here. A
-    project error comes out of ``result()``, and out of :func:`~runtime.parallel.run_tasks`, as
+    project error comes out of ``result()``, and out of :func:`~care_maps.runtime.parallel.run_tasks`, as
     itself, not wrapped by the pool or Ray."""
-    from care.errors import StoreError
-    from care.store import Store
-    from runtime.parallel import Runner, open_runner, run_tasks, start_task
+    from care_maps.core.errors import StoreError
+    from care_maps.core.store import Store
+    from care_maps.runtime.parallel import Runner, open_runner, run_tasks, start_task
 
     for runner in (Runner(workers=1), Runner(workers=2), Runner(backend=Backend.RAY)):
         with open_runner(runner) as live:
@@ -237,7 +237,7 @@ def test_the_driver_of_a_run_imports_no_stage() -> None:
     or Ray's driver, which never fuses, started its workers 3.5 s later when it imported
     them."""
     code = (
-        "import sys, evaluate.pipeline; "
+        "import sys, care_maps.evaluate.pipeline; "
         "print(sorted(m for m in ('torch', 'numba', 'rerun', 'open3d') if m in sys.modules))"
     )
     done = subprocess.run(
@@ -255,15 +255,15 @@ def test_a_failing_report_leaves_no_plot_to_land_after_its_error(
     output after the run has said it failed."""
     import pyarrow.parquet as pq
 
-    import evaluate.report.preregistered
-    from evaluate.report import write_report
-    from query.map import MAP_TABLES
-    from runtime.parallel import Runner, open_runner
+    import care_maps.evaluate.report.preregistered
+    from care_maps.evaluate.report import write_report
+    from care_maps.query.map import MAP_TABLES
+    from care_maps.runtime.parallel import Runner, open_runner
 
     def broken(*args: object, **kwargs: object) -> None:
         raise RuntimeError("a table failed")
 
-    monkeypatch.setattr(evaluate.report.preregistered, "write_preregistered", broken)
+    monkeypatch.setattr(care_maps.evaluate.report.preregistered, "write_preregistered", broken)
     attempts = pq.read_table(serial_run / "eval" / "attempts.parquet")
     ks = {kind: CONFIG.evaluation.ks(kind) for kind in MAP_TABLES}
     with open_runner(Runner(workers=2)) as live:

@@ -11,7 +11,7 @@ import pytest
 from statsmodels.stats.contingency_tables import mcnemar
 from statsmodels.stats.multitest import multipletests
 
-from evaluate.report.preregistered import (
+from care_maps.evaluate.report.preregistered import (
     PAPER_SETTINGS,
     best_of_k_table,
     by_class_table,

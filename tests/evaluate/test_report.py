@@ -6,8 +6,8 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from evaluate.report import markdown_tables, summarise
-from replan.strategies import STRATEGIES, StrategyName
+from care_maps.evaluate.report import markdown_tables, summarise
+from care_maps.replan.strategies import STRATEGIES, StrategyName
 
 
 def _queries(n: int = 400, scenes: int = 1) -> pa.Table:

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from care.viz import rrd_entity_counts
-from evaluate.pipeline import SAMPLE
+from care_maps.core.viz import rrd_entity_counts
+from care_maps.evaluate.pipeline import SAMPLE
 
 pytestmark = pytest.mark.slow
 
@@ -25,7 +25,7 @@ def test_care_run_on_the_bundled_sample(tmp_path: Path) -> None:
     cmd = [
         sys.executable,
         "-m",
-        "care_cli.main",
+        "care_maps.cli.main",
         "run",
         "--out",
         str(out),

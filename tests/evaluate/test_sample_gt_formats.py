@@ -11,12 +11,12 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from evaluate.job import EvalConfig, Scene, run_eval
-from evaluate.pipeline import SAMPLE, RunConfig, run_all
-from evaluate.report import per_query
-from runtime.execution import Execution
-from truth.formats.native import read_native
-from truth.load import export_ground_truth
+from care_maps.evaluate.job import EvalConfig, Scene, run_eval
+from care_maps.evaluate.pipeline import SAMPLE, RunConfig, run_all
+from care_maps.evaluate.report import per_query
+from care_maps.runtime.execution import Execution
+from care_maps.truth.formats.native import read_native
+from care_maps.truth.load import export_ground_truth
 
 pytestmark = pytest.mark.slow
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.stats import permutation_test
 
-from evaluate.scene_test import (
+from care_maps.evaluate.scene_test import (
     ALPHA,
     EXACT_MAX_SCENES,
     MIN_SCENES,
@@ -22,7 +22,7 @@ from evaluate.scene_test import (
     signflip_interval,
     signflip_p,
 )
-from research.coverage import coverage_markdown, coverage_table, simulate_null
+from care_maps.research.coverage import coverage_markdown, coverage_table, simulate_null
 
 
 def _brute_p(sums, counts, d=0.0):
@@ -257,7 +257,7 @@ def test_null_coverage_of_zero() -> None:
     in 93-97% of 2000 data sets at 20 scenes (Monte Carlo s.e. 0.005). Covering zero is
     ``p(0) > alpha``, checked on every run. So it does when each scene has its own true
     difference, zero only on average over scenes (1000 data sets; there the query bootstrap
-    covers about 80%, research/coverage.py). At 4 scenes the test cannot reject and no
+    covers about 80%, care_maps/research/coverage.py). At 4 scenes the test cannot reject and no
     interval is given."""
     for effect_sd, simulations in ((0.0, 2000), (0.1, 1000)):
         runs = _null_runs(20, simulations, seed=2024, effect_sd=effect_sd)

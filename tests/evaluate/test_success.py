@@ -6,10 +6,10 @@ import dataclasses
 
 import numpy as np
 
-from evaluate.success import grid_queries, grid_success, instance_iou, instance_queries
-from query import load_map
-from truth.formats.native import read_native
-from truth.model import GroundTruth
+from care_maps.evaluate.success import grid_queries, grid_success, instance_iou, instance_queries
+from care_maps.query import load_map
+from care_maps.truth.formats.native import read_native
+from care_maps.truth.model import GroundTruth
 
 
 def test_instance_iou_matches_set_arithmetic(dataset) -> None:

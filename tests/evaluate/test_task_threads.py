@@ -5,9 +5,9 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import replace
 
-from evaluate.pipeline import one_thread_each
-from fuse.config import GridConfig, InstanceConfig
-from runtime.execution import Execution
+from care_maps.evaluate.pipeline import one_thread_each
+from care_maps.fuse.config import GridConfig, InstanceConfig
+from care_maps.runtime.execution import Execution
 
 
 def test_side_by_side_tasks_fuse_in_one_thread_each_with_the_same_map_settings() -> None:

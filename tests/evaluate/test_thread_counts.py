@@ -8,13 +8,13 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 
-from care.encoders import EncoderOptions
-from evaluate.job import EvalConfig, run_eval
-from research.dataset_stats import MeasureConfig, map_dataset
-from runtime.execution import Execution
-from runtime.threads import ENV_VAR, Work, use_threads
-from world.presets import PRESETS, WorldPreset
-from world.record import DatasetConfig, make_dataset
+from care_maps.core.encoders import EncoderOptions
+from care_maps.evaluate.job import EvalConfig, run_eval
+from care_maps.research.dataset_stats import MeasureConfig, map_dataset
+from care_maps.runtime.execution import Execution
+from care_maps.runtime.threads import ENV_VAR, Work, use_threads
+from care_maps.world.presets import PRESETS, WorldPreset
+from care_maps.world.record import DatasetConfig, make_dataset
 
 pytestmark = pytest.mark.slow
 

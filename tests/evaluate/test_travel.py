@@ -16,22 +16,22 @@ import pyarrow.parquet as pq
 import pytest
 from scipy import ndimage, stats
 
-from care.keys import GRID_ORIGIN_KEY, GRID_SHAPE_KEY
-from care.store import read_table, write_table_atomic
-from evaluate.config import EvalConfig, TravelStart
-from evaluate.job import run_eval
-from evaluate.paired import compare_measure, comparison_rng, wilcoxon_signed_rank
-from evaluate.report import per_query
-from evaluate.spl import episode_paths, shortest_to_success, spl, success_within
-from evaluate.travel import scene_travel
-from fuse.layout import GridLayout
-from query import load_map
-from query.goals import FreeSpace, GoalConfig, GoalMaker
-from query.paths import Roadmap
-from query.travel import Legs, approach_cells, largest_region
-from replan.attempts import Walk, run_attempts
-from replan.strategies import STRATEGIES, Situation, StrategyName, travel_score
-from runtime.execution import Execution
+from care_maps.core.keys import GRID_ORIGIN_KEY, GRID_SHAPE_KEY
+from care_maps.core.store import read_table, write_table_atomic
+from care_maps.evaluate.config import EvalConfig, TravelStart
+from care_maps.evaluate.job import run_eval
+from care_maps.evaluate.paired import compare_measure, comparison_rng, wilcoxon_signed_rank
+from care_maps.evaluate.report import per_query
+from care_maps.evaluate.spl import episode_paths, shortest_to_success, spl, success_within
+from care_maps.evaluate.travel import scene_travel
+from care_maps.fuse.layout import GridLayout
+from care_maps.query import load_map
+from care_maps.query.goals import FreeSpace, GoalConfig, GoalMaker
+from care_maps.query.paths import Roadmap
+from care_maps.query.travel import Legs, approach_cells, largest_region
+from care_maps.replan.attempts import Walk, run_attempts
+from care_maps.replan.strategies import STRATEGIES, Situation, StrategyName, travel_score
+from care_maps.runtime.execution import Execution
 
 CELL = 0.5
 
@@ -336,7 +336,7 @@ def test_a_small_evaluation_walks_as_networkx_says(dataset, tmp_path: Path, run_
 def test_no_walks_without_free_space_or_when_off(dataset) -> None:
     """A store without the grid's obstacle layers, or travel off, walks nowhere (NaN in the
     report); a start that is no TravelStart is one error."""
-    from care.errors import EvalError
+    from care_maps.core.errors import EvalError
 
     store = dataset / "stores" / "scene_1"
     cmap = load_map(store, "grid")

@@ -66,7 +66,7 @@ def care_process(
             resource.setrlimit(resource.RLIMIT_FSIZE, (fsize, fsize))
 
     return subprocess.run(
-        [sys.executable, "-m", "care_cli.main", *map(str, args)],
+        [sys.executable, "-m", "care_maps.cli.main", *map(str, args)],
         cwd=ROOT,
         env=_env(),
         capture_output=True,
@@ -79,7 +79,7 @@ def care_process(
 
 def care_popen(*args: object) -> subprocess.Popen[str]:
     return subprocess.Popen(
-        [sys.executable, "-m", "care_cli.main", *map(str, args)],
+        [sys.executable, "-m", "care_maps.cli.main", *map(str, args)],
         cwd=ROOT,
         env=_env(),
         stdout=subprocess.PIPE,
@@ -215,7 +215,7 @@ def tables(store: Path) -> dict[str, bytes]:
 @pytest.fixture(scope="session")
 def world(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A sample-world dataset (1 scene, 4 frames, 64x48) with ground truth, rendered once."""
-    from world.record import DatasetConfig, make_dataset
+    from care_maps.world.record import DatasetConfig, make_dataset
 
     root = tmp_path_factory.mktemp("faults_world")
     make_dataset(
@@ -235,11 +235,11 @@ def recording(world: Path) -> Path:
 @pytest.fixture(scope="session")
 def good(tmp_path_factory: pytest.TempPathFactory, recording: Path) -> Path:
     """A store with both maps and an evaluation beside it, built once (read-only)."""
-    from evaluate.job import run_eval
-    from fuse.grid import GridConfig, build_grid
-    from fuse.instances import InstanceConfig, build_instances
-    from ingest.pipeline import IngestConfig, run_ingest
-    from runtime.execution import Execution
+    from care_maps.evaluate.job import run_eval
+    from care_maps.fuse.grid import GridConfig, build_grid
+    from care_maps.fuse.instances import InstanceConfig, build_instances
+    from care_maps.ingest.pipeline import IngestConfig, run_ingest
+    from care_maps.runtime.execution import Execution
 
     root = tmp_path_factory.mktemp("faults_good")
     run = Execution(workers=1, progress=False)
@@ -255,7 +255,7 @@ EVAL_FLAGS = ("--seeds", "2", "--bootstrap", "10", "--workers", "1", "--k-grid",
 
 
 def eval_config():
-    from evaluate.job import EvalConfig
+    from care_maps.evaluate.job import EvalConfig
 
     return EvalConfig(seeds=2, bootstrap=10, k_grid=(4, 8), k_instances=(2, 4))
 

@@ -5,7 +5,7 @@ or the new one, byte for byte, never a mix; a re-run then finishes and leaves no
 
 Kill points are deterministic: the command runs in a child process whose file-system calls
 (``os.replace``, ``os.rename``, ``os.link``, ``os.unlink``, ``os.rmdir``, ``os.mkdir`` and
-``care.outputs.exchange``) on the output's folder are counted; before each one the child
+``care_maps.core.outputs.exchange``) on the output's folder are counted; before each one the child
 copies the folder aside (what a kill at that instant leaves behind, since nothing happens on
 disk between two such calls that is not in a temporary), or kills itself with ``SIGKILL``
 at the chosen one. One run of the child so gives every kill point of the command.
@@ -80,7 +80,7 @@ def _counted(owner, name):
     setattr(owner, name, op)
 
 
-import care.outputs as outputs
+import care_maps.core.outputs as outputs
 
 if os.environ.get("CARE_HOOK_NO_EXCHANGE"):
     def _unsupported(a, b):
@@ -93,9 +93,9 @@ _counted(outputs, "exchange")
 exec(os.environ["CARE_HOOK_MAIN"])
 """
 
-EVAL_MAIN = "from care_cli.main import main\nsys.argv = ['care', *sys.argv[1:]]\nmain()"
+EVAL_MAIN = "from care_maps.cli.main import main\nsys.argv = ['care', *sys.argv[1:]]\nmain()"
 RUN_MAIN = (
-    "import base64, pickle\nfrom evaluate.pipeline import run_all\n"
+    "import base64, pickle\nfrom care_maps.evaluate.pipeline import run_all\n"
     "*args, run = pickle.loads(base64.b64decode(os.environ['CARE_HOOK_ARGS']))\n"
     "run_all(*args, run=run)"
 )
@@ -189,7 +189,7 @@ class Versions:
 
 def _cli(*args: object) -> None:
     """``care ARGS`` in this process (for fixtures of a wider scope than ``care``)."""
-    from care_cli import main as cli
+    from care_maps.cli import main as cli
 
     argv = sys.argv
     sys.argv = ["care", *map(str, args)]
@@ -307,7 +307,7 @@ def test_eval_killed_anywhere_is_old_or_new(
 
 def _serial():
     """How the fault suite's ``care run`` runs: one recording after another, no bars."""
-    from runtime.execution import Execution
+    from care_maps.runtime.execution import Execution
 
     return Execution(workers=1, progress=False)
 
@@ -315,9 +315,9 @@ def _serial():
 def _run_config(seeds: int):
     """``care run`` on the fault suite's recording: its maps as the ``good`` store's, the
     evaluation as ``fx.EVAL_FLAGS`` but for ``seeds``."""
-    from evaluate.config import EvalConfig, RunConfig
-    from fuse.grid import GridConfig
-    from fuse.instances import InstanceConfig
+    from care_maps.evaluate.config import EvalConfig, RunConfig
+    from care_maps.fuse.grid import GridConfig
+    from care_maps.fuse.instances import InstanceConfig
 
     evaluation = EvalConfig(seeds=seeds, bootstrap=10, k_grid=(4, 8), k_instances=(2, 4))
     return RunConfig(
@@ -335,7 +335,7 @@ class Runs:
 @pytest.fixture(scope="module")
 def runs(recording: Path, tmp_path_factory: pytest.TempPathFactory) -> Runs:
     """``care run`` with 1 seed, then with 2 over it (the maps stay, the evaluation changes)."""
-    from evaluate.pipeline import run_all
+    from care_maps.evaluate.pipeline import run_all
 
     root = tmp_path_factory.mktemp("atomic_runs")
     run_all(recording, root / "old", _run_config(1), run=_serial())
@@ -356,7 +356,7 @@ def _run_state(runs: Runs, run: Path) -> tuple[str, tuple[str, ...]]:
 def test_run_killed_anywhere_is_old_or_new(
     care, fx, recording: Path, runs: Runs, tmp_path: Path
 ) -> None:
-    from evaluate.pipeline import run_all
+    from care_maps.evaluate.pipeline import run_all
 
     run = tmp_path / "w" / "run"
     shutil.copytree(runs.old, run)
@@ -430,7 +430,7 @@ def test_eval_killed_anywhere_without_exchange(
     """Where the two directories cannot be exchanged, the old one is renamed aside and the
     new one into place: a kill between the two leaves the output missing, and the next run
     or ``care check`` puts the old version back."""
-    from care import outputs
+    from care_maps.core import outputs
 
     def unsupported(a: Path, b: Path) -> None:
         raise OSError(errno.EINVAL, "RENAME_EXCHANGE not supported here", str(a))

@@ -23,7 +23,7 @@ from scipy.ndimage import map_coordinates
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from care.store import Store
+from care_maps.core.store import Store
 
 W, H = 320, 240
 K = np.array([[262.5, 0.0, 159.5], [0.0, 262.5, 119.5], [0.0, 0.0, 1.0]])
@@ -179,10 +179,10 @@ def _features(root: Path) -> Path:
 @pytest.fixture(scope="module")
 def twin_store(tmp_path_factory: pytest.TempPathFactory, twin: list) -> Path:
     """The undistorted twin ingested (views and constant features) and its grid fused."""
-    from care.encoders import EncoderOptions
-    from fuse.grid import GridConfig, build_grid
-    from ingest.pipeline import IngestConfig, run_ingest
-    from runtime.execution import Execution
+    from care_maps.core.encoders import EncoderOptions
+    from care_maps.fuse.grid import GridConfig, build_grid
+    from care_maps.ingest.pipeline import IngestConfig, run_ingest
+    from care_maps.runtime.execution import Execution
 
     root = tmp_path_factory.mktemp("distortion_twin")
     store = run_ingest(
@@ -255,7 +255,7 @@ def test_zero_distortion_stores_the_recording_as_it_was(
         assert code == 0, err
         assert fx.meta(tmp_path / name)["distortion"] == []
         stores[name] = fx.tables(tmp_path / name)["views.parquet"]
-    monkeypatch.setattr("ingest.source.undistort", lambda image, *_, **__: image)
+    monkeypatch.setattr("care_maps.ingest.source.undistort", lambda image, *_, **__: image)
     code, _, err = care("ingest", tmp_path / "bag plumb_bob", "--out", tmp_path / "no step")
     assert code == 0, err
     assert set(stores.values()) == {fx.tables(tmp_path / "no step")["views.parquet"]}
@@ -279,7 +279,7 @@ def test_nonzero_distortion_changes_the_store(care, fx, twin: list, tmp_path: Pa
 def test_ros1_camera_info_names_d_in_capitals() -> None:
     from rosbags.typesys import Stores, get_typestore
 
-    from ingest import decode
+    from care_maps.ingest import decode
 
     T = get_typestore(Stores.ROS1_NOETIC).types
     header = T["std_msgs/msg/Header"](

@@ -21,7 +21,7 @@ import pytest
 pytestmark = pytest.mark.slow
 
 WITHIN = 1.5
-"""Seconds from Ctrl-C to exit: the program's grace is 0.8 s (care_cli.main._GRACE_S)."""
+"""Seconds from Ctrl-C to exit: the program's grace is 0.8 s (care_maps.cli.main._GRACE_S)."""
 
 
 def _changed(path: Path) -> Callable[[], bool]:
@@ -127,7 +127,7 @@ def test_a_job_started_to_ignore_ctrl_c_keeps_ignoring_it(fx, copy_good) -> None
     proc = subprocess.Popen(
         [sys.executable, "-c", "import signal, runpy, sys; signal.signal(signal.SIGINT, "
          "signal.SIG_IGN); sys.argv = ['care', 'fuse', 'grid', sys.argv[1], '--overwrite'];"
-         " runpy.run_module('care_cli.main', run_name='__main__')", str(store)],
+         " runpy.run_module('care_maps.cli.main', run_name='__main__')", str(store)],
         cwd=Path(__file__).resolve().parents[2], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
         text=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
     )  # fmt: skip

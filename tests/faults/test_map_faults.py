@@ -114,7 +114,7 @@ def test_fuse_store_with_invalid_meta_json(care, fx, copy_good, recording: Path)
 def test_text_embeddings_of_another_dimension(care, fx, copy_good) -> None:
     """A store whose text embeddings do not match its features' dimension (another tool wrote
     text.parquet): one line naming both dimensions."""
-    from care.outputs import file_digest
+    from care_maps.core.outputs import file_digest
 
     store = copy_good("store")
     text = pq.read_table(store / "text.parquet")
@@ -465,7 +465,7 @@ def test_check_a_path_that_is_no_store(care, fx, tmp_path: Path) -> None:
 def test_unexpected_error_is_one_line_and_a_traceback_file(
     care, fx, good: Path, monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:
-    from query.openvocab import QueryTarget
+    from care_maps.query.openvocab import QueryTarget
 
     def broken(*args, **kwargs):
         raise ZeroDivisionError("a bug")

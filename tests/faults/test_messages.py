@@ -120,9 +120,9 @@ def test_full_disk_in_the_query_sidecar_leaves_no_temporary(
 ) -> None:
     """The sidecar's buffered files fail again when closed after the failed write; the
     staged folder goes all the same, and the line's "nothing half-written" is true."""
-    import fuse.sidecar
+    import care_maps.fuse.sidecar
 
-    real = fuse.sidecar._npy
+    real = care_maps.fuse.sidecar._npy
 
     def npy(path: Path, dtype: str, shape: tuple[int, ...]):
         out = io.BufferedWriter(_FullDisk(room=0))  # the header waits in the buffer
@@ -132,10 +132,10 @@ def test_full_disk_in_the_query_sidecar_leaves_no_temporary(
                                                    "fortran_order": False, "shape": shape})  # fmt: skip
         return out
 
-    monkeypatch.setattr(fuse.sidecar, "_npy", npy)
+    monkeypatch.setattr(care_maps.fuse.sidecar, "_npy", npy)
     store = copy_good("store")
     before = fx.snapshot(store)
     code, _, err = care("fuse", "grid", store, "--overwrite")
     fx.assert_fault(code, err, r"no space left on device", clean=(store.parent,), intact=before)
-    monkeypatch.setattr(fuse.sidecar, "_npy", real)
+    monkeypatch.setattr(care_maps.fuse.sidecar, "_npy", real)
     assert care("fuse", "grid", store, "--overwrite")[0] == 0

@@ -16,7 +16,7 @@ def _frame_id_options() -> list[tuple[tuple[str, ...], str]]:
     """``(command path, --flag)`` of every frame-id option, from the CLI itself."""
     import typer
 
-    from care_cli.main import _register, app
+    from care_maps.cli.main import _register, app
 
     _register()
     found: list[tuple[tuple[str, ...], str]] = []
@@ -76,9 +76,9 @@ def test_the_library_refuses_them_too() -> None:
     """The one check, also where the plan of a frame is made (``care frame``, goals)."""
     import numpy as np
 
-    from care.frames import FrameIdError, check_frame_id
-    from care.mapframe import MapFrame
-    from query.publish import frame_plan
+    from care_maps.core.frames import FrameIdError, check_frame_id
+    from care_maps.core.mapframe import MapFrame
+    from care_maps.query.publish import frame_plan
 
     assert check_frame_id("base_link") == "base_link"
     frame = typing.cast(MapFrame, type("F", (), {"is_gravity_aligned": True,

@@ -1,4 +1,4 @@
-"""The CLI's typed choices are the registries' names (care_cli.choices lists a few by hand
+"""The CLI's typed choices are the registries' names (care_maps.cli.choices lists a few by hand
 to keep torch and open3d out of every ``care`` call)."""
 
 from __future__ import annotations
@@ -7,13 +7,13 @@ import pytest
 
 
 def test_choices_match_registries() -> None:
-    from care.encoders import ENCODERS
-    from care_cli import choices
-    from fuse.instances import INSTANCE_FEATURES
-    from fuse.proposals import PROPOSERS
-    from query.map import MAP_TABLES
-    from replan import CRITERIA, STRATEGIES
-    from world.perception.model import PERCEPTION_PRESETS
+    from care_maps.cli import choices
+    from care_maps.core.encoders import ENCODERS
+    from care_maps.fuse.instances import INSTANCE_FEATURES
+    from care_maps.fuse.proposals import PROPOSERS
+    from care_maps.query.map import MAP_TABLES
+    from care_maps.replan import CRITERIA, STRATEGIES
+    from care_maps.world.perception.model import PERCEPTION_PRESETS
 
     pairs = [
         (choices.Strategy, STRATEGIES),

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from care.errors import IngestError
-from ingest.source import ReadOptions
+from care_maps.core.errors import IngestError
+from care_maps.ingest.source import ReadOptions
 
 T0 = 10**9
 DT = 100_000_000
@@ -118,7 +118,7 @@ def test_the_same_transform_again_is_accepted(care, fx, tmp_path: Path) -> None:
     assert "warn" not in err.lower()
     assert "3 views from 3 colour images" in out
 
-    from care.store import Store
+    from care_maps.core.store import Store
 
     positions = Store(tmp_path / "store").poses(in_map=False)[:, :3, 3].tolist()
     assert positions == [[0.0, 0.0, 1.0], [0.5, 0.0, 1.0], [1.0, 0.0, 1.0]]

@@ -26,10 +26,10 @@ GRID_FILES = ("cells.parquet", "cell_views.parquet", "grid_rgb.png", "grid_obsta
 def stores(tmp_path_factory: pytest.TempPathFactory, recording: Path) -> Path:
     """Two stores of one recording, ``a`` every view and ``b`` every second one, each with
     its grid (read-only: tests copy them)."""
-    from fuse.grid import GridConfig, build_grid
-    from ingest.pipeline import IngestConfig, run_ingest
-    from ingest.select import FrameSelection
-    from runtime.execution import Execution
+    from care_maps.fuse.grid import GridConfig, build_grid
+    from care_maps.ingest.pipeline import IngestConfig, run_ingest
+    from care_maps.ingest.select import FrameSelection
+    from care_maps.runtime.execution import Execution
 
     root = tmp_path_factory.mktemp("provenance")
     run = Execution(workers=1, progress=False)
@@ -85,7 +85,7 @@ def test_changed_image_behind_a_linked_folder_rebuilds_the_store(
 
 def test_fingerprint_follows_links_without_looping(tmp_path: Path) -> None:
     """A link back up the tree is entered once; a linked file is hashed by its content."""
-    from care.fingerprint import content_digest
+    from care_maps.core.fingerprint import content_digest
 
     (tmp_path / "d" / "sub").mkdir(parents=True)
     (tmp_path / "d" / "sub" / "a.txt").write_text("a")
@@ -154,7 +154,7 @@ def test_query_cache_of_another_map_is_refused(care, fx, copy_store) -> None:
 
 def _rewrite_views(store: Path, change: Callable[[pa.Table], pa.Table]) -> None:
     """Rewrite ``views.parquet`` and record its new checksum, as a hand-made edit would."""
-    from care.outputs import file_digest
+    from care_maps.core.outputs import file_digest
 
     path = store / "views.parquet"
     pq.write_table(change(pq.read_table(path)), path)

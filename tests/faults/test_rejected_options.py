@@ -16,7 +16,7 @@ def _numeric_options() -> list[tuple[tuple[str, ...], str]]:
     """``(command path, --flag)`` of every option taking a float, from the CLI itself."""
     import typer
 
-    from care_cli.main import _register, app
+    from care_maps.cli.main import _register, app
 
     _register()
     found: list[tuple[tuple[str, ...], str]] = []

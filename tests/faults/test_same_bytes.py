@@ -6,7 +6,7 @@ Rerun's ``.rrd`` files are the one exception the SDK imposes: each row carries a
 (a time-ordered unique id) and the wall-clock ``log_time`` timeline, the recording its
 start time, and the SDK's batcher cuts rows into chunks by timing; no SDK option removes
 them. A blueprint's store id is a fresh random one too (its views' and containers' ids are
-derived from their place, ``care.viz.send_blueprint``). Those files are compared by what they
+derived from their place, ``care_maps.core.viz.send_blueprint``). Those files are compared by what they
 hold: every row of every entity, its timelines (``stamp``, ``query``, ...) and components,
 the recording's and the blueprint's, the same."""
 
@@ -73,7 +73,7 @@ def test_ingest_twice_same_bytes(care, recording: Path, tmp_path: Path) -> None:
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A dataset with ground truth large enough for both maps and an evaluation."""
-    from world.record import DatasetConfig, make_dataset
+    from care_maps.world.record import DatasetConfig, make_dataset
 
     root = tmp_path_factory.mktemp("same_bytes")
     make_dataset(

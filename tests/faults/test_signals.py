@@ -25,8 +25,8 @@ import pytest
 pytestmark = pytest.mark.slow
 
 WITHIN = 1.5
-"""Seconds from the signal to the program's exit (its grace is care_cli.main._GRACE_S)."""
-SAMPLE = Path(__file__).resolve().parents[2] / "data" / "sample" / "scene_000.mcap"
+"""Seconds from the signal to the program's exit (its grace is care_maps.cli.main._GRACE_S)."""
+SAMPLE = Path(__file__).resolve().parents[2] / "care_maps" / "data" / "sample" / "scene_000.mcap"
 """The bundled sample recording: long enough (80 frames) for a worker to be seen at work."""
 RAY_SHUTDOWN_S = 3.0
 """What a local Ray's shutdown may add to a stopped ``--ray`` run's exit (its daemons end

@@ -8,8 +8,8 @@ from collections import defaultdict
 import numpy as np
 import pytest
 
-from care.frames import Frame
-from fuse.cells import CellIndex, pack_cells, unpack_cells, view_samples
+from care_maps.core.frames import Frame
+from care_maps.fuse.cells import CellIndex, pack_cells, unpack_cells, view_samples
 
 K = np.array([[30.0, 0, 15.2], [0, 30.0, 11.7], [0, 0, 1]])
 H, W = 24, 32

@@ -1,9 +1,9 @@
 """A map config holds only what shapes the map: every one of its fields is in the map's key.
 
 How a build runs (read-ahead, memory, batch sizes, rebuilding, progress bars) is the run's
-:class:`runtime.execution.Execution`; a how-to field that strayed into a map config would
+:class:`care_maps.runtime.execution.Execution`; a how-to field that strayed into a map config would
 either change the key of a map whose bytes it does not change, or hide from it. So each
-field of :class:`fuse.config.GridConfig` and :class:`fuse.config.InstanceConfig`, changed
+field of :class:`care_maps.fuse.config.GridConfig` and :class:`care_maps.fuse.config.InstanceConfig`, changed
 to another valid value, changes the fingerprint, and no field of ``Execution`` is one.
 """
 
@@ -16,8 +16,8 @@ import typing
 
 import pytest
 
-from fuse.config import GridConfig, InstanceConfig
-from runtime.execution import Execution
+from care_maps.fuse.config import GridConfig, InstanceConfig
+from care_maps.runtime.execution import Execution
 
 MAP_CONFIGS = (GridConfig, InstanceConfig)
 

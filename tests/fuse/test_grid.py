@@ -19,15 +19,15 @@ from scipy.special import rel_entr, softmax
 from scipy.stats import entropy as scipy_entropy
 from statsmodels.stats.weightstats import DescrStatsW
 
-from care.errors import FuseError
-from care.frames import Frame
-from care.store import EncoderInfo, StoreWriter, read_table
-from fuse import grid as grid_module
-from fuse.grid import GridConfig, GridLayout, build_grid, grid_image
-from fuse.recompute import recompute_grid
-from fuse.schemas import CELL_VIEWS_FIELDS
-from fuse.sidecar import read_sidecar
-from runtime.execution import Execution
+from care_maps.core.errors import FuseError
+from care_maps.core.frames import Frame
+from care_maps.core.store import EncoderInfo, StoreWriter, read_table
+from care_maps.fuse import grid as grid_module
+from care_maps.fuse.grid import GridConfig, GridLayout, build_grid, grid_image
+from care_maps.fuse.recompute import recompute_grid
+from care_maps.fuse.schemas import CELL_VIEWS_FIELDS
+from care_maps.fuse.sidecar import read_sidecar
+from care_maps.runtime.execution import Execution
 
 H, W, D = 12, 16, 8
 K = np.array([[20.0, 0, 7.3], [0, 20.0, 5.7], [0, 0, 1]])
@@ -261,7 +261,7 @@ def test_grid_of_an_older_layout_is_rebuilt(tmp_path: Path) -> None:
     )
     old = table.append_column("feature", feature).replace_schema_metadata(table.schema.metadata)
     pq.write_table(old, views)
-    from care.outputs import record_table
+    from care_maps.core.outputs import record_table
 
     record_table(views)  # whole, as the older program recorded it
     stamp = path.stat().st_mtime_ns
@@ -405,8 +405,8 @@ def test_recompute_whose_sidecar_cannot_be_written_leaves_a_whole_map(
     """The disk fills while the query sidecar is written again: the error comes out, the
     rewritten table stands whole with no sidecar (queries decode the table) and nothing
     half-written is left; a re-run writes it."""
-    from fuse import sidecar as sidecar_module
-    from query.map import load_map
+    from care_maps.fuse import sidecar as sidecar_module
+    from care_maps.query.map import load_map
 
     store = _store(tmp_path / "s", n=5)
     build_grid(store, GridConfig(cell_size=0.1, stride=1))
@@ -437,7 +437,7 @@ def test_recompute_needs_the_store_it_was_built_from(tmp_path: Path) -> None:
     build_grid(other, GridConfig(cell_size=0.1))
     for name in ("cells.parquet", "cell_views.parquet"):
         (other / name).write_bytes((store / name).read_bytes())
-    from care.outputs import record_table
+    from care_maps.core.outputs import record_table
 
     record_table(other / "cells.parquet")
     record_table(other / "cell_views.parquet")
@@ -473,10 +473,10 @@ def test_bad_inputs_raise_one_clear_error(tmp_path: Path) -> None:
 def test_rerun_layers_and_blueprint(tmp_path: Path) -> None:
     from rerun.chunk import RrdReader
 
-    from care.store import Store
-    from care.viz import rrd_entity_counts
-    from fuse.grid import grid_image
-    from fuse.viz_grid import (
+    from care_maps.core.store import Store
+    from care_maps.core.viz import rrd_entity_counts
+    from care_maps.fuse.grid import grid_image
+    from care_maps.fuse.viz_grid import (
         GRID_CELLS_3D,
         MEASURE_LAYERS,
         confidence_layer,
@@ -536,7 +536,7 @@ def test_rerun_layers_and_blueprint(tmp_path: Path) -> None:
 def test_cli_grid_and_recompute(tmp_path: Path) -> None:
     from typer.testing import CliRunner
 
-    from care_cli.main import _register, app
+    from care_maps.cli.main import _register, app
 
     _register()
     store = _store(tmp_path / "s")
@@ -567,13 +567,13 @@ def test_cli_grid_and_recompute(tmp_path: Path) -> None:
 def test_sample_world_recording(tmp_path: Path) -> None:
     """A real sample-world recording, ingested with the labels encoder: the streaming grid
     equals the per-pixel reference, and cells carry the class of the object they show."""
-    from care.encoders import EncoderOptions, make_encoder
-    from care.store import Store
-    from ingest.pipeline import IngestConfig, run_ingest
-    from truth.formats.native import read_native
-    from world.record import make_recording
-    from world.render import RenderConfig
-    from world.scene import SceneConfig
+    from care_maps.core.encoders import EncoderOptions, make_encoder
+    from care_maps.core.store import Store
+    from care_maps.ingest.pipeline import IngestConfig, run_ingest
+    from care_maps.truth.formats.native import read_native
+    from care_maps.world.record import make_recording
+    from care_maps.world.render import RenderConfig
+    from care_maps.world.scene import SceneConfig
 
     recording = tmp_path / "tiny.mcap"
     make_recording(

@@ -19,17 +19,17 @@ import open3d as o3d
 import polars as pl
 import pytest
 
-from care.encoders.base import Encoder, RecordingContext
-from care.errors import FuseError
-from care.frames import Frame
-from care.store import EncoderInfo, Store, StoreWriter, read_table
-from care.viz import rrd_entity_counts
-from fuse.evaluate_proposals import best_iou, instance_map_iou
-from fuse.instances import InstanceConfig, build_instances, recompute_instances
-from fuse.measures import class_distribution, entropy, pwkl_pairwise
-from fuse.pointcloud import VoxelAccumulator, fuse_scene_points, read_scene_points
-from fuse.proposals import label_proposals
-from runtime.execution import Execution
+from care_maps.core.encoders.base import Encoder, RecordingContext
+from care_maps.core.errors import FuseError
+from care_maps.core.frames import Frame
+from care_maps.core.store import EncoderInfo, Store, StoreWriter, read_table
+from care_maps.core.viz import rrd_entity_counts
+from care_maps.fuse.evaluate_proposals import best_iou, instance_map_iou
+from care_maps.fuse.instances import InstanceConfig, build_instances, recompute_instances
+from care_maps.fuse.measures import class_distribution, entropy, pwkl_pairwise
+from care_maps.fuse.pointcloud import VoxelAccumulator, fuse_scene_points, read_scene_points
+from care_maps.fuse.proposals import label_proposals
+from care_maps.runtime.execution import Execution
 
 CLASSES = ["void", "wall", "floor", "chair", "table", "bed"]
 # (min corner, max corner, class id); instance id = index + 1
@@ -230,7 +230,7 @@ def test_labels_without_instance_images_is_one_clear_error(tmp_path: Path) -> No
 
 
 def test_build_instances_labels(room: Path, tmp_path: Path) -> None:
-    from fuse.viz_instances import log_instances
+    from care_maps.fuse.viz_instances import log_instances
 
     config = InstanceConfig(**{**CONFIG.__dict__, "proposals": "labels"})
     rrd = tmp_path / "inst.rrd"
@@ -423,7 +423,7 @@ def test_bad_config_is_one_clear_error() -> None:
 
 # ---------------------------------------------------------------- the sample world
 
-SAMPLE = Path(__file__).resolve().parents[2] / "data" / "sample" / "scene_000.mcap"
+SAMPLE = Path(__file__).resolve().parents[2] / "care_maps" / "data" / "sample" / "scene_000.mcap"
 
 
 class ClassOneHotEncoder(Encoder):
@@ -461,7 +461,7 @@ class ClassOneHotEncoder(Encoder):
 def sample_store(tmp_path_factory: pytest.TempPathFactory) -> Path:
     if not SAMPLE.is_file():
         pytest.skip(f"{SAMPLE} not present (make it with `care sample make`)")
-    from ingest.pipeline import IngestConfig, run_ingest
+    from care_maps.ingest.pipeline import IngestConfig, run_ingest
 
     out = tmp_path_factory.mktemp("sample") / "store"
     return run_ingest(SAMPLE, out, IngestConfig(), run=QUIET, encoder=ClassOneHotEncoder())
@@ -481,7 +481,7 @@ def test_sample_proposals_reach_their_iou(sample_store: Path, method: str, targe
 def test_cli_prints_the_proposal_iou_against_ground_truth(sample_store: Path) -> None:
     from typer.testing import CliRunner
 
-    from care_cli.main import _register, app
+    from care_maps.cli.main import _register, app
 
     _register()
     result = CliRunner().invoke(app, ["fuse", "instances", str(sample_store)])

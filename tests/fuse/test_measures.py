@@ -13,8 +13,8 @@ from scipy.special import rel_entr, softmax
 from scipy.stats import entropy as scipy_entropy
 from statsmodels.stats.weightstats import DescrStatsW
 
-from fuse.accumulate import CandidateSums
-from fuse.measures import (
+from care_maps.fuse.accumulate import CandidateSums
+from care_maps.fuse.measures import (
     candidate_columns,
     class_distribution,
     entropy,

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from fuse.evaluate_proposals import best_iou, proposal_iou
-from fuse.instances import InstanceConfig
-from fuse.pointcloud import SceneCloud
-from fuse.proposals import PROPOSERS, geometric_proposals, remove_structure
+from care_maps.fuse.evaluate_proposals import best_iou, proposal_iou
+from care_maps.fuse.instances import InstanceConfig
+from care_maps.fuse.pointcloud import SceneCloud
+from care_maps.fuse.proposals import PROPOSERS, geometric_proposals, remove_structure
 
 STEP = 0.03
 

@@ -18,10 +18,10 @@ import polars as pl
 import pytest
 import yaml
 
-from care.frames import Frame
-from care.store import EncoderInfo, StoreWriter
-from fuse.grid import GridConfig, build_grid
-from fuse.rosmap import FREE, OCCUPIED, UNKNOWN, occupancy_image, write_ros_map
+from care_maps.core.frames import Frame
+from care_maps.core.store import EncoderInfo, StoreWriter
+from care_maps.fuse.grid import GridConfig, build_grid
+from care_maps.fuse.rosmap import FREE, OCCUPIED, UNKNOWN, occupancy_image, write_ros_map
 
 H, W, D = 24, 32, 4
 K = np.array([[20.0, 0, 15.5], [0, 20.0, 11.5], [0, 0, 1]])
@@ -118,7 +118,7 @@ def test_trinary_levels_and_yaml_fields(tmp_path: Path) -> None:
 def test_cli_query_and_replan_return_goal_poses(tmp_path: Path) -> None:
     store = _store(tmp_path / "s")
     build_grid(store, GridConfig(cell_size=0.05))
-    run = [sys.executable, "-m", "care_cli.main"]
+    run = [sys.executable, "-m", "care_maps.cli.main"]
     q = subprocess.run(
         [*run, "query", str(store), "chair", "--map", "grid", "--top", "2", "--json"],
         capture_output=True, text=True, check=True,
@@ -161,7 +161,7 @@ def test_cli_batch_writes_one_table(tmp_path: Path) -> None:
     build_grid(store, GridConfig(cell_size=0.05))
     queries = tmp_path / "q.csv"
     queries.write_text('query,visited\nchair,\ntable,"0.3,-0.2"\nchair,\n')
-    run = [sys.executable, "-m", "care_cli.main", "query", str(store), "--map", "grid"]
+    run = [sys.executable, "-m", "care_maps.cli.main", "query", str(store), "--map", "grid"]
     done = subprocess.run(
         [*run, "--batch", str(queries), "-k", "2"], capture_output=True, text=True
     )

@@ -20,10 +20,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from care.frames import Frame
-from care.store import EncoderInfo, Store, StoreWriter
-from fuse.views import select_views, visible_hits
-from runtime.execution import Execution
+from care_maps.core.frames import Frame
+from care_maps.core.store import EncoderInfo, Store, StoreWriter
+from care_maps.fuse.views import select_views, visible_hits
+from care_maps.runtime.execution import Execution
 
 QUIET = Execution(progress=False)
 

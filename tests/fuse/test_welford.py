@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fuse.welford import merge_moments
+from care_maps.fuse.welford import merge_moments
 
 
 def test_each_update_is_one_fused_multiply_add() -> None:

@@ -8,7 +8,7 @@ import itertools
 import numpy as np
 import pytest
 
-from geometry.labels import LABEL_GAP, LABELS_ACROSS, label_gap, spread_labels
+from care_maps.geometry.labels import LABEL_GAP, LABELS_ACROSS, label_gap, spread_labels
 
 
 def test_a_crowd_keeps_the_largest_label_of_each_place() -> None:

@@ -9,7 +9,7 @@ import pytest
 from scipy.linalg import svd
 from threadpoolctl import threadpool_limits
 
-from geometry.planes import fit_plane
+from care_maps.geometry.planes import fit_plane
 
 
 def _scene(seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

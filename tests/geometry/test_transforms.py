@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from geometry.transforms import (
+from care_maps.geometry.transforms import (
     backproject,
     matrix_to_quaternion,
     project,

@@ -1,7 +1,7 @@
 """Fixtures of the ingest tests: synthetic frames, real RGB-D data, hand-built bags, a CLI runner.
 
 Hand-built bags go through ``rosbags.rosbag2.Writer`` (a real writer) with messages
-made here, independently of ``ingest.write``, to test encodings and broken recordings
+made here, independently of ``care_maps.ingest.write``, to test encodings and broken recordings
 that our own writer never produces.
 """
 
@@ -18,9 +18,9 @@ from PIL import Image
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
-from care.encoders import Encoder, l2_normalise
-from care.frames import Frame
-from geometry.transforms import quaternion_to_matrix
+from care_maps.core.encoders import Encoder, l2_normalise
+from care_maps.core.frames import Frame
+from care_maps.geometry.transforms import quaternion_to_matrix
 
 TS = get_typestore(Stores.ROS2_HUMBLE)
 T = TS.types

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ingest.write import write_recording
+from care_maps.ingest.write import write_recording
 
 pytestmark = pytest.mark.slow
 
@@ -171,7 +171,7 @@ def test_realsense_needs_static_pose(run_cli, tmp_path: Path, shared_data: Path)
     code, out, _ = run_cli("ingest", bag, "--out", tmp_path / "store", *flags, "--max-dt", "0.15")
     assert code == 0
     assert "1 views from 1 colour images" in out
-    from care.store import Store
+    from care_maps.core.store import Store
 
     store = Store(tmp_path / "store")
     np.testing.assert_allclose(store.poses()[0], np.eye(4))

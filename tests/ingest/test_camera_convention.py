@@ -16,13 +16,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from care.errors import IngestError
-from care.store import read_table
-from fuse.grid import GridConfig, build_grid
-from ingest.conventions import BODY_FROM_OPTICAL, CameraConvention, find_convention
-from ingest.pipeline import IngestConfig, run_ingest
-from ingest.source import ReadOptions, RecordingFrames
-from runtime.execution import Execution
+from care_maps.core.errors import IngestError
+from care_maps.core.store import read_table
+from care_maps.fuse.grid import GridConfig, build_grid
+from care_maps.ingest.conventions import BODY_FROM_OPTICAL, CameraConvention, find_convention
+from care_maps.ingest.pipeline import IngestConfig, run_ingest
+from care_maps.ingest.source import ReadOptions, RecordingFrames
+from care_maps.runtime.execution import Execution
 
 OPTICAL = "camera_color_optical_frame"
 LINK = "camera_link"
@@ -50,7 +50,7 @@ LINK_FROM_OPTICAL = _matrix(LINK_TO_OPTICAL_XYZW)
 
 
 def _quarter(frame):
-    from care.frames import Frame
+    from care_maps.core.frames import Frame
 
     K = frame.K.copy()
     K[:2] /= 4

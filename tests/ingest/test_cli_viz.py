@@ -7,10 +7,10 @@ from pathlib import Path
 import pytest
 from rerun.chunk import RrdReader
 
-from care.store import Store
-from care.viz import rrd_entity_counts
-from ingest import viz
-from ingest.write import write_recording
+from care_maps.core.store import Store
+from care_maps.core.viz import rrd_entity_counts
+from care_maps.ingest import viz
+from care_maps.ingest.write import write_recording
 
 pytestmark = pytest.mark.slow
 
@@ -80,7 +80,7 @@ def test_rrd_of_an_up_to_date_store_is_written_from_it(
 
     import numpy as np
 
-    from care.frames import Frame
+    from care_maps.core.frames import Frame
 
     frames = []  # third-party frames at a quarter of their size
     for f in h.load_livingroom(livingroom_root, 12)[::2]:

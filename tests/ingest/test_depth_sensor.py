@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from ingest.readers import TopicInfo
-from ingest.topics import depth_camera_info, registered_depth_topics, select_topics
+from care_maps.ingest.readers import TopicInfo
+from care_maps.ingest.topics import depth_camera_info, registered_depth_topics, select_topics
 
 IMAGE, INFO = "sensor_msgs/msg/Image", "sensor_msgs/msg/CameraInfo"
 

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from care.errors import IngestError
-from ingest.source import RecordingFrames
+from care_maps.core.errors import IngestError
+from care_maps.ingest.source import RecordingFrames
 
 H, W = 24, 32
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from geometry.consistency import (
+from care_maps.geometry.consistency import (
     DepthSample,
     Hypothesis,
     Mistake,
@@ -24,7 +24,7 @@ from geometry.consistency import (
     reorder_quaternion,
     subsample,
 )
-from geometry.transforms import BODY_FROM_OPTICAL
+from care_maps.geometry.transforms import BODY_FROM_OPTICAL
 
 K = np.array([[50.0, 0.0, 39.5], [0.0, 50.0, 29.5], [0.0, 0.0, 1.0]])
 """An 80x60 camera (no subsampling needed)."""
@@ -214,7 +214,7 @@ def test_agreement_is_symmetric_in_the_pair_order(every5) -> None:
 
 
 def test_the_floor_holds_the_cameras_only_in_the_right_units(every5) -> None:
-    from geometry.consistency import floor_support
+    from care_maps.geometry.consistency import floor_support
 
     right = floor_support(every5)
     assert right["found"]

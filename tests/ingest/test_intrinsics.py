@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from care.errors import IngestError
-from ingest.intrinsics import CameraIntrinsics
-from ingest.source import ReadOptions, RecordingFrames
+from care_maps.core.errors import IngestError
+from care_maps.ingest.intrinsics import CameraIntrinsics
+from care_maps.ingest.source import ReadOptions, RecordingFrames
 
 OPTICAL = "camera_color_optical_frame"
 NUMBERS = "525,525,319.5,239.5"

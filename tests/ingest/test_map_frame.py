@@ -17,16 +17,16 @@ import pytest
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from care.frames import Frame
-from care.mapframe import MapFrame, UpAxis
-from care.store import Store, read_table
-from fuse.frame import ensure_map_frame, sample_points
-from fuse.grid import GridConfig, build_grid
-from fuse.instances import InstanceConfig, build_instances
-from geometry.mapframe import FloorNotFoundError, estimate_map_frame
-from ingest.pipeline import IngestConfig, run_ingest
-from ingest.write import write_recording
-from runtime.execution import Execution
+from care_maps.core.frames import Frame
+from care_maps.core.mapframe import MapFrame, UpAxis
+from care_maps.core.store import Store, read_table
+from care_maps.fuse.frame import ensure_map_frame, sample_points
+from care_maps.fuse.grid import GridConfig, build_grid
+from care_maps.fuse.instances import InstanceConfig, build_instances
+from care_maps.geometry.mapframe import FloorNotFoundError, estimate_map_frame
+from care_maps.ingest.pipeline import IngestConfig, run_ingest
+from care_maps.ingest.write import write_recording
+from care_maps.runtime.execution import Execution
 
 QUIET = Execution(progress=False)
 
@@ -91,7 +91,7 @@ def test_up_axis_and_floor_found_from_the_data(stores) -> None:
 
 
 def test_the_sample_is_the_same_on_any_number_of_decoding_threads(stores) -> None:
-    from fuse.frame import _sample_points
+    from care_maps.fuse.frame import _sample_points
 
     one, two, five = (_sample_points(Store(stores["mcap"]), n) for n in (1, 2, 5))
     for other in (two, five):
@@ -169,7 +169,7 @@ def test_cli_no_floor_is_one_line_and_no_map(tmp_path: Path, h) -> None:
     store = run_ingest(
         rec, tmp_path / "store", IngestConfig(vocabulary="a,b"), run=QUIET, encoder=h.TinyEncoder()
     )
-    care = [sys.executable, "-m", "care_cli.main", "fuse", "grid", str(store)]
+    care = [sys.executable, "-m", "care_maps.cli.main", "fuse", "grid", str(store)]
     done = subprocess.run(care, capture_output=True, text=True)
     assert done.returncode == 1
     lines = [ln for ln in done.stderr.splitlines() if ln.strip()]
@@ -187,7 +187,7 @@ def test_cli_no_floor_is_one_line_and_no_map(tmp_path: Path, h) -> None:
 def test_care_frame_says_what_to_publish(stores, run_cli) -> None:
     """The y-down store's goals are in care_map, published under the world frame by the
     printed command; the z-up store's are in the world frame when its floor is level."""
-    from query.goals import GoalMaker
+    from care_maps.query.goals import GoalMaker
 
     code, out, err = run_cli("frame", stores["mcap"])
     assert code == 0, err

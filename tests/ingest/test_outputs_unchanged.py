@@ -101,7 +101,7 @@ def digests(folder: Path) -> dict[str, str]:
 
 
 def _care(*args: object, cwd: Path | None = None) -> None:
-    cmd = [sys.executable, "-m", "care_cli.main", *map(str, args)]
+    cmd = [sys.executable, "-m", "care_maps.cli.main", *map(str, args)]
     done = subprocess.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=900, cwd=cwd)
     assert done.returncode == 0, done.stderr[-2000:]
 
@@ -129,8 +129,8 @@ def test_sample_run_outputs_unchanged(tmp_path: Path) -> None:
 def test_own_recording_outputs_unchanged(
     tmp_path: Path, livingroom_root: Path, h, save_tiny_clip
 ) -> None:
-    from care.frames import Frame
-    from ingest.write import write_recording
+    from care_maps.core.frames import Frame
+    from care_maps.ingest.write import write_recording
 
     frames = []
     for f in h.load_livingroom(livingroom_root, 40)[::5]:

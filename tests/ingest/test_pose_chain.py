@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ingest.source import RecordingFrames
+from care_maps.ingest.source import RecordingFrames
 
 OPTICAL = "camera_color_optical_frame"
 # camera_link (x forward, z up) -> optical (z forward, x right, y down), REP 103

@@ -22,10 +22,10 @@ from rosbags.rosbag1 import Writer as Ros1Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from scipy.spatial.transform import Rotation
 
-from care.errors import IngestError
-from ingest.decode import StampedTransform
-from ingest.source import PoseFrom, ReadOptions, RecordingFrames
-from ingest.tf import TFBuffer, Uncovered
+from care_maps.core.errors import IngestError
+from care_maps.ingest.decode import StampedTransform
+from care_maps.ingest.source import PoseFrom, ReadOptions, RecordingFrames
+from care_maps.ingest.tf import TFBuffer, Uncovered
 
 OPTICAL = "camera_color_optical_frame"
 LINK_TO_OPTICAL_XYZW = (-0.5, 0.5, -0.5, 0.5)  # REP 103: camera_link -> optical

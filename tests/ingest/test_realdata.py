@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from care.store import Store
-from geometry.transforms import backproject, transform_points
-from ingest.pipeline import run_ingest
-from ingest.write import write_recording
-from runtime.execution import Execution
+from care_maps.core.store import Store
+from care_maps.geometry.transforms import backproject, transform_points
+from care_maps.ingest.pipeline import run_ingest
+from care_maps.ingest.write import write_recording
+from care_maps.runtime.execution import Execution
 
 FORMATS = [
     ("mcap", "rec.mcap", "sqlite3"),

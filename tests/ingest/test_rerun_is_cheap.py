@@ -14,7 +14,7 @@ pytestmark = pytest.mark.slow
 ROOT = Path(__file__).resolve().parents[2]
 PROBE = """
 import sys
-from care_cli.main import main
+from care_maps.cli.main import main
 sys.argv = ["care", "ingest", sys.argv[1], "--out", sys.argv[2], "--encoder", "labels"]
 try:
     main()
@@ -25,7 +25,7 @@ print("torch imported" if "torch" in sys.modules else "no torch")
 
 
 def test_up_to_date_ingest_loads_no_model(tmp_path: Path) -> None:
-    rec = ROOT / "data" / "sample" / "scene_000.mcap"
+    rec = ROOT / "care_maps" / "data" / "sample" / "scene_000.mcap"
     store = tmp_path / "store"
     first = subprocess.run(
         [sys.executable, "-c", PROBE, rec, store], capture_output=True, text=True

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from care.store import Store
+from care_maps.core.store import Store
 
 pytestmark = pytest.mark.slow
 

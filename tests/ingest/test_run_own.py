@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from care.frames import Frame
-from ingest.write import write_recording
+from care_maps.core.frames import Frame
+from care_maps.ingest.write import write_recording
 
 pytestmark = pytest.mark.slow
 
@@ -33,7 +33,7 @@ def _frames(livingroom_root: Path, h, start: int) -> list[Frame]:
 
 
 def _care(*args) -> subprocess.CompletedProcess:
-    cmd = [sys.executable, "-m", "care_cli.main", *map(str, args)]
+    cmd = [sys.executable, "-m", "care_maps.cli.main", *map(str, args)]
     return subprocess.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=900)
 
 

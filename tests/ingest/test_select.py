@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from care.errors import IngestError
-from care.frames import Frame
-from ingest.select import FrameSelection, FrameSelector
+from care_maps.core.errors import IngestError
+from care_maps.core.frames import Frame
+from care_maps.ingest.select import FrameSelection, FrameSelector
 
 
 def _frame(i: int, x: float, yaw_deg: float) -> Frame:

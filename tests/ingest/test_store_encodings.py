@@ -1,4 +1,4 @@
-"""The store's encodings give the same maps: the default (``raw-zstd``, :mod:`care.codecs`)
+"""The store's encodings give the same maps: the default (``raw-zstd``, :mod:`care_maps.core.codecs`)
 against the 0.1 store (``png-lists``), built from the same recordings by ``care ingest``
 and fused by ``care fuse``.
 
@@ -7,7 +7,7 @@ table is equal value for value; from a JPEG recording (the bundled sample's, the
 room's written as JPEG), which the default store keeps as the recording sent it while the
 0.1 store encoded it again, every value but the points' and cells' colours is equal, and
 the colours lie within JPEG's error. A map
-records the checksums of the store it came from (:data:`fuse.keys.STORE_KEY`), which
+records the checksums of the store it came from (:data:`care_maps.fuse.keys.STORE_KEY`), which
 differ by design, and nothing else of it.
 """
 
@@ -21,8 +21,8 @@ import pyarrow.parquet as pq
 import pytest
 from PIL import Image
 
-from care.codecs import StoreEncoding
-from fuse.keys import STORE_KEY
+from care_maps.core.codecs import StoreEncoding
+from care_maps.fuse.keys import STORE_KEY
 
 STORE_OWN = frozenset({"views.parquet", "features.parquet", "text.parquet"})
 COLOURS = ("r", "g", "b")
@@ -67,7 +67,7 @@ def _assert_equal_maps(old: Path, new: Path, *, colours_exact: bool = True) -> N
 @pytest.mark.slow
 def test_sample_maps_equal_value_for_value(tmp_path: Path, run_cli) -> None:
     """The bundled sample world (JPEG colour, labels encoder): both maps, every table."""
-    recording = Path(__file__).parents[2] / "data" / "sample" / "scene_000.mcap"
+    recording = Path(__file__).parents[2] / "care_maps" / "data" / "sample" / "scene_000.mcap"
     stores = {e: tmp_path / e.value for e in StoreEncoding}
     for encoding, store in stores.items():
         _build(run_cli, recording, store, encoding, "--encoder", "labels")
@@ -85,7 +85,7 @@ def _assert_close_colours(old: Path, new: Path) -> None:
 
 
 def _livingroom(h, root: Path) -> list:
-    from care.frames import Frame
+    from care_maps.core.frames import Frame
 
     frames = []
     for f in h.load_livingroom(root, 40)[::5]:
@@ -106,7 +106,7 @@ def test_livingroom_maps_equal(
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
 
-    from ingest.write import TOPICS, write_recording
+    from care_maps.ingest.write import TOPICS, write_recording
 
     recording = write_recording(
         tmp_path / "living.mcap", _livingroom(h, livingroom_root), fmt="mcap", compressed_rgb=jpeg
@@ -140,8 +140,8 @@ def test_livingroom_maps_equal(
 def test_a_folder_of_jpegs_is_kept_as_its_files(tmp_path: Path, livingroom_root: Path) -> None:
     """The living room as Redwood publishes it (JPEG colour files): the store holds each
     file's bytes, and they decode to the very pixels ingest read."""
-    from care.store import Store, StoreWriter
-    from ingest.folders.frames import open_frames
+    from care_maps.core.store import Store, StoreWriter
+    from care_maps.ingest.folders.frames import open_frames
 
     with open_frames(livingroom_root) as frames, StoreWriter(tmp_path / "s", None) as writer:
         read = []

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
-from care.errors import IngestError
-from ingest.decode import StampedTransform
-from ingest.sync import StampSync
-from ingest.tf import TFBuffer
+from care_maps.core.errors import IngestError
+from care_maps.ingest.decode import StampedTransform
+from care_maps.ingest.sync import StampSync
+from care_maps.ingest.tf import TFBuffer
 
 
 def _T(rot: Rotation, t: np.ndarray) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Recordings written by ingest.write in every container format read back exactly."""
+"""Recordings written by care_maps.ingest.write in every container format read back exactly."""
 
 from __future__ import annotations
 
@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 from mcap_ros2.reader import read_ros2_messages
 
-from care.errors import IngestError
-from care.store import Store
-from ingest.pipeline import IngestConfig, run_ingest
-from ingest.readers import open_reader
-from ingest.source import ReadOptions, RecordingFrames
-from ingest.write import BASE_FRAME, CAMERA_FRAME, TOPICS, WORLD_FRAME, write_recording
-from runtime.execution import Execution
+from care_maps.core.errors import IngestError
+from care_maps.core.store import Store
+from care_maps.ingest.pipeline import IngestConfig, run_ingest
+from care_maps.ingest.readers import open_reader
+from care_maps.ingest.source import ReadOptions, RecordingFrames
+from care_maps.ingest.write import BASE_FRAME, CAMERA_FRAME, TOPICS, WORLD_FRAME, write_recording
+from care_maps.runtime.execution import Execution
 
 QUIET = Execution(progress=False)
 

@@ -36,7 +36,7 @@ FREE_START = "0.43,2.93"
 
 def _care(*args: object) -> str:
     done = subprocess.run(
-        [sys.executable, "-m", "care_cli.main", *map(str, args)],
+        [sys.executable, "-m", "care_maps.cli.main", *map(str, args)],
         capture_output=True, text=True, cwd=ROOT, check=False,
     )  # fmt: skip
     assert done.returncode == 0, done.stderr
@@ -47,7 +47,14 @@ def _care(*args: object) -> str:
 def sample(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The bundled sample ingested and fused into a grid, as ``care run`` does."""
     store = tmp_path_factory.mktemp("sample") / "scene_000"
-    _care("ingest", ROOT / "data/sample/scene_000.mcap", "--out", store, "--encoder", "labels")
+    _care(
+        "ingest",
+        ROOT / "care_maps/data/sample/scene_000.mcap",
+        "--out",
+        store,
+        "--encoder",
+        "labels",
+    )
     _care("fuse", "grid", store)
     return store
 
@@ -56,11 +63,11 @@ def sample(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def livingroom(shared_data: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The living-room frames (y-down world ``map``), written to MCAP by the real writer,
     ingested with the ingest tests' tiny encoder (a ``tv`` in its vocabulary), fused."""
-    from care.frames import Frame
-    from fuse.grid import GridConfig, build_grid
-    from ingest.pipeline import IngestConfig, run_ingest
-    from ingest.write import write_recording
-    from runtime.execution import Execution
+    from care_maps.core.frames import Frame
+    from care_maps.fuse.grid import GridConfig, build_grid
+    from care_maps.ingest.pipeline import IngestConfig, run_ingest
+    from care_maps.ingest.write import write_recording
+    from care_maps.runtime.execution import Execution
 
     spec = importlib.util.spec_from_file_location(
         "ingest_helpers", ROOT / "tests/ingest/conftest.py"
@@ -86,11 +93,11 @@ def livingroom(shared_data: Path, tmp_path_factory: pytest.TempPathFactory) -> P
 
 class Floor:
     """The store's occupancy as arrays, and the robot's graph over it, built apart from
-    ``query.paths``: passable = seen, not an obstacle, and a float32 distance transform of
+    ``care_maps.query.paths``: passable = seen, not an obstacle, and a float32 distance transform of
     at least the clearance; 8 moves, no corner cut."""
 
     def __init__(self, store: Path, clearance: float = CLEARANCE) -> None:
-        from fuse.layout import GridLayout  # the grid's size and origin, as stored
+        from care_maps.fuse.layout import GridLayout  # the grid's size and origin, as stored
 
         table = pq.read_table(store / "cells.parquet", columns=["ix", "iy", "obstacle"])
         layout = GridLayout.from_table(table)
@@ -313,10 +320,10 @@ def test_one_frame_for_every_coordinate(livingroom: Path) -> None:
 
 
 def test_a_tight_goal_is_flagged_and_passed_over_unless_allowed(sample: Path) -> None:
-    from query import load_map
-    from query.goals import GoalConfig, GoalMaker
-    from query.paths import PathConfig
-    from replan.answer import AnswerGoals, PathState, first_offer
+    from care_maps.query import load_map
+    from care_maps.query.goals import GoalConfig, GoalMaker
+    from care_maps.query.paths import PathConfig
+    from care_maps.replan.answer import AnswerGoals, PathState, first_offer
 
     cmap = load_map(sample, "grid")
     floor = Floor(sample)
@@ -345,8 +352,8 @@ def test_a_tight_goal_is_flagged_and_passed_over_unless_allowed(sample: Path) ->
 def test_the_query_rrd_draws_the_candidates_of_its_goals(sample: Path, tmp_path: Path) -> None:
     from rerun.chunk import RrdReader
 
-    from query import load_map
-    from query.viz import ANSWER_ENTITY
+    from care_maps.query import load_map
+    from care_maps.query.viz import ANSWER_ENTITY
 
     rrd = tmp_path / "q.rrd"
     args = ("query", sample, "chair", "--map", "grid", "--from", FREE_START, "--json")

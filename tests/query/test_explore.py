@@ -15,9 +15,9 @@ import pytest
 from rosbags.typesys import Stores, get_typestore
 from scipy import ndimage
 
-from care.errors import QueryError
-from fuse.layout import GridLayout
-from query.explore import (
+from care_maps.core.errors import QueryError
+from care_maps.fuse.layout import GridLayout
+from care_maps.query.explore import (
     ExploreConfig,
     Uncertainty,
     cell_uncertainty,
@@ -27,10 +27,10 @@ from query.explore import (
     object_cells,
     rank_scores,
 )
-from query.explore_store import camera_pose_stamped
-from query.goals import FreeSpace, Goal
-from query.map import CandidateMap
-from query.paths import Roadmap
+from care_maps.query.explore_store import camera_pose_stamped
+from care_maps.query.goals import FreeSpace, Goal
+from care_maps.query.map import CandidateMap
+from care_maps.query.paths import Roadmap
 
 ROS = get_typestore(Stores.ROS2_HUMBLE)
 CELL = 0.05
@@ -271,9 +271,9 @@ one seen as a chair from half the views and as a table from the others."""
 def _explore_store(path: Path) -> Path:
     """A floor with two boxes seen from 2 m above by six cameras (z-up world), fused; the
     store has no ground truth."""
-    from care.frames import Frame
-    from care.store import EncoderInfo, StoreWriter
-    from fuse.grid import GridConfig, build_grid
+    from care_maps.core.frames import Frame
+    from care_maps.core.store import EncoderInfo, StoreWriter
+    from care_maps.fuse.grid import GridConfig, build_grid
 
     h, w, d = 48, 64, 8
     f = 24.0
@@ -314,7 +314,7 @@ def store(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_care_explore_gives_goals_and_cameras_a_robot_reads(
     store: Path, tmp_path: Path, run_cli
 ) -> None:
-    from care.viz import rrd_entity_counts
+    from care_maps.core.viz import rrd_entity_counts
 
     rrd = tmp_path / "explore.rrd"
     args = ("explore", store, "--views", "2", "--clearance", "0.2", "--min-range", "0.3")
@@ -350,8 +350,8 @@ def test_care_explore_gives_goals_and_cameras_a_robot_reads(
 
 
 def test_care_explore_needs_a_grid(tmp_path: Path, run_cli) -> None:
-    from care.frames import Frame
-    from care.store import EncoderInfo, StoreWriter
+    from care_maps.core.frames import Frame
+    from care_maps.core.store import EncoderInfo, StoreWriter
 
     path = tmp_path / "bare"
     with StoreWriter(path, EncoderInfo("test", "1", 2, ("chair",))) as writer:

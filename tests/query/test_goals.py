@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from care.errors import QueryError
-from fuse.layout import GridLayout
-from query.goals import FreeSpace, Goal, GoalConfig, GoalMaker
-from query.map import CandidateMap
+from care_maps.core.errors import QueryError
+from care_maps.fuse.layout import GridLayout
+from care_maps.query.goals import FreeSpace, Goal, GoalConfig, GoalMaker
+from care_maps.query.map import CandidateMap
 
 CELL = 0.1
 SHAPE = (20, 16)  # nx, ny

@@ -9,10 +9,10 @@ import pyarrow as pa
 import pytest
 from scipy.special import softmax
 
-from care.errors import QueryError, StoreError
-from care.store import TEXT_SCHEMA, write_table_atomic
-from fuse.measures import candidate_columns, candidate_metadata
-from query import confidence, load_map, rank_by_confidence, resolve_text
+from care_maps.core.errors import QueryError, StoreError
+from care_maps.core.store import TEXT_SCHEMA, write_table_atomic
+from care_maps.fuse.measures import candidate_columns, candidate_metadata
+from care_maps.query import confidence, load_map, rank_by_confidence, resolve_text
 
 VOCAB = ["chair", "sofa", "table", "bed", "lamp", "plant"]
 
@@ -123,7 +123,7 @@ def test_text_resolution_reports_the_mapping(tmp_path) -> None:
 
 
 def test_sentence_model_maps_free_text(tmp_path) -> None:
-    sentence = pytest.importorskip("care.encoders.sentence")
+    sentence = pytest.importorskip("care_maps.core.encoders.sentence")
     if sentence.sentence_model().backend != "minilm":
         pytest.skip("all-MiniLM-L6-v2 is not installed (hashed fallback knows no synonyms)")
     _write_store(tmp_path, "instances")

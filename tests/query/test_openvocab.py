@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 from scipy.special import softmax
 
-from care.errors import QueryError
-from query.map import NOT_IN_TOP, CandidateMap
-from query.openvocab import QueryTarget, open_query
-from query.store_text import NoTextSideError
-from query.text import TextMatch
+from care_maps.core.errors import QueryError
+from care_maps.query.map import NOT_IN_TOP, CandidateMap
+from care_maps.query.openvocab import QueryTarget, open_query
+from care_maps.query.store_text import NoTextSideError
+from care_maps.query.text import TextMatch
 
 N, D, NCLS = 300, 12, 7
 

@@ -17,10 +17,10 @@ import pyarrow.parquet as pq
 import pytest
 from scipy.special import logsumexp, softmax
 
-from care.encoders import EncoderOptions, make_encoder
-from care.frames import Frame
-from ingest.write import write_recording
-from query.map import list_column
+from care_maps.core.encoders import EncoderOptions, make_encoder
+from care_maps.core.frames import Frame
+from care_maps.ingest.write import write_recording
+from care_maps.query.map import list_column
 
 pytestmark = pytest.mark.slow
 
@@ -46,7 +46,7 @@ def _frames(n: int = 4) -> list[Frame]:
 
 def _care(*args: str, ok: bool = True) -> subprocess.CompletedProcess:
     done = subprocess.run(
-        [sys.executable, "-m", "care_cli.main", *map(str, args)],
+        [sys.executable, "-m", "care_maps.cli.main", *map(str, args)],
         capture_output=True, text=True, env=OFFLINE,
     )  # fmt: skip
     if ok:
@@ -121,7 +121,7 @@ def test_free_text_joins_the_vocabulary_through_clip(clip_store) -> None:
 
 _IMPORTS_AFTER_QUERY = """
 import sys
-from care_cli.main import main
+from care_maps.cli.main import main
 sys.argv = ["care", "query", *sys.argv[1:]]
 try:
     main()
@@ -149,7 +149,7 @@ def test_free_text_loads_the_text_tower_alone(clip_store) -> None:
     """Free text needs only CLIP's text tower; its embeddings are the whole model's."""
     from transformers import CLIPTextModelWithProjection
 
-    from care.encoders.record import store_text_encoder
+    from care_maps.core.encoders.record import store_text_encoder
 
     store, weights = clip_store
     embed = store_text_encoder(store)

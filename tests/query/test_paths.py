@@ -16,11 +16,11 @@ import pytest
 from rosbags.typesys import Stores, get_typestore
 from scipy import ndimage
 
-from care.errors import QueryError
-from care.keys import GOAL_FRAME_KEY
-from fuse.layout import GridLayout
-from query.goals import FreeSpace, Goal, GoalConfig, GoalMaker
-from query.paths import (
+from care_maps.core.errors import QueryError
+from care_maps.core.keys import GOAL_FRAME_KEY
+from care_maps.fuse.layout import GridLayout
+from care_maps.query.goals import FreeSpace, Goal, GoalConfig, GoalMaker
+from care_maps.query.paths import (
     PathConfig,
     Roadmap,
     nav_path,
@@ -269,9 +269,9 @@ def test_path_settings_are_checked() -> None:
 
 def _fused_store(path: Path) -> Path:
     """A floor with a box, seen from above by three cameras in a z-up world, fused."""
-    from care.frames import Frame
-    from care.store import EncoderInfo, StoreWriter
-    from fuse.grid import GridConfig, build_grid
+    from care_maps.core.frames import Frame
+    from care_maps.core.store import EncoderInfo, StoreWriter
+    from care_maps.fuse.grid import GridConfig, build_grid
 
     h, w, d = 24, 32, 4
     k = np.array([[20.0, 0, 15.5], [0, 20.0, 11.5], [0, 0, 1]])
@@ -294,7 +294,7 @@ def _fused_store(path: Path) -> Path:
 
 
 def test_cli_query_and_replan_give_the_path(tmp_path: Path, run_cli) -> None:
-    from care.store import Store
+    from care_maps.core.store import Store
 
     store = _fused_store(tmp_path / "s")
     args = ("query", store, "chair", "--map", "grid", "--top", "4", "--clearance", "0.2")
@@ -342,7 +342,7 @@ def test_cli_query_and_replan_give_the_path(tmp_path: Path, run_cli) -> None:
 
 
 def _candidates(store: Path):
-    from query import load_map
+    from care_maps.query import load_map
 
     return load_map(store, "grid")
 
@@ -465,8 +465,8 @@ def _strips(rrd: Path) -> dict[str, list]:
 
 
 def test_cli_query_and_replan_draw_each_attempts_way(tmp_path: Path, run_cli) -> None:
-    from care.viz import rrd_entity_counts
-    from query.viz import ANSWER_ENTITY, attempt_entity
+    from care_maps.core.viz import rrd_entity_counts
+    from care_maps.query.viz import ANSWER_ENTITY, attempt_entity
 
     store = _fused_store(tmp_path / "s")
     args = ("--map", "grid", "--clearance", "0.2", "--from", "-0.4,-0.5")

@@ -16,10 +16,10 @@ import pytest
 from rosbags.typesys import Stores, get_typestore
 from scipy.spatial.transform import Rotation
 
-from care.mapframe import MapFrame, map_from_up
-from query.goals import GoalConfig, GoalMaker
-from query.map import CandidateMap
-from query.publish import (
+from care_maps.core.mapframe import MapFrame, map_from_up
+from care_maps.query.goals import GoalConfig, GoalMaker
+from care_maps.query.map import CandidateMap
+from care_maps.query.publish import (
     MAP_FRAME_ID,
     frame_plan,
     map_server_command,
@@ -139,8 +139,8 @@ def test_batch_answers_name_their_goal_frame_and_give_the_world_goal() -> None:
     metadata's transform with a row's goal gives the goal's world-frame pose."""
     import json
 
-    from care.keys import GOAL_FRAME_KEY
-    from replan.batch import BatchConfig, BatchQuery, plan_batch
+    from care_maps.core.keys import GOAL_FRAME_KEY
+    from care_maps.replan.batch import BatchConfig, BatchQuery, plan_batch
 
     maker = GoalMaker(MAP_FRAME_ID, 7, None, GoalConfig(), Y_DOWN.map_from_world, "camera_init")
     cmap = _one_candidate_map((2.0, 1.0, 0.5))

@@ -12,14 +12,14 @@ import pyarrow.parquet as pq
 import pytest
 from scipy.special import logsumexp
 
-from care.errors import StoreError
-from care.store import TEXT_SCHEMA, open_writer, write_table_atomic
-from fuse.measures import candidate_columns, candidate_metadata
-from fuse.sidecar import SidecarWriter, sidecar_path
-from query import load_map
-from query.confidence import log_confidence
-from query.map import map_from_table
-from replan.attempts import available_after, next_goal
+from care_maps.core.errors import StoreError
+from care_maps.core.store import TEXT_SCHEMA, open_writer, write_table_atomic
+from care_maps.fuse.measures import candidate_columns, candidate_metadata
+from care_maps.fuse.sidecar import SidecarWriter, sidecar_path
+from care_maps.query import load_map
+from care_maps.query.confidence import log_confidence
+from care_maps.query.map import map_from_table
+from care_maps.replan.attempts import available_after, next_goal
 
 VOCAB = ["chair", "sofa", "table", "bed", "lamp"]
 CELL = 0.05
@@ -125,7 +125,7 @@ def test_replan_after_failures_matches_the_pass_over_every_cell(tmp_path) -> Non
         for v in visited:
             available = available_after(available, np.array([v]), cmap.positions, 1.0)
         if visited:
-            from replan.strategies import STRATEGIES, Situation, candidate_set
+            from care_maps.replan.strategies import STRATEGIES, Situation, candidate_set
 
             cset = candidate_set("confidence", conf, available, 4)
             columns = {"stderr": cmap.stderr, "entropy": cmap.entropy, "pwkl": cmap.pwkl}

@@ -1,4 +1,4 @@
-"""The answer recording (``query.viz``): a way per reachable attempt, in the colour of its
+"""The answer recording (``care_maps.query.viz``): a way per reachable attempt, in the colour of its
 order; an unreachable or already visited attempt's goal says so; no paths, no ways."""
 
 from __future__ import annotations
@@ -7,10 +7,16 @@ from pathlib import Path
 
 import numpy as np
 
-from care.viz import rrd_entity_counts
-from query.goals import Goal
-from query.paths import Leg
-from query.viz import ANSWER_ENTITY, ATTEMPT_COLOURS, Answer, attempt_entity, write_answer_rrd
+from care_maps.core.viz import rrd_entity_counts
+from care_maps.query.goals import Goal
+from care_maps.query.paths import Leg
+from care_maps.query.viz import (
+    ANSWER_ENTITY,
+    ATTEMPT_COLOURS,
+    Answer,
+    attempt_entity,
+    write_answer_rrd,
+)
 
 
 def _goal(candidate: int, x: float, y: float) -> Goal:

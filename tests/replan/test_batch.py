@@ -10,12 +10,12 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from care.encoders.sentence import sentence_model
-from care.errors import ReplanError
-from query.map import CandidateMap
-from replan import STRATEGIES
-from replan.attempts import next_goal
-from replan.batch import RANKING, BatchConfig, BatchQuery, plan_batch, read_queries
+from care_maps.core.encoders.sentence import sentence_model
+from care_maps.core.errors import ReplanError
+from care_maps.query.map import CandidateMap
+from care_maps.replan import STRATEGIES
+from care_maps.replan.attempts import next_goal
+from care_maps.replan.batch import RANKING, BatchConfig, BatchQuery, plan_batch, read_queries
 
 NAMES = ("chair", "sofa", "bed", "table", "lamp", "sink", "toilet", "tv", "plant", "cabinet")
 N = 300

@@ -7,10 +7,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from care.errors import QueryError, ReplanError
-from query.map import CandidateMap
-from replan import STRATEGIES, Situation, candidate_set, expected_random_success, run_attempts
-from replan.attempts import available_after, next_goal
+from care_maps.core.errors import QueryError, ReplanError
+from care_maps.query.map import CandidateMap
+from care_maps.replan import (
+    STRATEGIES,
+    Situation,
+    candidate_set,
+    expected_random_success,
+    run_attempts,
+)
+from care_maps.replan.attempts import available_after, next_goal
 
 # candidate:      0     1     2     3     4     5
 CONF = np.array([[0.40, 0.20, 0.20, 0.10, 0.06, 0.04]])
@@ -265,7 +271,7 @@ def _best_reference(values, mask, conf, maximise):
 @pytest.mark.parametrize("maximise", [True, False])
 @pytest.mark.parametrize("per_query", [False, True])  # a measure column, or (Q, N) values
 def test_best_of_sparse_and_dense_paths_match_a_loop(density, maximise, per_query) -> None:
-    from replan.strategies import best_of
+    from care_maps.replan.strategies import best_of
 
     rng = np.random.default_rng(3)
     n_q, n_c = 40, 300
@@ -314,7 +320,7 @@ def test_expected_random_success_is_the_hypergeometric_tail(attempts: int) -> No
 
 
 def test_mismatched_episode_inputs_are_one_clear_error() -> None:
-    from replan.attempts import run_attempts
+    from care_maps.replan.attempts import run_attempts
 
     conf = np.array([[0.5, 0.3, 0.2]])
     with pytest.raises(ReplanError, match=r"success \(1, 2\)"):
@@ -327,7 +333,7 @@ def test_mismatched_episode_inputs_are_one_clear_error() -> None:
 def test_visited_positions_count_the_candidates_around_them(kind: str) -> None:
     from scipy.spatial import cKDTree
 
-    from replan.attempts import candidates_near
+    from care_maps.replan.attempts import candidates_near
 
     cmap = _tiny_map(kind)
     places = np.array([[0.3, 0.5], [8.5, 0.2]])

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from research.dataset_stats import first_attempt_rates
-from research.explore import sign_flip_p
-from research.sweep import SWEEP_KNOBS, SweepConfig, settings_of, sweep_settings
+from care_maps.research.dataset_stats import first_attempt_rates
+from care_maps.research.explore import sign_flip_p
+from care_maps.research.sweep import SWEEP_KNOBS, SweepConfig, settings_of, sweep_settings
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -61,13 +61,13 @@ def test_first_attempt_rates_keep_no_replan_and_put_the_grid_last() -> None:
 
 @pytest.mark.parametrize("name", ["sweep", "reproduce", "perception_breakdown", "explore"])
 def test_scripts_and_modules_share_one_command_line(name: str) -> None:
-    """``scripts/<name>.py`` is an entry point of ``research.<name>``: both print one help."""
+    """``scripts/<name>.py`` is an entry point of ``care_maps.research.<name>``: both print one help."""
     script = subprocess.run(
         [sys.executable, str(ROOT / "scripts" / f"{name}.py"), "--help"],
         capture_output=True, text=True, check=True, cwd=ROOT,
     )  # fmt: skip
     module = subprocess.run(
-        [sys.executable, "-m", f"research.{name}", "--help"],
+        [sys.executable, "-m", f"care_maps.research.{name}", "--help"],
         capture_output=True, text=True, check=True, cwd=ROOT,
     )  # fmt: skip
     # past the usage lines, which name the program as it was started
@@ -86,7 +86,7 @@ def test_sign_flip_p_enumerates_every_sign_pattern() -> None:
 @pytest.mark.slow
 def test_the_explore_experiment_runs_end_to_end_at_a_tiny_size(tmp_path: Path) -> None:
     """One room at 48x36 with two new views: every condition is made, fused and compared."""
-    from research.explore import Condition, ExperimentConfig, run_experiment
+    from care_maps.research.explore import Condition, ExperimentConfig, run_experiment
 
     config = ExperimentConfig(scenes=1, views=2, width=48, height=36, rooms=1)
     report = run_experiment(tmp_path, config)

@@ -1,5 +1,5 @@
-"""How a run executes is one :class:`runtime.execution.Execution`, and its runner is made in
-one place (:meth:`runtime.parallel.Runner.of`)."""
+"""How a run executes is one :class:`care_maps.runtime.execution.Execution`, and its runner is made in
+one place (:meth:`care_maps.runtime.parallel.Runner.of`)."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import os
 
 import pytest
 
-from care.errors import CareError
-from runtime.execution import Backend, Execution
-from runtime.parallel import Runner, open_runner
+from care_maps.core.errors import CareError
+from care_maps.runtime.execution import Backend, Execution
+from care_maps.runtime.parallel import Runner, open_runner
 
 
 def test_settings_are_checked() -> None:

@@ -11,7 +11,7 @@ import numba
 import numpy as np
 import pytest
 
-from runtime.jit import kernel
+from care_maps.runtime.jit import kernel
 
 SOURCE = """
 def double_all(values):
@@ -35,7 +35,7 @@ def test_a_kernel_without_a_cache_location_still_compiles() -> None:
 
 MODULE = """
 import numpy as np
-from runtime.jit import kernel
+from care_maps.runtime.jit import kernel
 
 
 @kernel

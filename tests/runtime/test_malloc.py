@@ -11,7 +11,7 @@ _PROBE = """
 import resource, sys
 import numpy as np
 if sys.argv[1] == "keep":
-    from runtime.malloc import keep_freed_memory
+    from care_maps.runtime.malloc import keep_freed_memory
     assert keep_freed_memory()
 np.ones(1 << 20).sum()  # warm up numpy's own buffers
 before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt

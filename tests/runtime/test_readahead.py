@@ -7,7 +7,7 @@ import time
 
 import pytest
 
-from runtime.readahead import read_ahead
+from care_maps.runtime.readahead import read_ahead
 
 
 def _threads() -> set[str]:

@@ -1,4 +1,4 @@
-"""runtime.threads sets torch's, BLAS's and Arrow's pools in a fresh worker process, as every
+"""care_maps.runtime.threads sets torch's, BLAS's and Arrow's pools in a fresh worker process, as every
 entry point does."""
 
 from __future__ import annotations
@@ -7,8 +7,8 @@ import multiprocessing as mp
 
 import pytest
 
-from care.errors import CareError
-from runtime.threads import PINNED, THREADS, Work, thread_count
+from care_maps.core.errors import CareError
+from care_maps.runtime.threads import PINNED, THREADS, Work, thread_count
 
 
 def _pools_in_worker(kind: str, queue) -> None:  # runs in a spawned process
@@ -17,7 +17,7 @@ def _pools_in_worker(kind: str, queue) -> None:  # runs in a spawned process
     import torch
     from threadpoolctl import threadpool_info
 
-    from runtime.threads import Work, threads_for, use_threads
+    from care_maps.runtime.threads import Work, threads_for, use_threads
 
     np.ones((64, 64)) @ np.ones((64, 64))  # BLAS loaded and used before
     set_to = use_threads(Work(kind))
@@ -83,12 +83,12 @@ def test_stage_functions_run_on_their_own_pools(monkeypatch: pytest.MonkeyPatch,
     import torch
     from threadpoolctl import threadpool_info, threadpool_limits
 
-    import fuse.api
-    import fuse.build
-    import ingest.api
-    import ingest.pipeline
-    from fuse.config import GridConfig, InstanceConfig
-    from ingest.pipeline import IngestConfig
+    import care_maps.fuse.api
+    import care_maps.fuse.build
+    import care_maps.ingest.api
+    import care_maps.ingest.pipeline
+    from care_maps.fuse.config import GridConfig, InstanceConfig
+    from care_maps.ingest.pipeline import IngestConfig
 
     seen: dict[str, tuple[int, list[int]]] = {}
 
@@ -100,16 +100,16 @@ def test_stage_functions_run_on_their_own_pools(monkeypatch: pytest.MonkeyPatch,
         return record
 
     calls = iter(("grid", "instances"))
-    monkeypatch.setattr(fuse.build, "_build_map", lambda *a: spy(next(calls))())
-    monkeypatch.setattr(ingest.pipeline, "_run_ingest", spy("ingest"))
-    monkeypatch.setattr(ingest.api, "Store", lambda path: path)  # nothing was written
+    monkeypatch.setattr(care_maps.fuse.build, "_build_map", lambda *a: spy(next(calls))())
+    monkeypatch.setattr(care_maps.ingest.pipeline, "_run_ingest", spy("ingest"))
+    monkeypatch.setattr(care_maps.ingest.api, "Store", lambda path: path)  # nothing was written
     before = torch.get_num_threads()
     torch.set_num_threads(2)
     try:
         with threadpool_limits(2):
-            fuse.api.fuse_grid(tmp_path, GridConfig())
-            fuse.api.fuse_instances(tmp_path, InstanceConfig())
-            ingest.api.ingest(tmp_path / "rec", tmp_path, IngestConfig())
+            care_maps.fuse.api.fuse_grid(tmp_path, GridConfig())
+            care_maps.fuse.api.fuse_instances(tmp_path, InstanceConfig())
+            care_maps.ingest.api.ingest(tmp_path / "rec", tmp_path, IngestConfig())
             assert torch.get_num_threads() == 2  # given back
     finally:
         torch.set_num_threads(before)

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from matplotlib.path import Path as MplPath
 
-from care.errors import WorldError
-from truth.formats.native import gt_paths, read_native, write_native
-from truth.model import GroundTruth, Room, instances_table
+from care_maps.core.errors import WorldError
+from care_maps.truth.formats.native import gt_paths, read_native, write_native
+from care_maps.truth.model import GroundTruth, Room, instances_table
 
 
 def _gt() -> GroundTruth:

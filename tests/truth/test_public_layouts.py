@@ -14,9 +14,9 @@ import open3d as o3d
 import pytest
 from plyfile import PlyData, PlyElement
 
-from care.errors import GroundTruthError
-from truth.geometry import box_floor_distance, points_in_box, yaw_rotation
-from truth.load import GtFormat, detect_format, read_class_map, read_ground_truth
+from care_maps.core.errors import GroundTruthError
+from care_maps.truth.geometry import box_floor_distance, points_in_box, yaw_rotation
+from care_maps.truth.load import GtFormat, detect_format, read_class_map, read_ground_truth
 
 LABELS = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "labels"
 
@@ -325,7 +325,7 @@ def test_box_membership_and_floor_distance_against_brute_force() -> None:
 
 
 def test_transform_from_numbers_npy_and_scannet_axis_alignment(tmp_path: Path) -> None:
-    from truth.load import parse_transform
+    from care_maps.truth.load import parse_transform
 
     m = np.arange(16, dtype=float).reshape(4, 4)
     np.testing.assert_array_equal(parse_transform(",".join(map(str, m.ravel()))), m)
@@ -343,7 +343,7 @@ def test_transform_from_numbers_npy_and_scannet_axis_alignment(tmp_path: Path) -
 
 
 def test_points_in_nested_boxes_go_to_the_smallest() -> None:
-    from truth.geometry import label_points_by_boxes
+    from care_maps.truth.geometry import label_points_by_boxes
 
     rng = np.random.default_rng(3)
     pts = rng.uniform(-1, 3, (5000, 3))

@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from world.record import make_recording
-from world.render import RenderConfig
-from world.scene import SceneConfig
+from care_maps.world.record import make_recording
+from care_maps.world.render import RenderConfig
+from care_maps.world.scene import SceneConfig
 
 TINY = SceneConfig(
     seed=11, num_rooms=2, point_density_objects=4000.0, point_density_structure=4000.0
@@ -33,8 +33,8 @@ def tiny_recordings(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]
 @pytest.fixture(scope="session")
 def tiny_scene():
     """The scene behind :func:`tiny_recordings` and the poses it was rendered from."""
-    from world.scene import generate_scene
-    from world.trajectory import plan_trajectory
+    from care_maps.world.scene import generate_scene
+    from care_maps.world.trajectory import plan_trajectory
 
     scene = generate_scene(TINY)
     return scene, plan_trajectory(scene, TINY_FRAMES)

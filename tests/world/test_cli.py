@@ -8,9 +8,9 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from care.viz import rrd_entity_counts
-from care_cli.main import _register, app
-from truth.formats.native import read_native
+from care_maps.cli.main import _register, app
+from care_maps.core.viz import rrd_entity_counts
+from care_maps.truth.formats.native import read_native
 
 pytestmark = pytest.mark.slow
 
@@ -65,7 +65,7 @@ def test_bad_options_are_one_line_errors(tmp_path: Path) -> None:
             [
                 sys.executable,
                 "-m",
-                "care_cli.main",
+                "care_maps.cli.main",
                 "sample",
                 "make",
                 "--out",
@@ -87,7 +87,7 @@ def test_make_exports_the_ground_truth_in_every_format(tmp_path: Path) -> None:
     classes and (where it keeps points) the very same labelled points."""
     import numpy as np
 
-    from truth.load import read_ground_truth
+    from care_maps.truth.load import read_ground_truth
 
     out = tmp_path / "ds"
     result = _make(out, "--gt-formats", "all")

@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from care.encoders import EncoderOptions
-from care.frames import Frame
-from world.perception.encoder import LabelsEncoder
-from world.perception.model import PerceptionModel
-from world.presets import PRESETS, WorldPreset
+from care_maps.core.encoders import EncoderOptions
+from care_maps.core.frames import Frame
+from care_maps.world.perception.encoder import LabelsEncoder
+from care_maps.world.perception.model import PerceptionModel
+from care_maps.world.presets import PRESETS, WorldPreset
 
 NAMES = (
     "void", "wall", "floor", "table", "chair", "sofa", "bed", "tv", "lamp", "plant", "toilet",
@@ -66,7 +66,7 @@ def direct_digest(model: PerceptionModel) -> str:
 
 
 def _minilm() -> None:
-    from care.encoders.sentence import SentenceBackend, sentence_model
+    from care_maps.core.encoders.sentence import SentenceBackend, sentence_model
 
     if sentence_model(SentenceBackend.AUTO).backend != SentenceBackend.MINILM:
         pytest.skip("all-MiniLM-L6-v2 is not installed: the CLIP-like model is set for it")
@@ -82,7 +82,7 @@ def test_direct_model_encodes_as_before(preset: str) -> None:
 
 
 def test_clip_knobs_do_not_touch_the_direct_model() -> None:
-    from world.perception.model import SimilarityModel
+    from care_maps.world.perception.model import SimilarityModel
 
     model = PRESETS[WorldPreset.MATTERPORT_LIKE].perception
     assert model.similarity_model is SimilarityModel.DIRECT
@@ -91,7 +91,7 @@ def test_clip_knobs_do_not_touch_the_direct_model() -> None:
 
 
 def test_matterport_clip_is_matterport_like_with_clip_like_similarities() -> None:
-    from world.perception.model import CLIP_LIKE_KNOBS, SimilarityModel
+    from care_maps.world.perception.model import CLIP_LIKE_KNOBS, SimilarityModel
 
     like, clip = PRESETS[WorldPreset.MATTERPORT_LIKE], PRESETS[WorldPreset.MATTERPORT_CLIP]
     assert clip.perception.similarity_model is SimilarityModel.CLIP_LIKE
@@ -105,9 +105,9 @@ def test_matterport_clip_is_matterport_like_with_clip_like_similarities() -> Non
 
 
 def test_similarity_model_knob_parses_and_refuses_unknown_names() -> None:
-    from care.errors import WorldError
-    from world.perception.model import SimilarityModel
-    from world.presets import with_sets
+    from care_maps.core.errors import WorldError
+    from care_maps.world.perception.model import SimilarityModel
+    from care_maps.world.presets import with_sets
 
     out = with_sets(PRESETS[WorldPreset.DEFAULT], ["similarity_model=clip_like"])
     assert out.perception.similarity_model is SimilarityModel.CLIP_LIKE
@@ -151,9 +151,9 @@ def test_clip_like_segment_features_sit_far_from_the_texts() -> None:
 @pytest.fixture(scope="module")
 def clip_recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A small matterport-clip recording (two rooms, 24 views of 160 x 120)."""
-    from world.record import make_recording
-    from world.render import RenderConfig
-    from world.scene import SceneConfig
+    from care_maps.world.record import make_recording
+    from care_maps.world.render import RenderConfig
+    from care_maps.world.scene import SceneConfig
 
     world = PRESETS[WorldPreset.MATTERPORT_CLIP]
     path = tmp_path_factory.mktemp("clip") / "scene.mcap"
@@ -168,7 +168,12 @@ def clip_recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_matterport_clip_statistics_fall_in_the_target_ranges(clip_recording: Path) -> None:
-    from world.perception.likeness import TARGETS, likeness_table, measure_recording, off_target
+    from care_maps.world.perception.likeness import (
+        TARGETS,
+        likeness_table,
+        measure_recording,
+        off_target,
+    )
 
     _minilm()
     measured = measure_recording(clip_recording, views=24)
@@ -178,7 +183,7 @@ def test_matterport_clip_statistics_fall_in_the_target_ranges(clip_recording: Pa
 
 
 def test_the_direct_model_misses_them_as_the_review_found(clip_recording: Path) -> None:
-    from world.perception.likeness import measure_recording, off_target
+    from care_maps.world.perception.likeness import measure_recording, off_target
 
     _minilm()
     direct = measure_recording(
@@ -194,9 +199,9 @@ def test_confusions_follow_text_similarity(clip_recording: Path) -> None:
     classes rank like their text similarities to the true class (scipy's spearmanr)."""
     from scipy.stats import spearmanr
 
-    from care.encoders import RecordingContext, make_encoder
-    from care.vocab import STRUCTURE_NAMES
-    from ingest.source import RecordingFrames
+    from care_maps.core.encoders import RecordingContext, make_encoder
+    from care_maps.core.vocab import STRUCTURE_NAMES
+    from care_maps.ingest.source import RecordingFrames
 
     _minilm()
     with RecordingFrames(clip_recording) as reader:

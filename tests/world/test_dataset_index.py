@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from care.errors import WorldError
-from evaluate.pipeline import recordings_of
-from truth.dataset_index import IndexEntry, read_index
+from care_maps.core.errors import WorldError
+from care_maps.evaluate.pipeline import recordings_of
+from care_maps.truth.dataset_index import IndexEntry, read_index
 
 
 def test_every_listed_recording_counts_skipped_or_not(tmp_path: Path) -> None:

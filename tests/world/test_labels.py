@@ -8,12 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from care.encoders import EncoderOptions, RecordingContext, make_encoder
-from care.encoders.sentence import SentenceModel, hashed_embedding
-from care.errors import EncoderError
-from care.frames import Frame
-from world.perception.encoder import LabelsEncoder
-from world.perception.model import PerceptionModel
+from care_maps.core.encoders import EncoderOptions, RecordingContext, make_encoder
+from care_maps.core.encoders.sentence import SentenceModel, hashed_embedding
+from care_maps.core.errors import EncoderError
+from care_maps.core.frames import Frame
+from care_maps.world.perception.encoder import LabelsEncoder
+from care_maps.world.perception.model import PerceptionModel
 
 NAMES = (
     "void", "wall", "floor", "table", "chair", "sofa", "bed", "tv", "lamp", "plant", "toilet",
@@ -194,10 +194,10 @@ def test_ingest_of_a_real_mcap_with_the_labels_encoder(
 ) -> None:
     """Through the real writer and ingest: features and cached text land in the store, and
     the store's features read back perfectly under ``ideal``."""
-    from care.store import Store
-    from ingest.pipeline import IngestConfig, run_ingest
-    from ingest.write import write_recording
-    from runtime.execution import Execution
+    from care_maps.core.store import Store
+    from care_maps.ingest.pipeline import IngestConfig, run_ingest
+    from care_maps.ingest.write import write_recording
+    from care_maps.runtime.execution import Execution
 
     frames = _views(3)
     rec = write_recording(tmp_path / "s.mcap", frames, fmt="mcap", label_names=NAMES)
@@ -224,7 +224,7 @@ def test_ingest_of_a_real_mcap_with_the_labels_encoder(
         assert top1 == {k + 1: 3 + k for k in range(12)}
 
 
-SAMPLE = Path(__file__).resolve().parents[2] / "data" / "sample" / "scene_000.mcap"
+SAMPLE = Path(__file__).resolve().parents[2] / "care_maps" / "data" / "sample" / "scene_000.mcap"
 
 
 @pytest.mark.slow
@@ -234,8 +234,8 @@ def test_on_the_bundled_sample_ideal_is_perfect_and_default_errs_both_ways() -> 
     of every visible instance (pooled over its mask) is its true class in every view; under
     ``default`` some instances are wrong after fusing all their views, some through the
     persistent bias and some (unbiased) through view-dependent noise."""
-    from ingest.source import RecordingFrames
-    from truth.formats.native import read_native
+    from care_maps.ingest.source import RecordingFrames
+    from care_maps.truth.formats.native import read_native
 
     truth = read_native(SAMPLE).instance_class_names()
     with RecordingFrames(SAMPLE) as rec:

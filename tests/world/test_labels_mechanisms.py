@@ -7,10 +7,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from care.encoders.base import EncoderOptions
-from care.errors import EncoderError
-from world.perception.encoder import LabelsEncoder
-from world.perception.model import PerceptionModel, perception_model
+from care_maps.core.encoders.base import EncoderOptions
+from care_maps.core.errors import EncoderError
+from care_maps.world.perception.encoder import LabelsEncoder
+from care_maps.world.perception.model import PerceptionModel, perception_model
 
 NAMES = ("void", "wall", "floor", "ceiling", "bed", "pillow", "table", "cup", "chair", "sofa")
 

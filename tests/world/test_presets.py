@@ -10,10 +10,10 @@ from pathlib import Path
 
 import pytest
 
-from care.errors import WorldError
-from world.matterport_catalogue import MATTERPORT_CATALOGUE
-from world.presets import PRESETS, WorldPreset, WorldSettings, with_sets
-from world.scene import Catalogue, SceneConfig, generate_scene
+from care_maps.core.errors import WorldError
+from care_maps.world.matterport_catalogue import MATTERPORT_CATALOGUE
+from care_maps.world.presets import PRESETS, WorldPreset, WorldSettings, with_sets
+from care_maps.world.scene import Catalogue, SceneConfig, generate_scene
 
 MAPPING = (
     Path(__file__).resolve().parents[2] / "../shared/data/labels/matterport_category_mapping.tsv"
@@ -102,7 +102,7 @@ def test_dataset_records_preset_statistics_and_perception(run_cli, tmp_path: Pat
     assert f"{stats['instances']} instances" in stdout
     assert gt["info"]["perception"]["bias_noise_scale"] == 0.7
 
-    from world.perception.model import perception_model, recorded_perception
+    from care_maps.world.perception.model import perception_model, recorded_perception
 
     record = recorded_perception(out / "scene_000.mcap")
     model, from_record = perception_model("default", record["perception"])

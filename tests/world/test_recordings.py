@@ -10,11 +10,11 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from geometry.transforms import backproject, transform_points
-from ingest.source import RecordingFrames
-from truth.formats.native import read_native
-from world.scene import NAV_CELL
-from world.trajectory import plan_trajectory
+from care_maps.geometry.transforms import backproject, transform_points
+from care_maps.ingest.source import RecordingFrames
+from care_maps.truth.formats.native import read_native
+from care_maps.world.scene import NAV_CELL
+from care_maps.world.trajectory import plan_trajectory
 
 
 def _read(path: Path) -> list:

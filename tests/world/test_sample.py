@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from truth.formats.native import read_native
+from care_maps.truth.formats.native import read_native
 
 ROOT = Path(__file__).resolve().parents[2]
-SAMPLE = ROOT / "data" / "sample" / "scene_000.mcap"
+SAMPLE = ROOT / "care_maps" / "data" / "sample" / "scene_000.mcap"
 
 
 def test_sample_is_small_and_has_ground_truth() -> None:
@@ -28,7 +28,7 @@ def test_sample_is_small_and_has_ground_truth() -> None:
 
 
 def test_readme_command_matches_how_the_sample_was_made() -> None:
-    readme = (ROOT / "data" / "README.md").read_text()
+    readme = (ROOT / "care_maps" / "data" / "README.md").read_text()
     line = next(ln for ln in readme.splitlines() if ln.startswith("care sample make"))
     args = shlex.split(line)
     flag = {args[i]: args[i + 1] for i in range(3, len(args) - 1) if args[i].startswith("--")}
@@ -56,8 +56,8 @@ def test_rerun_reads_the_sample_mcap() -> None:
 
 
 def test_sample_ingests_and_lands_on_ground_truth() -> None:
-    from geometry.transforms import backproject, transform_points
-    from ingest.source import RecordingFrames
+    from care_maps.geometry.transforms import backproject, transform_points
+    from care_maps.ingest.source import RecordingFrames
 
     gt = read_native(SAMPLE)
     with RecordingFrames(SAMPLE) as frames:
@@ -73,9 +73,9 @@ def test_sample_ingests_and_lands_on_ground_truth() -> None:
 
 @pytest.mark.slow
 def test_readme_command_regenerates_the_sample_byte_for_byte(tmp_path: Path) -> None:
-    from world.record import DatasetConfig, make_dataset
+    from care_maps.world.record import DatasetConfig, make_dataset
 
-    readme = (ROOT / "data" / "README.md").read_text()
+    readme = (ROOT / "care_maps" / "data" / "README.md").read_text()
     args = shlex.split(next(ln for ln in readme.splitlines() if ln.startswith("care sample make")))
     flag = {args[i]: args[i + 1] for i in range(3, len(args) - 1) if args[i].startswith("--")}
     make_dataset(

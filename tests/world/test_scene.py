@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from care.errors import WorldError
-from truth.formats.native import write_native
-from world.catalogue import CATALOGUE, CLASS_NAMES, ROOM_TYPES
-from world.meshes import part_mesh
-from world.scene import SceneConfig, generate_scene
+from care_maps.core.errors import WorldError
+from care_maps.truth.formats.native import write_native
+from care_maps.world.catalogue import CATALOGUE, CLASS_NAMES, ROOM_TYPES
+from care_maps.world.meshes import part_mesh
+from care_maps.world.scene import SceneConfig, generate_scene
 
 SEEDS = (0, 1, 2, 3)
 

@@ -38,7 +38,7 @@ import pytest
 from PIL import Image
 from scipy.spatial.transform import Rotation, Slerp
 
-from care.frames import Frame
+from care_maps.core.frames import Frame
 
 TUM_EPOCH = 1305031102.0
 """Seconds: where the TUM layout's clock starts (the epoch of freiburg1_xyz's first stamp)."""

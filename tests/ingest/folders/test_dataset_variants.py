@@ -8,12 +8,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ingest.folders import LAYOUTS, DatasetLayout, detect_layout
-from ingest.folders.bonn import CAMERA_IN_MARKER, BonnLayout
-from ingest.folders.eth3d import Eth3dLayout
-from ingest.folders.frames import FolderFrames
-from ingest.folders.sevenscenes import SevenScenesLayout
-from ingest.source import ReadOptions
+from care_maps.ingest.folders import LAYOUTS, DatasetLayout, detect_layout
+from care_maps.ingest.folders.bonn import CAMERA_IN_MARKER, BonnLayout
+from care_maps.ingest.folders.eth3d import Eth3dLayout
+from care_maps.ingest.folders.frames import FolderFrames
+from care_maps.ingest.folders.sevenscenes import SevenScenesLayout
+from care_maps.ingest.source import ReadOptions
 
 
 @pytest.fixture

@@ -11,14 +11,14 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from care.errors import IngestError
-from evaluate.pipeline import recordings_of
-from ingest.folders import DatasetLayout, detect_layout
-from ingest.folders.frames import FolderFrames
-from ingest.folders.generic import read_intrinsics_json
-from ingest.readers import is_recording, recordings_in
-from ingest.source import ReadOptions
-from ingest.write import write_recording
+from care_maps.core.errors import IngestError
+from care_maps.evaluate.pipeline import recordings_of
+from care_maps.ingest.folders import DatasetLayout, detect_layout
+from care_maps.ingest.folders.frames import FolderFrames
+from care_maps.ingest.folders.generic import read_intrinsics_json
+from care_maps.ingest.readers import is_recording, recordings_in
+from care_maps.ingest.source import ReadOptions
+from care_maps.ingest.write import write_recording
 
 
 @pytest.fixture

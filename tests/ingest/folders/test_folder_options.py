@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from care.errors import IngestError
-from ingest.folders.frames import FOLDER_OPTIONS, FolderFrames, folder_identity
-from ingest.intrinsics import CameraIntrinsics
-from ingest.source import ReadOptions
+from care_maps.core.errors import IngestError
+from care_maps.ingest.folders.frames import FOLDER_OPTIONS, FolderFrames, folder_identity
+from care_maps.ingest.intrinsics import CameraIntrinsics
+from care_maps.ingest.source import ReadOptions
 
 OPTICAL_IN_BODY = np.array(
     [[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]]

@@ -15,13 +15,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from care.errors import IngestError
-from care.store import read_table
-from fuse.grid import GridConfig, build_grid
-from ingest.pipeline import IngestConfig, run_ingest
-from ingest.source import ReadOptions
-from ingest.write import write_recording
-from runtime.execution import Execution
+from care_maps.core.errors import IngestError
+from care_maps.core.store import read_table
+from care_maps.fuse.grid import GridConfig, build_grid
+from care_maps.ingest.pipeline import IngestConfig, run_ingest
+from care_maps.ingest.source import ReadOptions
+from care_maps.ingest.write import write_recording
+from care_maps.runtime.execution import Execution
 
 QUIET = Execution(progress=False)
 CELL = 0.05

@@ -14,17 +14,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from care.store import Store, read_table
-from fuse.grid import GridConfig, build_grid
-from ingest.folders import LAYOUTS as ALL_LAYOUTS
-from ingest.folders import DatasetLayout, detect_layout
-from ingest.folders.base import FolderOptions
-from ingest.folders.frames import FolderFrames, open_frames
-from ingest.folders.tum import TumLayout
-from ingest.pipeline import IngestConfig, run_ingest
-from ingest.source import ReadOptions
-from ingest.write import write_recording
-from runtime.execution import Execution
+from care_maps.core.store import Store, read_table
+from care_maps.fuse.grid import GridConfig, build_grid
+from care_maps.ingest.folders import LAYOUTS as ALL_LAYOUTS
+from care_maps.ingest.folders import DatasetLayout, detect_layout
+from care_maps.ingest.folders.base import FolderOptions
+from care_maps.ingest.folders.frames import FolderFrames, open_frames
+from care_maps.ingest.folders.tum import TumLayout
+from care_maps.ingest.pipeline import IngestConfig, run_ingest
+from care_maps.ingest.source import ReadOptions
+from care_maps.ingest.write import write_recording
+from care_maps.runtime.execution import Execution
 
 QUIET = Execution(progress=False)
 PRIMESENSE = FolderOptions.of(ReadOptions(intrinsics="primesense"))
@@ -215,7 +215,7 @@ def test_care_run_maps_a_dataset_folder(
     their own tests. Folders of scene folders: ``test_folder_errors``."""
     import json
 
-    from care.frames import Frame
+    from care_maps.core.frames import Frame
 
     small = []
     for f in livingroom40[::5]:  # 8 frames at a quarter resolution

@@ -21,20 +21,20 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from care.errors import IngestError
-from care.frames import Frame
-from care.store import Store, read_table
-from evaluate.groundtruth import GtSource, gt_files
-from fuse.grid import GridConfig, build_grid
-from ingest.folders import LAYOUTS
-from ingest.folders.base import DatasetLayout
-from ingest.folders.matterport import MatterportLayout
-from ingest.pipeline import IngestConfig, run_ingest
-from ingest.write import write_recording
-from runtime.execution import Execution
-from truth.formats.common import from_labelled_points
-from truth.formats.matterport import write_matterport
-from truth.load import GtFormat
+from care_maps.core.errors import IngestError
+from care_maps.core.frames import Frame
+from care_maps.core.store import Store, read_table
+from care_maps.evaluate.groundtruth import GtSource, gt_files
+from care_maps.fuse.grid import GridConfig, build_grid
+from care_maps.ingest.folders import LAYOUTS
+from care_maps.ingest.folders.base import DatasetLayout
+from care_maps.ingest.folders.matterport import MatterportLayout
+from care_maps.ingest.pipeline import IngestConfig, run_ingest
+from care_maps.ingest.write import write_recording
+from care_maps.runtime.execution import Execution
+from care_maps.truth.formats.common import from_labelled_points
+from care_maps.truth.formats.matterport import write_matterport
+from care_maps.truth.load import GtFormat
 
 HOUSE = "17DRP5sb8fy"
 COLOUR, DEPTH, CAMERAS = (

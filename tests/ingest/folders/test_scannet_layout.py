@@ -20,19 +20,19 @@ import pytest
 from PIL import Image
 from scipy.ndimage import shift as shift_image
 
-from care.errors import IngestError
-from care.frames import Frame
-from care.store import Store, read_table
-from evaluate.groundtruth import GtSource, gt_files
-from fuse.grid import GridConfig, build_grid
-from ingest.folders import LAYOUTS
-from ingest.folders.base import DatasetLayout
-from ingest.folders.frames import FolderFrames
-from ingest.folders.scannet import ScanNetLayout, colour_in_depth_camera
-from ingest.pipeline import IngestConfig, run_ingest
-from ingest.write import write_recording
-from runtime.execution import Execution
-from truth.load import GtFormat
+from care_maps.core.errors import IngestError
+from care_maps.core.frames import Frame
+from care_maps.core.store import Store, read_table
+from care_maps.evaluate.groundtruth import GtSource, gt_files
+from care_maps.fuse.grid import GridConfig, build_grid
+from care_maps.ingest.folders import LAYOUTS
+from care_maps.ingest.folders.base import DatasetLayout
+from care_maps.ingest.folders.frames import FolderFrames
+from care_maps.ingest.folders.scannet import ScanNetLayout, colour_in_depth_camera
+from care_maps.ingest.pipeline import IngestConfig, run_ingest
+from care_maps.ingest.write import write_recording
+from care_maps.runtime.execution import Execution
+from care_maps.truth.load import GtFormat
 
 SCENE = "scene0000_00"
 COLOUR_SIZE = (1296, 968)

@@ -1,0 +1,72 @@
+"""What every stage's frozen config dataclass shares: its field docs, its JSON form, and
+the values a map recorded with it.
+
+A config's defaults and help exist once, in the dataclass: the default is the field's, the
+help is the docstring written under the field (the habit of nerfstudio's and tyro's
+configs). The CLI (:mod:`care_maps.cli.options`) builds its options from both, and a map table
+stores the config it was built with as JSON (:func:`care_maps.core.fingerprint.config_json`) so that a later command
+given no options reuses it (:func:`recorded_fields`).
+"""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import enum
+import functools
+import inspect
+import json
+import textwrap
+from typing import Any
+
+__all__ = ["field_docs", "member", "recorded_fields"]
+
+
+def member(kind: type[enum.Enum], value: object, error: type[Exception], what: str) -> Any:
+    """``value`` as a member of the enum ``kind`` (configs accept its values as text), or
+    ``error`` in one line that lists the choices."""
+    try:
+        return kind(value)
+    except ValueError as err:
+        choices = ", ".join(str(m.value) for m in kind)
+        msg = f"{what} {value!r}; choose one of {choices}"
+        raise error(msg) from err
+
+
+@functools.cache
+def field_docs(cls: type) -> dict[str, str]:
+    """Field name -> the first paragraph of the docstring under it, for a dataclass and its
+    bases (a field without one maps to '')."""
+    docs: dict[str, str] = {}
+    for klass in reversed(cls.__mro__):
+        if not dataclasses.is_dataclass(klass):
+            continue
+        tree = ast.parse(textwrap.dedent(inspect.getsource(klass)))
+        body = tree.body[0].body  # type: ignore[attr-defined]
+        for stmt, after in zip(body, [*body[1:], None], strict=True):
+            if not (isinstance(stmt, ast.AnnAssign) and isinstance(stmt.target, ast.Name)):
+                continue
+            doc = ""
+            if (
+                isinstance(after, ast.Expr)
+                and isinstance(after.value, ast.Constant)
+                and isinstance(after.value.value, str)
+            ):
+                doc = inspect.cleandoc(after.value.value).split("\n\n")[0].replace("\n", " ")
+            docs[stmt.target.id] = doc
+    return {f.name: docs.get(f.name, "") for f in dataclasses.fields(cls)}
+
+
+def recorded_fields(cls: type, text: bytes | str | None) -> dict[str, Any]:
+    """The fields of ``cls`` a recorded :func:`care_maps.core.fingerprint.config_json` holds (lists back to tuples);
+    an absent or unreadable record gives ``{}`` (then the defaults apply)."""
+    if not text:
+        return {}
+    try:
+        values = json.loads(text)
+    except ValueError:
+        return {}
+    if not isinstance(values, dict):
+        return {}
+    names = {f.name for f in dataclasses.fields(cls)}
+    return {k: tuple(v) if isinstance(v, list) else v for k, v in values.items() if k in names}

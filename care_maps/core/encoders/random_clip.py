@@ -1,0 +1,90 @@
+"""A CLIP checkpoint with random weights, written with ``save_pretrained``: what tests and
+benchmarks load where no real weights can be downloaded.
+
+The files are those of a real checkpoint (the model, a byte-level BPE tokenizer, an image
+processor), so every loading path of :mod:`care_maps.core.encoders.clip` runs as on ``openai/clip-*``;
+only the weights (seed 0) and the tokenizer's vocabulary (one token per byte symbol, with and
+without the end-of-word mark, plus merges for "chair") are made up. Two sizes: a tiny one
+for tests, and ViT-B/32's architecture (``CLIPConfig``'s defaults) for timing and memory.
+"""
+
+from __future__ import annotations
+
+import json
+from enum import StrEnum
+from pathlib import Path
+
+__all__ = ["TINY_DIM", "TINY_IMAGE", "TINY_PATCH", "ClipSize", "save_random_clip"]
+
+TINY_PATCH = 8
+TINY_IMAGE = 32
+TINY_DIM = 16
+
+
+class ClipSize(StrEnum):
+    """The architecture of a random checkpoint."""
+
+    TINY = "tiny"
+    """32-wide towers, 2 text layers: a test loads and runs it in milliseconds."""
+    VIT_B32 = "vit-b32"
+    """ViT-B/32's towers and projection: its load time and memory are a real checkpoint's."""
+
+
+def _tokenizer_files(out: Path) -> dict[str, int]:
+    from transformers.convert_slow_tokenizer import bytes_to_unicode
+
+    vocab = {"<|startoftext|>": 0, "<|endoftext|>": 1}
+    for c in bytes_to_unicode().values():
+        vocab[c] = len(vocab)
+        vocab[c + "</w>"] = len(vocab)
+    merges = ["c h", "ch a", "cha i", "chai r</w>"]
+    for token in ("ch", "cha", "chai", "chair</w>"):
+        vocab[token] = len(vocab)
+    (out / "vocab.json").write_text(json.dumps(vocab))
+    (out / "merges.txt").write_text("#version: 0.2\n" + "\n".join(merges) + "\n")
+    return vocab
+
+
+def save_random_clip(out: Path, *, size: ClipSize = ClipSize.TINY, layers: int = 2) -> Path:
+    """Write a random CLIP of ``size`` to the new directory ``out`` and return it
+    (``layers``: the tiny vision tower's depth)."""
+    import torch
+    from transformers import CLIPConfig, CLIPImageProcessor, CLIPModel, CLIPTokenizer
+
+    out = Path(out)
+    out.mkdir(parents=True)
+    vocab = _tokenizer_files(out)
+    tokenizer = CLIPTokenizer(vocab=str(out / "vocab.json"), merges=str(out / "merges.txt"))
+    ids = {"vocab_size": len(vocab), "bos_token_id": 0, "eos_token_id": 1, "pad_token_id": 1}
+    torch.manual_seed(0)
+    if size is ClipSize.TINY:
+        config = CLIPConfig(
+            text_config={
+                **ids,
+                "hidden_size": 32,
+                "intermediate_size": 64,
+                "num_hidden_layers": 2,
+                "num_attention_heads": 4,
+                "max_position_embeddings": 32,
+            },
+            vision_config={
+                "hidden_size": 32,
+                "intermediate_size": 64,
+                "num_hidden_layers": layers,
+                "num_attention_heads": 4,
+                "image_size": TINY_IMAGE,
+                "patch_size": TINY_PATCH,
+            },
+            projection_dim=TINY_DIM,
+        )
+        processor = CLIPImageProcessor(
+            size={"shortest_edge": TINY_IMAGE},
+            crop_size={"height": TINY_IMAGE, "width": TINY_IMAGE},
+        )
+    else:
+        config = CLIPConfig(text_config=ids)
+        processor = CLIPImageProcessor()
+    CLIPModel(config).save_pretrained(out)
+    tokenizer.save_pretrained(out)
+    processor.save_pretrained(out)
+    return out

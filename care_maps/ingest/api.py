@@ -1,0 +1,31 @@
+"""The ingest stage as one function: a recording in, a feature store out."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from care_maps.core.encoders import Encoder
+from care_maps.core.store import Store
+from care_maps.ingest.pipeline import IngestConfig, run_ingest
+from care_maps.runtime.execution import DEFAULT_EXECUTION, Execution
+
+__all__ = ["ingest"]
+
+
+def ingest(
+    recording: Path,
+    out: Path,
+    config: IngestConfig | None = None,
+    *,
+    run: Execution = DEFAULT_EXECUTION,
+    encoder: Encoder | None = None,
+) -> Store:
+    """Ingest ``recording`` into the store ``out`` and open it.
+
+    Everything the store depends on is in the arguments: the recording, and what the store
+    is made from (``config``, default :class:`IngestConfig`); ``run`` says how the job runs
+    (``overwrite`` rebuilds a current store, ``progress`` shows a bar). An up-to-date store
+    (same recording content and options) is returned without any work, or a model loaded.
+    ``encoder``: an already built encoder instance.
+    """
+    return Store(run_ingest(recording, out, config, run=run, encoder=encoder))

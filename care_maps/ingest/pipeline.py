@@ -1,0 +1,473 @@
+"""``care ingest``: a recording in, a feature store (and optionally a Rerun file) out.
+
+Frames stream from :func:`care_maps.ingest.folders.frames.open_frames` (a recording's
+:class:`care_maps.ingest.source.RecordingFrames`, or a dataset folder's
+:class:`care_maps.ingest.folders.frames.FolderFrames`), are encoded in batches and go straight into a
+:class:`care_maps.core.store.StoreWriter`, so at most one batch of images is held.
+The store is committed atomically with a meta.json that records where it came from and
+what was dropped; its ``fingerprint`` (source identity + configuration) lets a re-run with
+the same inputs return at once (idempotent), while any change to the recording or to the
+options rebuilds it.
+
+:func:`run_ingest` takes where things are (the recording, the store), what the store is
+made from (:class:`IngestConfig`) and how the job runs (the run's
+:class:`care_maps.runtime.execution.Execution`: ``overwrite`` rebuilds a current store, ``progress``
+shows a bar).
+"""
+
+from __future__ import annotations
+
+import os
+from contextlib import closing
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from care_maps.core.checks import check_numbers
+from care_maps.core.codecs import StoreEncoding
+from care_maps.core.encoders import Encoder, EncoderOptions, RecordingContext, make_encoder
+from care_maps.core.encoders.record import RECORD_KEY, EncoderRecord
+from care_maps.core.errors import IngestError, StoreError
+from care_maps.core.fingerprint import config_fields, content_digest
+from care_maps.core.fingerprint import fingerprint as content_fingerprint
+from care_maps.core.frames import DEFAULT_CAMERA_FRAME, DEFAULT_WORLD_FRAME, Frame
+from care_maps.core.notices import notice
+from care_maps.core.outputs import (
+    MARKER,
+    OutputKind,
+    check_file_output,
+    check_output,
+    damaged,
+    output_lock,
+)
+from care_maps.core.store import META_FILE, SCHEMA_VERSION, Store, StoreWriter
+from care_maps.ingest.consistency import (
+    GeometrySampler,
+    check_geometry,
+    refuse_unless_consistent,
+    source_reading,
+)
+from care_maps.ingest.folders.frames import Frames, folder_identity, open_frames
+from care_maps.ingest.select import FrameSelection, FrameSelector
+from care_maps.ingest.source import ReadOptions
+from care_maps.runtime.execution import DEFAULT_EXECUTION, Execution
+from care_maps.runtime.readahead import read_ahead
+from care_maps.runtime.threads import Work, threads_for
+
+__all__ = ["INGEST_VERSION", "IngestConfig", "fingerprint", "request_fingerprint", "run_ingest"]
+
+_NOT_RECORDED = ("rrd",)
+"""Fields of :class:`IngestConfig` the store does not record: where its Rerun file goes."""
+_READ_NOT_RECORDED = (*ReadOptions.HOW, "format")
+"""Fields of :class:`care_maps.ingest.source.ReadOptions` neither fingerprinted nor recorded: the limits
+that only refuse, and ``format``, which only picks the layout a folder is read as. The layout
+itself is part of the source's identity (fingerprinted) and recorded under ``topics``,
+whether it was detected or forced: a forced layout equal to the detected one leaves the
+store current, and stores of recordings keep their bytes."""
+
+INGEST_VERSION = "2"
+"""Bumped when ingest's output for the same input changes; part of the fingerprint."""
+
+
+@dataclass(frozen=True)
+class IngestConfig:
+    """What a store is made from, and the Rerun file logged beside it (``care ingest``'s
+    options are generated from it). Where the recording and the store are, and how the job
+    runs (:class:`care_maps.runtime.execution.Execution`), are :func:`run_ingest`'s arguments."""
+
+    read: ReadOptions = field(default_factory=ReadOptions)
+    """Topic, frame and synchronisation choices."""
+    encoder: str | None = None
+    """Feature encoder, by name, of those installed (:data:`care_maps.core.encoders.ENCODERS`);
+    none stores views without features."""
+    encoder_options: EncoderOptions = field(default_factory=EncoderOptions)
+    """Weights, device, batch size, ... of the encoder."""
+    select: FrameSelection = field(default_factory=FrameSelection)
+    """Which synchronised frames to keep (time range, every Nth, enough motion)."""
+    vocabulary: str | None = None
+    """Vocabulary (bundled name or file) whose text embeddings are cached in the store;
+    default the recording's own class names if it has any."""
+    rrd: Path | None = None
+    """Write a Rerun recording of the ingest here."""
+    rrd_every: int | None = None
+    """Log the back-projected point cloud of every Nth view; default every view of a short
+    recording, else every 10th (:func:`care_maps.ingest.viz.cloud_every`)."""
+    store_encoding: StoreEncoding = StoreEncoding.RAW_ZSTD
+    """How the store keeps images and features (:mod:`care_maps.core.codecs`); ``png-lists`` is the
+    0.1 store, slower to write and read, kept to measure the default against."""
+
+    def __post_init__(self) -> None:
+        every = {} if self.rrd_every is None else {"rrd_every": self.rrd_every}
+        check_numbers(
+            IngestError,
+            "ingest config",
+            at_least_one={**every, "batch_size": self.encoder_options.batch_size},
+        )
+
+
+def _source_identity(path: Path, read: ReadOptions) -> dict[str, Any]:
+    """What a recording *is*: its size and checksum (every file of a bag directory or dataset
+    folder, with their relative names), not where it lies or when it was touched, so a dataset
+    copied to another directory or machine keeps its stores
+    (:func:`care_maps.core.fingerprint.content_digest`); for a dataset folder also the layout it is read
+    as and what the layout reads it with (:func:`care_maps.ingest.folders.frames.folder_identity`)."""
+    identity = content_digest(path)
+    layout = folder_identity(path, read)
+    return identity if layout is None else {**identity, "layout": layout}
+
+
+def _digest(config: IngestConfig, source: dict[str, Any], encoder_key: dict[str, Any]) -> str:
+    """sha256 of what every store depends on (inputs and options, not where outputs go) and
+    ``encoder_key``: what identifies the encoder."""
+    options = asdict(config.encoder_options)
+    options.pop("device", None)
+    options.pop("batch_size", None)
+    return content_fingerprint(
+        {
+            "ingest_version": INGEST_VERSION,
+            "schema_version": SCHEMA_VERSION,
+            "source": source,
+            "read": config_fields(config.read, _READ_NOT_RECORDED),
+            "select": config.select,
+            "encoder_options": options if encoder_key["encoder"] is not None else None,
+            "vocabulary": config.vocabulary,
+            "store_encoding": config.store_encoding,
+            **encoder_key,
+        }
+    )
+
+
+def fingerprint(config: IngestConfig, encoder: Encoder | None, source: dict[str, Any]) -> str:
+    """Hash of everything the store's content depends on, the built encoder's identity
+    (name, version, dimension) included."""
+    built = (
+        None
+        if encoder is None
+        else {"name": encoder.name, "version": encoder.version, "dim": encoder.dim}
+    )
+    return _digest(config, source, {"encoder": built})
+
+
+def request_fingerprint(config: IngestConfig, source: dict[str, Any]) -> str:
+    """Hash of everything the store depends on that is known *before* the encoder is built:
+    the options, the source's identity, a local weights directory's digest and the version of
+    the package that runs the model. A re-run whose request matches returns without importing
+    torch or loading a model (under a second)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    weights = config.encoder_options.weights
+    digest = None
+    if weights is not None and Path(weights).expanduser().is_dir():
+        from care_maps.core.encoders.record import weights_digest
+
+        digest = weights_digest(Path(weights).expanduser())
+    try:
+        runtime = {"transformers": version("transformers"), "torch": version("torch")}
+    except PackageNotFoundError:
+        runtime = {}
+    named = config.encoder is not None
+    return _digest(
+        config,
+        source,
+        {
+            "encoder": config.encoder,
+            "weights_digest": digest,
+            "runtime": runtime if named else None,
+        },
+    )
+
+
+def _up_to_date(job: _Job, fp: str, key: str = "fingerprint") -> bool:
+    out = job.out
+    if job.run.overwrite or not (out / META_FILE).is_file():
+        return False
+    try:  # a store whose tables a reader refuses (another layout) is rebuilt, not kept
+        meta = Store(out).meta
+    except StoreError:
+        return False
+    # same inputs, and every table as it was committed (size and checksum): a damaged
+    # store is rebuilt, not trusted
+    return getattr(meta, key) == fp and bool(meta.tables) and not damaged(out)
+
+
+def _vocabulary(config: IngestConfig, label_names: tuple[str, ...]) -> list[str]:
+    if config.vocabulary is None:
+        return list(label_names)
+    from care_maps.core.vocab import vocabulary_option
+
+    return list(vocabulary_option(config.vocabulary))
+
+
+def _open_logger(job: _Job, frames: Frames) -> Any:
+    """A Rerun logger writing to a temporary file that :meth:`keep` renames into place."""
+    config = job.config
+    if config.rrd is None:
+        return None
+    from care_maps.ingest.viz import IngestLogger, cloud_every
+
+    total = frames.total
+    views = None if total is None else -(-total // config.select.every)
+    return IngestLogger(
+        config.rrd,
+        every=cloud_every(config.rrd_every, views),
+        world_frame=frames.world_frame or DEFAULT_WORLD_FRAME,
+        camera_frame=frames.camera_frame or DEFAULT_CAMERA_FRAME,
+        scene=job.out.name,
+    )
+
+
+@dataclass(frozen=True)
+class _Job:
+    """One ingest: the recording, the store it becomes, what it is made from and how the
+    job runs."""
+
+    recording: Path
+    out: Path
+    config: IngestConfig
+    run: Execution
+
+
+def run_ingest(
+    recording: Path,
+    out: Path,
+    config: IngestConfig | None = None,
+    *,
+    run: Execution = DEFAULT_EXECUTION,
+    encoder: Encoder | None = None,
+) -> Path:
+    """Build the store ``out`` from ``recording`` with ``config``; returns the store path.
+
+    ``encoder`` overrides ``config.encoder`` with an instance (e.g. one built in a test or
+    shared across many recordings). Returns at once if the store is up to date (unless
+    ``run.overwrite``). Runs on the thread pools of :attr:`care_maps.runtime.threads.Work.DEFAULT`
+    whoever calls it (the encoder's forward pass on :attr:`~care_maps.runtime.threads.Work.ENCODE`'s).
+    """
+    job = _Job(Path(recording), Path(out), config or IngestConfig(), run)
+    with threads_for(Work.DEFAULT):
+        return _run_ingest(job, encoder)
+
+
+def _run_ingest(job: _Job, encoder: Encoder | None) -> Path:
+    recording, config, out = job.recording, job.config, job.out
+    if not recording.exists():
+        msg = f"{recording}: no such file or directory; check the recording path."
+        raise IngestError(msg)
+    # refused before any work: a path we did not create, the recording itself, ...
+    check_output(out, kind=OutputKind.STORE, inputs=[recording])
+    if config.rrd is not None:
+        check_file_output(config.rrd, inputs=[recording])
+    source = _source_identity(recording, config.read)
+    request = request_fingerprint(config, source) if encoder is None else None
+    if request is not None and _up_to_date(job, request, "request_fingerprint"):
+        return _log_missing_rrd(job)  # before building the encoder: no model is loaded
+    # opening the recording checks its topics, camera info and pose source (a folder its
+    # layout's files): a source that cannot be read is refused before a model is loaded
+    with open_frames(recording, config.read) as frames:
+        if encoder is None and config.encoder is not None:
+            encoder = make_encoder(config.encoder, config.encoder_options)
+        with output_lock(out):
+            check_output(out, kind=OutputKind.STORE, inputs=[recording])  # as the lock found it
+            fp = fingerprint(config, encoder, source)
+            if _up_to_date(job, fp):
+                return _log_missing_rrd(job)
+            _build(job, frames, encoder, source, fp, request)
+    return out
+
+
+def _log_missing_rrd(job: _Job) -> Path:
+    """An up-to-date store asked for a Rerun file it lacks: the file is written from the
+    store's views, so nothing is ingested again and the maps built in the store stay."""
+    rrd = job.config.rrd
+    if rrd is None or rrd.is_file():
+        return job.out
+    from care_maps.ingest.viz import IngestLogger, cloud_every
+
+    store = Store(job.out)
+    logger = IngestLogger(
+        rrd,
+        every=cloud_every(job.config.rrd_every, store.num_views),
+        world_frame=store.meta.world_frame or DEFAULT_WORLD_FRAME,
+        camera_frame=store.meta.camera_frame or DEFAULT_CAMERA_FRAME,
+        scene=job.out.name,
+    )
+    try:
+        for view_id, frame in store.iter_frames(extras=False, in_map=False):
+            logger.log(view_id, frame)
+    except BaseException:
+        logger.close()
+        logger.discard()
+        raise
+    logger.close()
+    logger.keep()
+    return job.out
+
+
+_STORE_OWN = frozenset({"views.parquet", "features.parquet", "text.parquet", META_FILE, MARKER})
+"""What ingest writes into a store; anything else in it was made from the store (maps)."""
+
+
+def _say_maps_go(out: Path, *, forced: bool) -> None:
+    """As a rebuilt store replaces the old one, name the maps made from the old one: the
+    new store replaces the directory whole, so they go with it (they describe other views).
+    Said once the new store is written, just before the swap, so a rebuild that fails (and
+    keeps the old store and its maps) says nothing of them."""
+    if not (out / META_FILE).is_file():
+        return
+    made = sorted(p.name for p in out.iterdir() if p.name not in _STORE_OWN and p.name[0] != ".")
+    why = "as asked (--force)" if forced else "for another recording or other ingest options"
+    if made:
+        notice(
+            f"{out}: rebuilt {why}, so the maps made from the old store go with it "
+            f"({', '.join(made)}); run `care fuse` again after"
+        )
+
+
+def _build(
+    job: _Job,
+    frames: Frames,
+    encoder: Encoder | None,
+    source: dict[str, Any],
+    fp: str,
+    request: str | None,
+) -> None:
+    config, recording = job.config, job.recording
+    vocab = _vocabulary(config, frames.label_names)
+    if encoder is not None:
+        encoder.prepare(RecordingContext(recording, frames.label_names))
+    info = encoder.info(vocab) if encoder is not None else None
+    # the text side first: a missing text table or model fails before any frame is read
+    text = encoder.encode_text(vocab) if encoder is not None and vocab else None
+    logger = _open_logger(job, frames)
+    bar = tqdm(
+        total=frames.total,
+        desc=f"ingest {recording.name}",
+        unit="frame",
+        disable=not job.run.progress,
+    )
+    try:
+        with StoreWriter(job.out, info, encoding=config.store_encoding) as writer:
+            selector = FrameSelector(config.select)
+            sampler = GeometrySampler()
+            _stream(
+                frames,
+                writer,
+                encoder,
+                config.encoder_options.batch_size,
+                logger,
+                bar,
+                selector,
+                job.run.read_ahead,
+                sampler,
+            )
+            # before anything is committed: geometry the views disagree on is refused
+            reading = source_reading(recording, frames, config.read)
+            verdict = check_geometry(sampler, reading)
+            refuse_unless_consistent(
+                verdict, reading, sampler.K, accept=config.read.accept_geometry
+            )
+            if text is not None:
+                writer.set_text(vocab, text)
+            meta = _meta(job, frames, source, fp, vocab, encoder)
+            meta["geometry"] = verdict.as_json()
+            if not verdict.passed:  # kept as given, as asked (--accept-geometry)
+                meta["geometry"]["accepted"] = True
+            meta["counts"]["skipped"] = dict(sorted(selector.skipped.items()))
+            writer.commit(
+                {**meta, "request_fingerprint": request},
+                replacing=lambda: _say_maps_go(job.out, forced=job.run.overwrite),
+            )
+    except BaseException:
+        bar.leave = False  # the error is the one line left on the terminal
+        if logger is not None:
+            logger.close()
+            logger.discard()
+        raise
+    finally:
+        bar.close()
+    if logger is not None:
+        logger.close()
+        logger.keep()
+
+
+def _stream(
+    frames: Frames,
+    writer: StoreWriter,
+    encoder: Encoder | None,
+    batch_size: int,
+    logger: Any,
+    bar: tqdm,
+    selector: FrameSelector,
+    depth: int,
+    sampler: GeometrySampler,
+) -> None:
+    """Frames to the store: read and decoded up to ``depth`` ahead on a background thread
+    (:func:`care_maps.runtime.readahead.read_ahead`) while this thread encodes and writes them, so
+    the recording's decompression and the store's encoding share a machine's cores
+    (``--read-ahead 0``: all in one thread, the same store)."""
+    batch: list[Frame] = []
+
+    def flush() -> None:
+        with threads_for(Work.ENCODE):  # the model's products scale with cores
+            features = encoder.encode_views(batch) if encoder is not None else None
+        if features is not None and len(features) != len(batch):
+            msg = f"encoder {encoder.name!r} returned {len(features)} feature maps for {len(batch)} views"
+            raise IngestError(msg)
+        for i, frame in enumerate(batch):
+            writer.add(frame, None if features is None else np.asarray(features[i]))
+        batch.clear()
+
+    with closing(read_ahead(frames, depth)) as ahead:
+        for frame in ahead:
+            bar.update(1)
+            if not selector.keep(frame):
+                if selector.done:
+                    break
+                continue
+            if logger is not None:
+                logger.log(writer.num_views + len(batch), frame)
+            sampler.add(frame)
+            batch.append(frame)
+            if len(batch) >= max(1, batch_size):
+                flush()
+    if batch:
+        flush()
+
+
+def _meta(
+    job: _Job,
+    frames: Frames,
+    source: dict[str, Any],
+    fp: str,
+    vocab: list[str],
+    encoder: Encoder | None,
+) -> dict[str, Any]:
+    config = job.config
+    described = frames.describe()
+    recorded = config_fields(config, _NOT_RECORDED)
+    for name in _READ_NOT_RECORDED:  # not what the store is (see there)
+        recorded["read"].pop(name, None)
+    record = (
+        None if encoder is None else EncoderRecord.of(encoder, config.encoder_options).as_json()
+    )
+    return {
+        RECORD_KEY: record,
+        "fingerprint": fp,
+        "source": {
+            # relative to the store: no machine's absolute path inside a store
+            "path": os.path.relpath(job.recording.resolve(), job.out.resolve()),
+            "name": job.recording.name,
+            **source,
+        },
+        "topics": described["topics"],
+        "world_frame": described["world_frame"],
+        "camera_convention": described.get("camera_convention"),
+        "camera_frame": described["camera_frame"],
+        "distortion": [lens.as_json() for lens in frames.distortions],
+        "label_names": described["label_names"],
+        "vocabulary": vocab,
+        "counts": frames.stats.as_dict(),
+        "config": recorded,
+    }

@@ -1,0 +1,327 @@
+"""Does looking again where the map is unsure pay? ``care explore``'s views on the sample world.
+
+For each Matterport-like scene (:data:`care_maps.world.presets.WorldPreset.MATTERPORT_LIKE`): record
+the exploration, ingest it with the ``labels`` perception and fuse the grid ("before").
+Then three ways to spend the same budget of new views (as many as ``care explore``
+proposes, at most ``--views``):
+
+- ``explore``: the views :func:`care_maps.query.explore_store.explore_store` proposes (no ground
+  truth: the map's own measures);
+- ``random``: viewpoints drawn uniformly from the same reachable free space, facing a
+  uniform heading, looking at the height of the map's objects ``near_range`` ahead;
+- ``top_confidence``: views chosen by the same viewpoint chooser, but looking at each
+  object class's max-confidence candidate (weighted by its confidence): checking the
+  answers a robot would try first.
+
+Each set of views is rendered by the world's renderer at the recording's resolution,
+encoded by the same perception model (stamps after the recording's, so its per-view draws
+are fresh), added to the recording's views in a new store (:class:`care_maps.core.store.StoreWriter`)
+and fused again. Every store is evaluated on the same grid queries (class protocol, per room,
+``care eval``'s success rule): the first attempt (max confidence) and two attempts of max
+confidence. Comparisons are paired over the same queries: the exact McNemar test
+(:func:`care_maps.evaluate.paired.compare`) and, with queries clustered in scenes, an exact sign-flip
+test over the scenes' mean differences (every sign pattern; ``method.md``).
+
+    python -m care_maps.research.explore OUT [--scenes 8] [--views 8] [--seed 20]
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import math
+import time
+from dataclasses import asdict, dataclass, field, replace
+from enum import StrEnum
+from pathlib import Path
+
+import numpy as np
+
+from care_maps.core.encoders import EncoderOptions, make_encoder
+from care_maps.core.encoders.base import RecordingContext
+from care_maps.core.maps import MapKind
+from care_maps.core.store import Store, StoreMeta, StoreWriter
+from care_maps.core.vocab import STRUCTURE_NAMES
+from care_maps.evaluate.job import EvalConfig, Scene, evaluate_scene
+from care_maps.evaluate.paired import compare, comparison_rng
+from care_maps.fuse.grid import GridConfig, build_grid
+from care_maps.ingest.pipeline import IngestConfig, run_ingest
+from care_maps.query.confidence import log_confidence
+from care_maps.query.explore import (
+    ExploreConfig,
+    Viewpoint,
+    cell_uncertainty,
+    look_at,
+    object_cells,
+)
+from care_maps.query.explore_store import ExploreInputs, read_inputs
+from care_maps.query.map import CandidateMap
+from care_maps.replan.strategies import StrategyName
+from care_maps.runtime.execution import Execution
+from care_maps.world.presets import PRESETS, WorldPreset
+from care_maps.world.record import make_recording, scene_seed
+from care_maps.world.render import RenderConfig, Renderer
+from care_maps.world.scene import SceneConfig, generate_scene
+
+__all__ = [
+    "Condition",
+    "ExperimentConfig",
+    "main",
+    "random_views",
+    "run_experiment",
+    "sign_flip_p",
+    "top_confidence_values",
+]
+
+
+class Condition(StrEnum):
+    """The maps compared: the recording alone, and with each set of new views."""
+
+    BEFORE = "before"
+    EXPLORE = "explore"
+    RANDOM = "random"
+    TOP_CONFIDENCE = "top_confidence"
+
+
+@dataclass(frozen=True)
+class ExperimentConfig:
+    """The scenes and the budget of the experiment."""
+
+    scenes: int = 8
+    """Matterport-like scenes."""
+    seed: int = 20
+    """Dataset seed (scene i: :func:`care_maps.world.record.scene_seed`); 20 is the preset's own."""
+    views: int = ExploreConfig.views
+    """Budget of new views per scene (each condition gets as many as explore proposes)."""
+    width: int = 160
+    """Image width of the recording and the new views."""
+    height: int = 120
+    """Image height."""
+    rooms: int | None = None
+    """Rooms per scene (default drawn from 2 to 5)."""
+    explore: ExploreConfig = field(default_factory=ExploreConfig)
+    """The proposal settings (``views`` replaced by the budget)."""
+
+
+def top_confidence_values(cmap: CandidateMap) -> np.ndarray:
+    """(N,) each object class's max-confidence cell, valued at its confidence (0 elsewhere)."""
+    values = np.zeros(cmap.num_candidates)
+    keep = np.flatnonzero(object_cells(cmap))
+    classes = [i for i, n in enumerate(cmap.vocabulary) if n.strip().lower() not in STRUCTURE_NAMES]
+    if not len(keep):
+        return values
+    for lo in range(0, len(classes), 32):
+        rows = log_confidence(cmap, np.array(classes[lo : lo + 32]))[:, keep]
+        best = np.argmax(rows, axis=1)
+        conf = np.exp(rows[np.arange(len(rows)), best].astype(np.float64))
+        np.maximum.at(values, keep[best], conf)
+    return values
+
+
+def random_views(
+    inputs: ExploreInputs, count: int, config: ExploreConfig, rng: np.random.Generator
+) -> list[Viewpoint]:
+    """``count`` viewpoints uniform over the cells a view may stand on, uniform headings,
+    each camera looking ``near_range`` ahead at the median height of the map's objects."""
+    ix, iy = np.nonzero(inputs.stand)
+    if not len(ix) or count < 1:
+        return []
+    pick = rng.choice(len(ix), size=count, replace=len(ix) < count)
+    size, (ox, oy) = inputs.layout.cell_size, inputs.layout.origin
+    objects = object_cells(inputs.cmap)
+    z = float(np.median(inputs.cmap.positions[objects, 2])) if objects.any() else 0.5
+    out = []
+    for i, yaw in zip(pick, rng.uniform(-math.pi, math.pi, count), strict=True):
+        x, y = ox + (ix[i] + 0.5) * size, oy + (iy[i] + 0.5) * size
+        target = (x + config.near_range * math.cos(yaw), y + config.near_range * math.sin(yaw), z)
+        camera = look_at([x, y, inputs.camera_height], target)
+        out.append(Viewpoint((x, y), float(yaw), camera, target, -1, 0.0, 0))
+    return out
+
+
+def sign_flip_p(diffs: np.ndarray) -> float:
+    """Two-sided exact sign-flip p-value of ``mean(diffs)`` (one difference per scene):
+    the share of the 2^S sign patterns whose |mean| reaches the observed one."""
+    d = np.asarray(diffs, np.float64)
+    if not len(d) or not np.any(d):
+        return 1.0
+    signs = np.array(list(itertools.product((1.0, -1.0), repeat=len(d))))
+    stats = np.abs(signs @ d)
+    return float(np.mean(stats >= abs(d.sum()) - 1e-12))
+
+
+def _record(out: Path, index: int, config: ExperimentConfig) -> tuple[Path, SceneConfig]:
+    """The scene's recording (made once; kept for a re-run)."""
+    world = PRESETS[WorldPreset.MATTERPORT_LIKE]
+    scene = SceneConfig(
+        seed=scene_seed(config.seed, index), num_rooms=config.rooms, **world.scene_values()
+    )
+    path = out / "dataset" / f"scene_{index:03d}.mcap"
+    if not path.is_file():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        render = RenderConfig(width=config.width, height=config.height, threads=1)
+        make_recording(path, scene, render, perception=world.as_json()["perception"])
+    return path, scene
+
+
+def _with_views(
+    before: Path, out: Path, recording: Path, renderer: Renderer, views: list[Viewpoint]
+) -> None:
+    """A copy of store ``before`` at ``out`` with ``views`` rendered and encoded added."""
+    old = Store(before)
+    world_from_map = np.linalg.inv(old.map_frame.map_from_world)
+    stamps = old.views(["stamp_ns"]).column("stamp_ns").to_numpy()
+    step = round(1e9 / RenderConfig.fps)
+    frames = [
+        renderer.render(world_from_map @ v.camera, int(stamps.max()) + (i + 1) * step)
+        for i, v in enumerate(views)
+    ]
+    encoder = make_encoder("labels", EncoderOptions())
+    encoder.prepare(RecordingContext(recording, tuple(old.meta.label_names)))
+    features = encoder.encode_views(frames) if frames else []
+    names, text = old.text_embeddings()
+    meta = {
+        k: v
+        for k, v in asdict(StoreMeta.read(before)).items()
+        if k not in ("num_views", "encoder", "tables", "schema_version", "meta_version")
+    }
+    with StoreWriter(out, old.encoder) as writer:
+        feats = old.iter_features()
+        for (_, frame), (_, feature) in zip(old.iter_frames(in_map=False), feats, strict=True):
+            writer.add(frame, np.asarray(feature, np.float32))
+        for frame, feature in zip(frames, features, strict=True):
+            writer.add(frame, feature)
+        writer.set_text(names, text)
+        writer.commit(meta)
+
+
+def _outcomes(store: Path, name: str, recording: Path) -> dict[tuple, tuple[bool, bool]]:
+    """(scene, room, class) -> (first attempt succeeded, two attempts of max confidence)."""
+    config = EvalConfig(
+        maps=(MapKind.GRID,),
+        strategies=(StrategyName.NO_REPLAN, StrategyName.MAX_CONFIDENCE),
+        attempts=2,
+        seeds=1,
+        bootstrap=0,
+    )
+    rows = evaluate_scene(Scene(name, store, recording), config).to_pylist()
+    out: dict[tuple, list[bool]] = {}
+    for r in rows:
+        key = (r["scene"], r["unit"], r["query"])
+        got = out.setdefault(key, [False, False])
+        if r["strategy"] == StrategyName.NO_REPLAN:
+            got[0] |= bool(r["success"])
+        else:
+            got[1] |= bool(r["success"])
+    return {k: (a, b) for k, (a, b) in out.items()}
+
+
+def _scene(out: Path, index: int, config: ExperimentConfig) -> tuple[dict, dict]:
+    """Every condition's outcomes for one scene, and the views each got."""
+    recording, scene_config = _record(out, index, config)
+    name = recording.stem
+    stores = out / "stores" / name
+    before = stores / Condition.BEFORE
+    run = Execution(progress=False, workers=1)
+    run_ingest(recording, before, IngestConfig(encoder="labels"), run=run)
+    grid = GridConfig(stride=2)
+    build_grid(before, grid, run=run)
+    settings = replace(config.explore, views=config.views)
+    inputs = read_inputs(before, settings)
+    explore = inputs.choose(cell_uncertainty(inputs.cmap, settings), settings)
+    budget = len(explore)
+    rng = np.random.default_rng(np.random.SeedSequence([config.seed, index, 7]))
+    chosen = {
+        Condition.EXPLORE: explore,
+        Condition.RANDOM: random_views(inputs, budget, settings, rng),
+        Condition.TOP_CONFIDENCE: inputs.choose(
+            top_confidence_values(inputs.cmap), replace(settings, views=budget)
+        ),
+    }
+    renderer = Renderer(
+        generate_scene(scene_config),
+        RenderConfig(width=config.width, height=config.height, threads=1),
+    )
+    outcomes = {Condition.BEFORE: _outcomes(before, name, recording)}
+    for condition, views in chosen.items():
+        store = stores / f"{condition}-{config.views}"
+        if not (store / "cells.parquet").is_file():
+            _with_views(before, store, recording, renderer, views)
+            build_grid(store, grid, run=run)
+        outcomes[condition] = _outcomes(store, name, recording)
+    return outcomes, {c: len(v) for c, v in chosen.items()}
+
+
+def _line(name: str, a: np.ndarray, b: np.ndarray, scene: np.ndarray, seed: int) -> str:
+    """One comparison as a table row: rates, difference, discordant pairs, both tests."""
+    res = compare(a, b, rng=comparison_rng(seed, name), n_resamples=0)
+    per_scene = [float(np.mean(a[scene == s] - b[scene == s])) for s in np.unique(scene)]
+    return (
+        f"| {name} | {100 * res.rate_a:.1f} | {100 * res.rate_b:.1f} | {100 * res.diff:+.1f} "
+        f"| {res.only_a:.0f} / {res.only_b:.0f} | {res.p_value:.3g} | {sign_flip_p(per_scene):.3g} |"
+    )
+
+
+def run_experiment(out: Path, config: ExperimentConfig | None = None) -> str:
+    """Run every scene under ``out`` (recordings and stores kept: a re-run resumes) and
+    return the report (Markdown)."""
+    config = config or ExperimentConfig()
+    start = time.perf_counter()
+    outcomes: dict[Condition, dict] = {c: {} for c in Condition}
+    budgets = []
+    for index in range(config.scenes):
+        scene_outcomes, budget = _scene(Path(out), index, config)
+        budgets.append(budget[Condition.EXPLORE])
+        for condition, found in scene_outcomes.items():
+            outcomes[condition].update(found)
+    keys = sorted(set.intersection(*(set(v) for v in outcomes.values())))
+    scene = np.array([k[0] for k in keys])
+    lines = [
+        f"{config.scenes} Matterport-like scenes (seed {config.seed}, {config.width}x"
+        f"{config.height}), {len(keys)} grid queries (class protocol, per room); new views "
+        f"per scene: {', '.join(map(str, budgets))} (budget {config.views})",
+        "",
+    ]
+    pairs = [
+        (Condition.EXPLORE, Condition.BEFORE),
+        (Condition.RANDOM, Condition.BEFORE),
+        (Condition.TOP_CONFIDENCE, Condition.BEFORE),
+        (Condition.EXPLORE, Condition.RANDOM),
+        (Condition.EXPLORE, Condition.TOP_CONFIDENCE),
+    ]
+    for column, title in ((0, "first attempt"), (1, "two attempts, max confidence")):
+        result = {c: np.array([outcomes[c][k][column] for k in keys], float) for c in Condition}
+        lines += [
+            f"## {title}",
+            "| comparison | A % | B % | A - B (pp) | only A / only B | McNemar p | sign-flip p |",
+            "| --- | --- | --- | --- | --- | --- | --- |",
+        ]
+        for a, b in pairs:
+            lines.append(_line(f"{a} vs {b}", result[a], result[b], scene, config.seed))
+        lines.append("")
+    lines.append(f"run time: {time.perf_counter() - start:.0f} s")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    """The command line: ``python -m care_maps.research.explore`` or ``scripts/explore.py``."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("out", type=Path, help="Directory of the recordings and stores.")
+    defaults = ExperimentConfig()
+    parser.add_argument("--scenes", type=int, default=defaults.scenes)
+    parser.add_argument("--views", type=int, default=defaults.views)
+    parser.add_argument("--seed", type=int, default=defaults.seed)
+    parser.add_argument("--width", type=int, default=defaults.width)
+    parser.add_argument("--height", type=int, default=defaults.height)
+    args = parser.parse_args()
+    from threadpoolctl import threadpool_limits
+
+    config = ExperimentConfig(
+        scenes=args.scenes, views=args.views, seed=args.seed, width=args.width, height=args.height
+    )
+    with threadpool_limits(1):
+        print(run_experiment(args.out, config))
+
+
+if __name__ == "__main__":
+    main()

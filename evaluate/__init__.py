@@ -1,9 +1,0 @@
-"""evaluate stage."""
-
-from __future__ import annotations
-
-from runtime.lazy import lazy_exports
-
-__all__ = ["evaluate"]
-
-__getattr__ = lazy_exports(__name__, {"evaluate": "evaluate.api"})
