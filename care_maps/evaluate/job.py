@@ -215,7 +215,7 @@ def evaluate_queries(
         shortest_to_success(walk.start, qs.success) if walk is not None else np.full(n_q, np.nan)
     )
     if cmap.num_candidates:
-        # ranked by log-confidence (method.md): float32 probabilities tie at 1.0 and let the
+        # ranked by log-confidence (docs/method.md): float32 probabilities tie at 1.0 and let the
         # lowest id win; the rows report P itself
         conf = log_confidence(cmap, qs.class_ids)
         rank = (

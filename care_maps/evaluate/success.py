@@ -1,4 +1,4 @@
-"""Success of a chosen candidate against ground truth, as ``method.md`` defines it.
+"""Success of a chosen candidate against ground truth, as ``docs/method.md`` defines it.
 
 - Instances: point IoU between the retrieved mask and a ground-truth mask, both over the map's
   scene points (ground-truth labels of scene points come from

@@ -11,7 +11,7 @@ Each candidate keeps, in float32 unless told otherwise:
 - the mean class distribution ``Pbar`` (n) and mean log-distribution ``abar`` (n) of the
   per-view class distributions (float64: their errors enter ``C`` to first order), and one
   number ``C = sum_j sum_y (P_j - Pbar)
-  (a_j - abar)``, updated the same way. It is the linear pwKL identity of method.md in its
+  (a_j - abar)``, updated the same way. It is the linear pwKL identity of docs/method.md in its
   stable streaming form: ``sum_y [m S_y - Q_y A_y] = m C`` (a co-moment), so ``D = C / (m-1)``;
   the S, Q, A sums collapse to one number plus two means per candidate;
 - ``W1, W2`` (float64) and the view count.

@@ -11,7 +11,7 @@
 4. ``instance_views.parquet`` (every per-view feature) and ``instances.parquet`` (the
    common candidate columns of :mod:`care_maps.fuse.measures` plus the mask and its box), written
    atomically, the per-view table first. Instance features use weights 1, so ``stderr``
-   is the plain form of method.md.
+   is the plain form of docs/method.md.
 
 A finished map with the same config, store and vocabulary is not rebuilt (the run's
 ``overwrite`` forces it; how the build runs is its :class:`care_maps.runtime.execution.Execution`);

@@ -1,7 +1,7 @@
 """The paper's uncertainty measures as pure, vectorised functions on arrays.
 
 Every function here works on a batch of N candidates (grid cells or instances) at once and
-follows ``../shared/method.md`` to the letter:
+follows ``docs/method.md`` to the letter:
 
 - class distribution ``P = softmax(s * f . t)`` with the logit scale ``s`` (CLIP's 100);
 - entropy ``H = -sum_y P log P``;
@@ -85,7 +85,7 @@ def log_confidence(logits: np.ndarray, lnorm: np.ndarray) -> np.ndarray:
 
     ``logits - log_norm`` is exact to ~1e-16 absolute, plenty for every class but a row's
     most likely one, whose log-probability can be -1e-30: there it is
-    ``-log1p(sum_{z != y} exp(l_z - l_y))`` (method.md), so near-certain candidates keep
+    ``-log1p(sum_{z != y} exp(l_z - l_y))`` (docs/method.md), so near-certain candidates keep
     distinct values instead of tying at 0 (probability 1).
     """
     logits = np.asarray(logits, np.float64)

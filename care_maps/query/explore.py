@@ -1,6 +1,6 @@
 """Where to look again: camera poses in free space that look at what the map is least sure of.
 
-A map is unsure of a place in several ways its columns already record (``method.md``):
+A map is unsure of a place in several ways its columns already record (``docs/method.md``):
 
 - **contested**: the best candidates of a class lie in different places with close
   confidence, so a query for it may go either way (per class, the top candidates kept

@@ -11,7 +11,7 @@ cannot drive *into* it. :class:`GoalMaker` turns a candidate into a
 - ``header.stamp``: the stamp of the last view fused into the map (the map's time);
 - ``pose.position``: an *approach point* on the floor (z = 0): the free cell nearest to the
   object that keeps ``clearance`` metres from every obstacle, searched within ``reach`` of the
-  object (the grid success radius of ``method.md``: from there the object counts as found);
+  object (the grid success radius of ``docs/method.md``: from there the object counts as found);
   without a grid, or when no free cell lies within reach, the object's own position;
 - ``pose.orientation``: a yaw facing the object from the approach point (identity when the goal
   is the object itself).
@@ -59,7 +59,7 @@ class GoalConfig:
     """Metres the approach point keeps from every obstacle cell (about a robot's radius)."""
     reach: float = 1.0
     """Farthest (m, floor plane) the approach point may lie from the object: the grid success
-    radius of ``method.md``."""
+    radius of ``docs/method.md``."""
     frame_id: str | None = None
     """Frame of the goals: the recording's world frame's name gives them in the world frame;
     any other name is the map frame's, published as a static transform (``care frame``).

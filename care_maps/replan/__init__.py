@@ -1,4 +1,4 @@
-"""Replan stage: choose the next candidate after a failed attempt (``method.md``'s strategies)."""
+"""Replan stage: choose the next candidate after a failed attempt (``docs/method.md``'s strategies)."""
 
 from __future__ import annotations
 

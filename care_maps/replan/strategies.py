@@ -1,4 +1,4 @@
-"""The replan strategies of ``method.md``, each a small rule over precomputed columns.
+"""The replan strategies of ``docs/method.md``, each a small rule over precomputed columns.
 
 Every rule works on a batch of Q queries over the N candidates of one map at once: it sees the
 (Q, N) confidence, which candidates are still *available* (unvisited and not excluded), the

@@ -20,7 +20,7 @@ and fused again. Every store is evaluated on the same grid queries (class protoc
 ``care eval``'s success rule): the first attempt (max confidence) and two attempts of max
 confidence. Comparisons are paired over the same queries: the exact McNemar test
 (:func:`care_maps.evaluate.paired.compare`) and, with queries clustered in scenes, an exact sign-flip
-test over the scenes' mean differences (every sign pattern; ``method.md``).
+test over the scenes' mean differences (every sign pattern; ``docs/method.md``).
 
     python -m care_maps.research.explore OUT [--scenes 8] [--views 8] [--seed 20]
 """

@@ -41,7 +41,7 @@ def _sums(P_views: list[np.ndarray]) -> tuple[np.ndarray, ...]:
 
 
 def _kl_reference(P: np.ndarray) -> float:
-    """Mean pairwise symmetric KL with scipy's rel_entr, the clamp of method.md applied."""
+    """Mean pairwise symmetric KL with scipy's rel_entr, the clamp of docs/method.md applied."""
     P = np.clip(P, 1e-12, None)
     m = len(P)
     total = 0.0
@@ -235,7 +235,7 @@ def test_float32_state_exact_where_views_agree() -> None:
         assert sums.stderr()[c] == pytest.approx(expected, rel=1e-3)
         P = class_distribution(f32[c], text, 100.0)
         assert sums.pwkl()[c] == pytest.approx(pwkl_pairwise([P])[0], rel=1e-3)
-    # the streaming sums of method.md in float32 cancel to noise on the same data
+    # the streaming sums of docs/method.md in float32 cancel to noise on the same data
     wf = np.einsum("cj,cjd->cd", w, f32).astype(np.float32)
     wf2 = np.einsum("cj,cjd->cd", w, f32 * f32).astype(np.float32)
     naive = weighted_stderr(w.sum(1), (w * w).sum(1), wf, wf2, np.full(n_cand, m))

@@ -1,4 +1,4 @@
-"""Every rule of method.md on hand-worked maps: sets, ties, fallbacks, random and oracle."""
+"""Every rule of docs/method.md on hand-worked maps: sets, ties, fallbacks, random and oracle."""
 
 from __future__ import annotations
 

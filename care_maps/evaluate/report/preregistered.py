@@ -77,7 +77,7 @@ PAPER_SETTINGS: dict[MapKind, tuple[Rule, ...]] = {
         (StrategyName.MIN_PWKL, Criterion.CONFIDENCE, 16),
     ),
 }
-"""The settings the paper's tables highlight (``method.md``), fixed before our results."""
+"""The settings the paper's tables highlight (``docs/method.md``), fixed before our results."""
 
 MAX_CONF: Rule = (StrategyName.MAX_CONFIDENCE, NO_CRITERION, 0)
 NON_CARE: tuple[Rule, ...] = (
