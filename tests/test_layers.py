@@ -100,3 +100,25 @@ def test_one_top_level_package() -> None:
     """Nothing importable beside the namespace: every product module lives under it."""
     tops = {p.name for p in ROOT.iterdir() if (p / "__init__.py").exists()}
     assert tops == {NAMESPACE}, tops
+
+
+CONCURRENCY = ("concurrent.futures", "threading", "multiprocessing")
+"""The standard library's threads and processes."""
+OWN_THREADS = {
+    "care_maps.core.store": "the store writer's one encoding thread (core is below runtime)",
+    "care_maps.cli.main": "the interruption's line and its watchdog (the program's, on top)",
+}
+"""The modules outside ``runtime`` allowed a thread of their own, and why."""
+
+
+def test_only_runtime_starts_threads_and_processes() -> None:
+    """Thread pools, processes, read-ahead: ``care_maps.runtime``'s (the maths modules ask
+    it, ``runtime.background``, ``runtime.parallel``), but for :data:`OWN_THREADS`."""
+    bad = sorted(
+        module
+        for module, path in _modules().items()
+        if _layer(module) != "runtime"
+        and module not in OWN_THREADS
+        and any(name.startswith(CONCURRENCY) for name in _imported(path, module))
+    )
+    assert not bad, f"threads or processes outside runtime: {bad}"

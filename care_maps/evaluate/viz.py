@@ -495,7 +495,7 @@ def evaluation_blueprint(
             rrb.Vertical(
                 rrb.Spatial3DView(
                     origin="/",
-                    contents="+ care_maps/world/**",
+                    contents="+ world/**",
                     name="query: room, target (cyan), ranked, 1st attempt, replan choices",
                     eye_controls=eye,
                     overrides={path: rrb.EntityBehavior(visible=False) for path in _HIDDEN_CHOICES},

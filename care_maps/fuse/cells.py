@@ -18,7 +18,6 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-import torch
 from scipy import sparse
 
 from care_maps.core.errors import FuseError
@@ -197,6 +196,8 @@ def _as_float32(values: np.ndarray) -> np.ndarray:
     """A contiguous float32 copy (or the array itself); float16 (the store's features) is
     widened by torch, exactly and ten times faster than numpy's conversion."""
     if values.dtype == np.float16:
+        import torch  # here: importing the maps' modules (a --help) should not cost torch's 2 s
+
         with warnings.catch_warnings():  # a read-only map (the store's) is only read here
             warnings.simplefilter("ignore", UserWarning)
             source = torch.from_numpy(np.ascontiguousarray(values))

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Iterator
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +28,7 @@ from care_maps.core.store import (
 )
 from care_maps.geometry.mapframe import estimate_map_frame
 from care_maps.geometry.transforms import backproject, transform_points
+from care_maps.runtime.background import thread_map
 
 __all__ = [
     "DECODERS",
@@ -86,11 +86,8 @@ def _sample_points(store: Store, decoders: int) -> tuple[np.ndarray, np.ndarray]
         return transform_points(poses[view.view_id], pts)
 
     sampled = store.iter_depths({int(v) for v in keep})
-    if decoders <= 1:
-        chunks = [points_of(view) for view in sampled]
-    else:  # the depth decoding (free of the GIL) on threads, in view order
-        with ThreadPoolExecutor(decoders, thread_name_prefix="care-sample") as pool:
-            chunks = list(pool.map(points_of, sampled))
+    # the depth decoding (free of the GIL) on threads, in view order
+    chunks = thread_map(points_of, sampled, decoders, "care-sample")
     points = np.concatenate(chunks) if chunks else np.zeros((0, 3))
     if len(points) > SAMPLE_POINTS:
         pick = np.random.default_rng(0).choice(len(points), SAMPLE_POINTS, replace=False)

@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterator
-from concurrent.futures import ThreadPoolExecutor
 from contextlib import closing, nullcontext
 from dataclasses import dataclass
 from itertools import zip_longest
@@ -67,6 +66,7 @@ from care_maps.fuse.pixels import warm_up
 from care_maps.fuse.rosmap import occupancy_image, write_ros_map
 from care_maps.fuse.schemas import CELL_VIEWS_FIELDS
 from care_maps.fuse.sidecar import SidecarWriter, sidecar_path
+from care_maps.runtime.background import in_background
 from care_maps.runtime.budget import check_raster
 from care_maps.runtime.execution import DEFAULT_EXECUTION, Execution
 from care_maps.runtime.malloc import resident_bytes
@@ -558,9 +558,7 @@ def _fuse_grid(build: MapBuild, config: GridConfig, run: Execution) -> None:
     if run.read_ahead > 0:  # else everything in this thread (the kernels load on first use)
         # the kernels load on their own thread while the check decodes its sample (not
         # awaited: a kernel's first call waits for its loading, under numba's lock)
-        loading = ThreadPoolExecutor(1, thread_name_prefix="care-kernels")
-        loading.submit(warm_up)
-        loading.shutdown(wait=False)  # its thread ends with the loading
+        in_background(warm_up, "care-kernels")
     decoders = DECODERS if run.read_ahead > 0 else 1
     check_height_band(store, config.z_min, config.z_max, decoders)  # before any work
     dim = store.encoder.dim

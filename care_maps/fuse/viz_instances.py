@@ -93,13 +93,13 @@ def instances_blueprint(max_views: int, eye: rrb.EyeControls3D | None = None) ->
     """The 3D tabs left; the selected instance's details and chosen views right."""
     scene = rrb.Spatial3DView(
         origin="world",
-        contents=["+ care_maps/world/**", f"- {ENTITY_SEGMENTS}/**", f"- {ENTITY_CHOSEN}/**"],
+        contents=["+ world/**", f"- {ENTITY_SEGMENTS}/**", f"- {ENTITY_CHOSEN}/**"],
         name="3D: scene colours, boxes",
         eye_controls=eye,
     )
     segments = rrb.Spatial3DView(
         origin="world",
-        contents=["+ care_maps/world/**", f"- {ENTITY_RGB}", f"- {ENTITY_CHOSEN}/**"],
+        contents=["+ world/**", f"- {ENTITY_RGB}", f"- {ENTITY_CHOSEN}/**"],
         name="3D: instance colours",
         eye_controls=eye,
     )

@@ -96,7 +96,7 @@ def ingest_blueprint(world_frame: str = WORLD_FRAME, camera_frame: str = CAMERA_
             rrb.Horizontal(
                 rrb.Spatial3DView(
                     origin="world",
-                    contents=["+ care_maps/world/**", f"- {RGB_ENTITY}", f"- {DEPTH_ENTITY}"],
+                    contents=["+ world/**", f"- {RGB_ENTITY}", f"- {DEPTH_ENTITY}"],
                     name="3D: map so far, trajectory, camera",
                 ),
                 rrb.GraphView(origin=TF_ENTITY, name=f"TF: {world_frame} -> {camera_frame}"),

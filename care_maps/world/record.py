@@ -15,9 +15,9 @@ previous dataset, or none, never a recording without its ground truth or ``index
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,7 +36,7 @@ from care_maps.core.outputs import (
     write_marker,
 )
 from care_maps.ingest.formats import RecordingFormat
-from care_maps.runtime.parallel import ignore_interrupt, stop_pool
+from care_maps.runtime.parallel import Runner, run_tasks
 from care_maps.truth.dataset_index import INDEX_NAME
 from care_maps.truth.formats.native import gt_paths, write_native
 from care_maps.truth.model import GroundTruth
@@ -354,20 +354,11 @@ def _write_dataset(config: DatasetConfig) -> Path:
             for i in range(config.scenes):
                 summaries[i] = _make_one(config, i, config.progress)
                 bar.update(1)
-        else:
-            pool = ProcessPoolExecutor(max_workers=workers, initializer=ignore_interrupt)
-            try:
-                futures = {
-                    pool.submit(_make_one, config, i, False): i for i in range(config.scenes)
-                }
-                for fut in as_completed(futures):
-                    summaries[futures[fut]] = fut.result()
-                    bar.update(1)
-            except KeyboardInterrupt:  # Ctrl-C: end the workers, do not wait
-                stop_pool(pool)
-                raise
-            finally:
-                pool.shutdown()
+        else:  # runtime's pool: its workers answer SIGTERM and SIGHUP and stop with the run
+            make = functools.partial(_make_one, config, progress=False)
+            for i, summary in run_tasks(make, range(config.scenes), Runner(workers=workers)):
+                summaries[i] = summary
+                bar.update(1)
     finally:
         bar.close()
     config_doc = {

@@ -2,10 +2,10 @@
 
 Entity paths (``<scene>`` = ``scene_000``, ...)::
 
-    care_maps/world/<scene>/mesh          Mesh3D, vertex colours by class
-    care_maps/world/<scene>/instances     Boxes3D of every instance, labelled with its class
-    care_maps/world/<scene>/trajectory    LineStrips3D of the camera path
-    care_maps/world/<scene>/camera        the camera on the ``stamp`` timeline
+    world/<scene>/mesh          Mesh3D, vertex colours by class
+    world/<scene>/instances     Boxes3D of every instance, labelled with its class
+    world/<scene>/trajectory    LineStrips3D of the camera path
+    world/<scene>/camera        the camera on the ``stamp`` timeline
 
 Scenes of a dataset are laid side by side along x (each shifted past the previous one by
 3 m) so the whole dataset can be looked at at once.
@@ -50,12 +50,12 @@ def log_scene(
     offset: np.ndarray,
     render: RenderConfig,
 ) -> None:
-    """Log one scene under ``care_maps/world/<name>``, shifted by ``offset``."""
+    """Log one scene under ``world/<name>``, shifted by ``offset``."""
     mesh = scene.mesh
     colours = class_colours(len(scene.class_names))
     vert_class = np.zeros(len(mesh.vertices), np.int64)
     vert_class[mesh.triangles.ravel()] = np.repeat(mesh.tri_class, 3)
-    root = f"care_maps/world/{name}"
+    root = f"world/{name}"
     rec.log(
         f"{root}/mesh",
         rr.Mesh3D(
