@@ -9,6 +9,11 @@ not the writer's version string; a PNG by its pixels, not the plotting library's
 Rerun file by its rows (entity, time and components), not its row ids, log times or start
 time; a JSON file by its values with each recorded path cut to its file name. A change that moves any value fails here; a deliberate one updates the JSON with
 ``CARE_UPDATE_DIGESTS=1``.
+
+The digests hold under ``requirements.lock`` (the versions they were made with: Parquet
+bytes, float sums and PNGs change with library releases). In an environment of other
+versions the tests skip and name the packages that differ; the tests of values elsewhere
+hold on any supported version.
 """
 
 from __future__ import annotations
@@ -104,6 +109,37 @@ def _care(*args: object, cwd: Path | None = None) -> None:
     cmd = [sys.executable, "-m", "care_maps.cli.main", *map(str, args)]
     done = subprocess.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=900, cwd=cwd)
     assert done.returncode == 0, done.stderr[-2000:]
+
+
+LOCK = Path(__file__).resolve().parents[2] / "requirements.lock"
+
+
+def _off_the_lock() -> list[str]:
+    """The locked packages installed here at another version (or missing)."""
+    from importlib import metadata
+
+    off = []
+    for line in LOCK.read_text().splitlines():
+        if "==" not in line or line.startswith("#"):
+            continue
+        name, wanted = line.strip().split("==")
+        try:
+            have = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            have = "missing"
+        if have != wanted:
+            off.append(f"{name} {have} (locked {wanted})")
+    return off
+
+
+@pytest.fixture(autouse=True)
+def _under_the_lock() -> None:
+    off = _off_the_lock()
+    if off and os.environ.get("CARE_UPDATE_DIGESTS") != "1":
+        pytest.skip(
+            f"byte digests are checked under requirements.lock; this environment has "
+            f"{len(off)} other versions: {', '.join(off[:5])}"
+        )
 
 
 def _check(name: str, folder: Path) -> None:
