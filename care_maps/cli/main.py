@@ -121,10 +121,15 @@ def _register() -> None:
         frame_cmd,
         fuse_cmd,
         ingest_cmd,
+        query_cmd,
+        run_cmd,
         sample_cmd,
     )
 
-    for module in (ingest_cmd, sample_cmd, fuse_cmd, eval_cmd, explore_cmd, frame_cmd, check_cmd):
+    for module in (
+        ingest_cmd, sample_cmd, fuse_cmd, query_cmd, eval_cmd, run_cmd, explore_cmd, frame_cmd,
+        check_cmd,
+    ):  # fmt: skip
         module.register(app)
     _plain_help(app)
 
