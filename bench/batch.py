@@ -70,7 +70,7 @@ def main() -> None:
         torch.set_num_threads(1)
         from care_maps.query import load_map
         from care_maps.replan import STRATEGIES
-        from care_maps.replan.attempts import next_goal
+        from care_maps.replan.attempts import ReplanConfig, next_goal
         from care_maps.replan.batch import BatchConfig, BatchQuery, plan_batch
 
         store = _store(args.store)
@@ -103,9 +103,9 @@ def main() -> None:
                                 cmap,
                                 q.text,
                                 visited,
-                                strategy=name,
-                                criterion=criterion or "confidence",
-                                k=config.k,
+                                config=ReplanConfig(
+                                    strategy=name, criterion=criterion or "confidence", k=config.k
+                                ),
                             ).candidate
                             loop_rows += 1
                             if c < 0:

@@ -115,11 +115,13 @@ def _best(fn, repeat: int = 5) -> float:
 
 def _visits(cmap, y: int, n: int) -> list[int]:
     """The first n attempts of an episode where every attempt fails."""
-    from care_maps.replan.attempts import next_goal
+    from care_maps.replan.attempts import ReplanConfig, next_goal
 
     visited: list[int] = []
     for _ in range(n):
-        visited.append(next_goal(cmap, y, visited, strategy="min_stderr", k=K).candidate)
+        visited.append(
+            next_goal(cmap, y, visited, config=ReplanConfig(strategy="min_stderr", k=K)).candidate
+        )
     return visited
 
 
@@ -151,7 +153,7 @@ def _run_size(folder: str, n_cells: int, legacy: bool, queue) -> None:
 
     from care_maps.query import load_map, resolve_text
     from care_maps.query.map import map_from_table
-    from care_maps.replan.attempts import next_goal
+    from care_maps.replan.attempts import ReplanConfig, next_goal
 
     path = Path(folder)
     resolve_text_warm = resolve_text  # the sentence model loads at first use: not timed
@@ -168,7 +170,9 @@ def _run_size(folder: str, n_cells: int, legacy: bool, queue) -> None:
 
         def goal(v: list[int], q: str = query) -> int:
             cls = resolve_text(cmap, q).class_id
-            return next_goal(cmap, cls, v, strategy="min_stderr", k=K).candidate
+            return next_goal(
+                cmap, cls, v, config=ReplanConfig(strategy="min_stderr", k=K)
+            ).candidate
 
         out[label] = [_best(lambda v=v: goal(v)) for v in ([], visited[:1], visited)]
     if legacy:

@@ -45,6 +45,7 @@ def _attempts(answer: Any, target: Any, config: BatchConfig, first: Any) -> list
     first attempt, then each next one after the earlier ones failed (on a grid,
     ``config.exclude_radius`` away from the cells tried), passing over what it passes over."""
     from care_maps.replan.answer import offer_next
+    from care_maps.replan.attempts import ReplanConfig
     from care_maps.replan.strategies import StrategyName
 
     if first.offer is None:
@@ -54,7 +55,9 @@ def _attempts(answer: Any, target: Any, config: BatchConfig, first: Any) -> list
     while len(offers) < config.attempts:
         nxt = offer_next(
             answer, target, [o.candidate for o in offers], skip=skip,
-            strategy=StrategyName.MAX_CONFIDENCE, exclude_radius=config.exclude_radius,
+            config=ReplanConfig(
+                strategy=StrategyName.MAX_CONFIDENCE, exclude_radius=config.exclude_radius
+            ),
         )  # fmt: skip
         if nxt.offer is None:
             break

@@ -241,9 +241,7 @@ def replan(
     distance = None
     if get_strategy(config.strategy).travel:
         distance = _candidate_distances(cmap, answer, config.strategy)
-    offered = offer_next(
-        answer, target, ids, **dataclasses.asdict(config), visited_at=places, distance=distance
-    )
+    offered = offer_next(answer, target, ids, config=config, visited_at=places, distance=distance)
     out = dataclasses.asdict(offered.choice)
     found = offered.offer is not None
     out["frame_id"] = answer.goals.frame_id

@@ -290,7 +290,8 @@ def offer_next(
     skip: list[int] | None = None,
     **rule: Any,
 ) -> Offered:
-    """:func:`care_maps.replan.attempts.next_goal` (``rule``: its keyword arguments) that passes over a
+    """:func:`care_maps.replan.attempts.next_goal` (``rule``: its keyword arguments, the rule's
+    ``config`` among them) that passes over a
     candidate with no goal to offer and asks the rule again without it (without the
     exclusion radius: a neighbouring cell may well have a goal); ``skip``: candidates
     already passed over (a walk of attempts). The first attempt stays max confidence among

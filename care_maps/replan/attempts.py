@@ -28,7 +28,6 @@ from care_maps.core.errors import ReplanError
 from care_maps.core.maps import MapKind
 from care_maps.query.map import MEASURES, REPLAN_COLUMNS, CandidateMap
 from care_maps.replan.strategies import (
-    CRITERIA,
     Criterion,
     Pick,
     Situation,
@@ -327,11 +326,7 @@ def next_goal(
     query: str | int,
     visited: list[int] | np.ndarray = (),  # type: ignore[assignment]
     *,
-    strategy: str = _REPLAN.strategy,
-    criterion: str = _REPLAN.criterion,
-    k: int = _REPLAN.k,
-    exclude_radius: float | None = None,
-    seed: int = _REPLAN.seed,
+    config: ReplanConfig = _REPLAN,
     visited_at: np.ndarray | list[tuple[float, float]] = (),  # type: ignore[assignment]
     distance: np.ndarray | list[float] | None = None,
     skip: list[int] | np.ndarray = (),  # type: ignore[assignment]
@@ -342,26 +337,19 @@ def next_goal(
     does (:func:`care_maps.query.openvocab.open_query`: text the vocabulary lacks joins it through the
     store's own text encoder), or an already resolved ``QueryTarget``.
 
-    With nothing visited this is the first attempt (max confidence); afterwards ``strategy``
-    over ``criterion``'s top-k set among unvisited candidates. ``exclude_radius`` (grid only,
-    default 1 m) also skips cells near failed ones. ``visited_at``: map positions (x, y) the
-    robot went to without finding the object; the candidates within the exclusion radius of
-    one (1 m by default, for instances too) count as visited. ``distance``: (N,) metres from
+    With nothing visited this is the first attempt (max confidence); afterwards
+    ``config.strategy`` over ``config.criterion``'s top-k set among unvisited candidates
+    (``config``: a :class:`ReplanConfig`, checked when it was made). Its ``exclude_radius``
+    (grid only, 1 m by default) also skips cells near failed ones. ``visited_at``: map
+    positions (x, y) the robot went to without finding the object; the candidates within the
+    exclusion radius of one (for instances too) count as visited. ``distance``: (N,) metres from
     where the robot stands to each candidate's goal (inf: unreachable), which the travel rules
     (``nearest_topk``, ``*_near``) trade against and the others ignore; a travel rule without
     it is refused, not played as if every candidate were equally far. ``skip``: candidates
     with no goal to offer (:func:`care_maps.replan.answer.offer_next`), left out as if absent: no
     exclusion radius around them, and the first attempt stays the first.
     """
-    if criterion not in CRITERIA:
-        msg = f"unknown selection criterion {criterion!r}; choose one of {', '.join(CRITERIA)}"
-        raise ReplanError(msg)
-    check_numbers(
-        ReplanError,
-        "replan settings",
-        non_negative={} if exclude_radius is None else {"exclude_radius": exclude_radius},
-        at_least_one={"k": k},
-    )
+    strategy, criterion, k = config.strategy, config.criterion, config.k
     from care_maps.query.openvocab import QueryTarget, open_query
 
     target = query if isinstance(query, QueryTarget) else open_query(cmap, query)
@@ -371,7 +359,7 @@ def next_goal(
     if visited_ids.size and (visited_ids.min() < 0 or visited_ids.max() >= cmap.num_candidates):
         msg = f"visited candidate ids must lie in 0..{cmap.num_candidates - 1}"
         raise ReplanError(msg)
-    default_radius = DEFAULT_EXCLUDE_RADIUS if exclude_radius is None else exclude_radius
+    default_radius = config.exclude_radius
     places = np.asarray(visited_at, dtype=np.float64).reshape(-1, 2)
     available = np.ones_like(conf, dtype=bool)
     available[0, candidates_near(cmap, places, default_radius)] = False
@@ -410,7 +398,7 @@ def next_goal(
         columns = {name: cmap.column(name) for name in REPLAN_COLUMNS}
         pick, size = _step(
             chosen, conf, available, columns, criterion=criterion, k=k, rank=rank,
-            rng=np.random.default_rng(seed), success=None, distance=here,
+            rng=np.random.default_rng(config.seed), success=None, distance=here,
         )  # fmt: skip
     c = int(pick.candidate[0])
     fell = bool(pick.fell_back[0])

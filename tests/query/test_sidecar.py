@@ -19,7 +19,7 @@ from care_maps.fuse.sidecar import SidecarWriter, sidecar_path
 from care_maps.query import load_map
 from care_maps.query.confidence import log_confidence
 from care_maps.query.map import map_from_table
-from care_maps.replan.attempts import available_after, next_goal
+from care_maps.replan.attempts import ReplanConfig, available_after, next_goal
 
 VOCAB = ["chair", "sofa", "table", "bed", "lamp"]
 CELL = 0.05
@@ -120,7 +120,7 @@ def test_replan_after_failures_matches_the_pass_over_every_cell(tmp_path) -> Non
     conf = log_confidence(cmap, [2])
     visited: list[int] = []
     for _ in range(10):
-        choice = next_goal(cmap, "table", visited, strategy="min_stderr", k=4)
+        choice = next_goal(cmap, "table", visited, config=ReplanConfig(strategy="min_stderr", k=4))
         available = np.ones((1, cmap.num_candidates), bool)
         for v in visited:
             available = available_after(available, np.array([v]), cmap.positions, 1.0)

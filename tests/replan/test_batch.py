@@ -14,7 +14,7 @@ from care_maps.core.encoders.sentence import sentence_model
 from care_maps.core.errors import ReplanError
 from care_maps.query.map import CandidateMap
 from care_maps.replan import STRATEGIES
-from care_maps.replan.attempts import next_goal
+from care_maps.replan.attempts import ReplanConfig, next_goal
 from care_maps.replan.batch import RANKING, BatchConfig, BatchQuery, plan_batch, read_queries
 
 NAMES = ("chair", "sofa", "bed", "table", "lamp", "sink", "toilet", "tv", "plant", "cabinet")
@@ -78,10 +78,7 @@ def test_batch_rows_equal_one_at_a_time_calls(grid_map: CandidateMap) -> None:
                     if name == "no_replan" and (visited or q.visited_at):
                         expected.append(-1)
                         continue
-                    choice = next_goal(
-                        grid_map, q.text, visited, strategy=name,
-                        criterion=criterion or "confidence", k=config.k, visited_at=q.visited_at,
-                    )  # fmt: skip
+                    choice = next_goal(grid_map, q.text, visited, config=ReplanConfig(strategy=name, criterion=criterion or "confidence", k=config.k), visited_at=q.visited_at)  # fmt: skip
                     expected.append(choice.candidate)
                     if choice.candidate < 0:
                         break

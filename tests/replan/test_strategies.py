@@ -16,7 +16,7 @@ from care_maps.replan import (
     expected_random_success,
     run_attempts,
 )
-from care_maps.replan.attempts import available_after, next_goal
+from care_maps.replan.attempts import ReplanConfig, available_after, next_goal
 
 # candidate:      0     1     2     3     4     5
 CONF = np.array([[0.40, 0.20, 0.20, 0.10, 0.06, 0.04]])
@@ -211,26 +211,34 @@ def test_next_goal_live_api() -> None:
     first = next_goal(cmap, "chair", [])
     assert (first.candidate, first.strategy, first.measure) == (0, "max_confidence", "confidence")
     # cell 1 lies within 1 m of the failed cell 0: excluded; the top-2 set is {2, 3}
-    second = next_goal(cmap, "chair", [0], strategy="min_stderr", k=2)
+    second = next_goal(cmap, "chair", [0], config=ReplanConfig(strategy="min_stderr", k=2))
     assert (second.candidate, second.strategy, second.value) == (3, "min_stderr", 0.0)
-    second = next_goal(cmap, "chair", [0], strategy="min_stderr", k=2, exclude_radius=0)
+    second = next_goal(
+        cmap, "chair", [0], config=ReplanConfig(strategy="min_stderr", k=2, exclude_radius=0)
+    )
     assert second.candidate == 2
     assert second.set_size == 2
-    inst = next_goal(_tiny_map("instances"), "chair", [0], strategy="min_stderr", k=1)
+    inst = next_goal(
+        _tiny_map("instances"), "chair", [0], config=ReplanConfig(strategy="min_stderr", k=1)
+    )
     assert inst.candidate == 1
-    fell = next_goal(cmap, "bed", [3], strategy="min_stderr", criterion="category", k=1)
+    fell = next_goal(
+        cmap, "bed", [3], config=ReplanConfig(strategy="min_stderr", criterion="category", k=1)
+    )
     assert fell.fell_back
     assert fell.strategy == "max_confidence"
     assert next_goal(cmap, 0, [0, 2, 3]).candidate == -1
     with pytest.raises(ReplanError, match="no further attempt"):
-        next_goal(cmap, "chair", [0], strategy="no_replan")  # its one attempt was made
+        next_goal(
+            cmap, "chair", [0], config=ReplanConfig(strategy="no_replan")
+        )  # its one attempt was made
     # free text resolves as in `care query`: an in-memory map has no store text side, so the
     # sentence model maps it to the nearest class
     assert next_goal(cmap, "couch", []) == next_goal(cmap, "sofa", [])
     with pytest.raises(QueryError, match="empty"):
         next_goal(cmap, "  ", [])
-    with pytest.raises(ReplanError, match="unknown replan strategy"):
-        next_goal(cmap, "chair", [0], strategy="best")
+    with pytest.raises(ReplanError, match="unknown strategy 'best'"):  # checked once, made
+        ReplanConfig(strategy="best")
 
 
 def test_next_goal_travel_rules_take_the_distances() -> None:
@@ -238,7 +246,7 @@ def test_next_goal_travel_rules_take_the_distances() -> None:
     a travel rule without them is refused, not played as if every candidate were as far."""
     cmap = _tiny_map()
     # nothing excluded around the failed 0: the top-2 chair set is {1, 2}
-    ask = {"strategy": "nearest_topk", "k": 2, "exclude_radius": 0}
+    ask = {"config": ReplanConfig(strategy="nearest_topk", k=2, exclude_radius=0)}
     near = next_goal(cmap, "chair", [0], **ask, distance=[0.0, 9.0, 1.0, 2.0])
     assert (near.candidate, near.strategy, near.set_size) == (2, "nearest_topk", 2)
     assert next_goal(cmap, "chair", [0], **ask, distance=[0.0, 1.0, 9.0, 0.5]).candidate == 1
@@ -340,17 +348,28 @@ def test_visited_positions_count_the_candidates_around_them(kind: str) -> None:
     tree = cKDTree(cmap.positions[:, :2].astype(np.float64))
     expected = sorted({i for hits in tree.query_ball_point(places, r=1.0) for i in hits})
     np.testing.assert_array_equal(candidates_near(cmap, places, 1.0), expected)
-    by_place = next_goal(cmap, "chair", visited_at=places, strategy="min_stderr", k=2)
+    by_place = next_goal(
+        cmap, "chair", config=ReplanConfig(strategy="min_stderr", k=2), visited_at=places
+    )
     # the places exclude what lies within the radius of them, not again around each candidate
-    by_id = next_goal(cmap, "chair", expected, strategy="min_stderr", k=2, exclude_radius=0)
+    by_id = next_goal(
+        cmap, "chair", expected, config=ReplanConfig(strategy="min_stderr", k=2, exclude_radius=0)
+    )
     assert by_place == by_id
     assert by_place.strategy == "min_stderr"  # a replan, not a first attempt
     # a place beyond the radius of every candidate's box was given in another frame
     lo, hi = cmap.positions[:, :2].min(0), cmap.positions[:, :2].max(0)
     edge = (float(hi[0]) + 0.9, float(lo[1]))
-    at_edge = next_goal(cmap, "chair", visited_at=[edge], strategy="min_stderr", k=2)
+    at_edge = next_goal(
+        cmap, "chair", config=ReplanConfig(strategy="min_stderr", k=2), visited_at=[edge]
+    )
     assert at_edge.strategy == "min_stderr"  # the robot looked somewhere: not a first attempt
     with pytest.raises(ReplanError, match=r"visited position 50,50 lies outside the map"):
-        next_goal(cmap, "chair", visited_at=[(50.0, 50.0)], strategy="min_stderr", k=2)
+        next_goal(
+            cmap,
+            "chair",
+            config=ReplanConfig(strategy="min_stderr", k=2),
+            visited_at=[(50.0, 50.0)],
+        )
     with pytest.raises(ReplanError, match="finite"):
         next_goal(cmap, "chair", visited_at=[(np.nan, 0.0)])
