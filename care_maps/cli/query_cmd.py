@@ -118,22 +118,19 @@ def query(
     if batch is not None:
         _batch(store, kind, batch, out, weights, goal.config(), config, paths)
         return
+    from care_maps.replan.ask import answer_query
+
     target = _resolve(store, kind, text, weights)
-    answer = _answer_goals(store, target.cmap, goal.config(), paths)
-    ranking, first = _first_offer(answer, target.confidence())
-    rows = [_row(answer, target, ranking, int(c)) for c in ranking.order[: config.top]]
-    result = {
-        "query": text,
-        "class": target.match.names[0],
-        "method": target.match.method,
-        "frame_id": answer.goals.frame_id,
-        "candidates": rows,
-        **_offered(answer, first, ranking),
-    }
+    found = answer_query(
+        store, text, top=config.top, goal=goal.config(), paths=paths, target=target
+    )
+    answer, result = found.goals, found.as_dict()
     if rrd is not None:
         from care_maps.cli.answer_rrd import query_rrd
 
-        query_rrd(rrd, store, target, answer, config, first, ranking, result["path_note"])
+        query_rrd(
+            rrd, store, target, answer, config, found.offered, found.ranking, result["path_note"]
+        )
     if as_json:
         typer.echo(json.dumps(result))
         return
@@ -229,6 +226,7 @@ def replan(
     import dataclasses
 
     from care_maps.replan.answer import offer_next
+    from care_maps.replan.ask import answer_goals, offered_dict, position_in_frame
     from care_maps.replan.strategies import get_strategy
 
     _check_rrd(rrd, store)
@@ -236,7 +234,7 @@ def replan(
     paths = path.config()
     target = _resolve(store, kind, text, weights)
     cmap, match = target.cmap, target.match
-    answer = _answer_goals(store, cmap, goal.config(), paths)
+    answer = answer_goals(store, cmap, goal.config(), paths)
     config = settings.config()
     distance = None
     if get_strategy(config.strategy).travel:
@@ -245,10 +243,10 @@ def replan(
     out = dataclasses.asdict(offered.choice)
     found = offered.offer is not None
     out["frame_id"] = answer.goals.frame_id
-    out["position"] = _position(answer, offered.choice.candidate) if found else None
+    out["position"] = position_in_frame(answer, offered.choice.candidate) if found else None
     out["class"] = match.names[0]
     out["method"] = match.method
-    way = _offered(answer, offered)
+    way = offered_dict(answer, offered)
     del way["candidate"], way["rank"]  # the choice says which
     out.update(way)
     if rrd is not None:
@@ -285,8 +283,10 @@ def _batch(
     check_file_output(out, inputs=[store, batch], flag="--out", magic=(b"PAR1",))
     cmap = load_map(store, kind, weights=weights)  # type: ignore[arg-type]
     start = time.perf_counter()
-    goals = _goal_maker(store, goal)
-    travel = _travel(store, goals, paths)
+    from care_maps.replan.ask import goal_maker, travel_from
+
+    goals = goal_maker(store, goal)
+    travel = travel_from(store, goals, paths)
     table = plan_batch(cmap, queries, config, goals=goals, travel=travel, progress=True)
     elapsed = time.perf_counter() - start
     write_table_atomic(table, out)
@@ -316,34 +316,6 @@ def _visited(values: list[str]) -> tuple[list[int], list[tuple[float, float]]]:
                 "of finite metres"
             )
     return ids, places
-
-
-def _goal_maker(store: Path, config: GoalConfig) -> Any:
-    """The store's :class:`care_maps.query.goals.GoalMaker`."""
-    from care_maps.query.goals import GoalMaker
-
-    return GoalMaker.from_store(store, config)
-
-
-def _travel(store: Path, goals: Any, config: PathConfig) -> Any:
-    """Shortest paths over the store's free space (:class:`care_maps.query.paths.Travel`) from
-    ``config.start``, else the recording's first pose; None without a grid or a start."""
-    from care_maps.query.paths import Roadmap
-
-    roadmap = Roadmap.for_goals(goals)
-    start = config.start or _first_position(store)
-    if roadmap is None or start is None:
-        return None
-    return roadmap.travel(start, config.start_reach)
-
-
-def _answer_goals(store: Path, cmap: Any, goal: GoalConfig, paths: PathConfig) -> Any:
-    """The offers of the map's candidates (:class:`care_maps.replan.answer.AnswerGoals`): goals, and
-    paths from ``paths.start``, else the recording's first pose."""
-    from care_maps.replan.answer import AnswerGoals
-
-    goals = _goal_maker(store, goal)
-    return AnswerGoals(goals, cmap, _travel(store, goals, paths), paths)
 
 
 def _candidate_distances(cmap: Any, answer: Any, strategy: str) -> Any:
@@ -376,95 +348,6 @@ def _no_path(travel: Any, config: PathConfig) -> str | None:
         f"no paths: no free cell keeps --clearance within {config.start_reach} m of the "
         f"start ({x:.2f}, {y:.2f}); give --from x,y in free space"
     )
-
-
-def _first_position(store: Path) -> tuple[float, float] | None:
-    """The recording's first camera position (:meth:`care_maps.core.store.Store.first_position`)."""
-    from care_maps.core.store import Store
-
-    return Store(store).first_position()
-
-
-class _Ranking:
-    """A query's candidates by confidence (ties by lower id), and each one's rank."""
-
-    def __init__(self, conf: Any) -> None:
-        import numpy as np
-
-        from care_maps.query import rank_by_confidence
-
-        self.conf = conf
-        self.order = rank_by_confidence(conf[None])[0]
-        self.rank = np.empty(len(self.order), np.int64)
-        self.rank[self.order] = np.arange(1, len(self.order) + 1)
-
-
-def _first_offer(answer: Any, conf: Any) -> tuple[_Ranking, Any]:
-    """The ranking and its first attempt (:func:`care_maps.replan.answer.first_offer`)."""
-    from care_maps.replan.answer import first_offer
-
-    ranking = _Ranking(conf)
-    return ranking, first_offer(answer, ranking.order)
-
-
-def _position(answer: Any, candidate: int) -> list[float]:
-    """The candidate's position in the goals' frame."""
-    return [float(v) for v in answer.goals.in_frame(answer.cmap.positions[candidate])[0]]
-
-
-def _row(answer: Any, target: Any, ranking: _Ranking, c: int) -> dict:
-    """One candidate of ``care query``'s answer: measures, position and goal (in the goals'
-    frame), the metres to the goal (None: no way to it) and what its offer says."""
-    cmap, offer = target.cmap, answer.offer(c)
-    plain = offer.drive is offer.goal
-    return {
-        "rank": int(ranking.rank[c]),
-        "candidate": c,
-        "confidence": float(ranking.conf[c]),
-        "entropy": float(cmap.entropy[c]),
-        "stderr": float(cmap.stderr[c]),
-        "pwkl": float(cmap.pwkl[c]),
-        "num_views": int(cmap.num_views[c]),
-        "position": [round(v, 3) for v in _position(answer, c)],
-        "goal": offer.goal.as_dict(),
-        "distance": offer.distance if plain else None,
-        **offer.as_dict(),
-    }
-
-
-def _offered(answer: Any, offered: Any, ranking: _Ranking | None = None) -> dict:
-    """The answer's first (or next) attempt: the candidate, the goal the robot is sent to,
-    the way there (``nav_msgs/Path`` JSON in the goals' frame, ``distance`` and
-    ``path_length`` in metres, None: no way), the start (x, y, z in the goals' frame), the
-    candidates passed over and why, and the note on the way (None: plainly reachable)."""
-    from care_maps.query.paths import nav_path, path_length
-
-    offer = offered.offer
-    rank = (lambda c: int(ranking.rank[c])) if ranking is not None else (lambda c: None)
-    travel = answer.travel
-    start = None
-    if travel is not None:
-        start = [float(v) for v in answer.goals.in_frame([*travel.start, 0.0])[0]]
-    points = None if offer is None else offer.waypoints
-    note = answer.start_note if offer is None else offer.note
-    if offer is None and (offered.passed or offered.left_out):
-        note = (
-            "no candidate left has a goal that keeps --clearance "
-            f"{answer.clearance:g} m and is reachable (see passed_over)"
-        )
-    return {
-        "candidate": None if offer is None else offer.candidate,
-        "rank": None if offer is None else rank(offer.candidate),
-        "goal": None if offer is None else offer.drive.as_dict(),
-        "path_state": None if offer is None else offer.state.value,
-        "passed_over": [p.passed(rank(p.candidate)) for p in offered.passed],
-        "passed_over_more": offered.left_out,
-        "distance": None if points is None else offer.distance,
-        "path": None if points is None else nav_path(offer.drive, points),
-        "path_length": None if points is None else path_length(points),
-        "start": start,
-        "path_note": note,
-    }
 
 
 def _check_rrd(rrd: Path | None, store: Path) -> None:

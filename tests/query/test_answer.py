@@ -372,3 +372,18 @@ def test_the_query_rrd_draws_the_candidates_of_its_goals(sample: Path, tmp_path:
     np.testing.assert_allclose(objects[0], cmap.positions[answer["candidate"]], atol=1e-5)
     for obj, arrow in zip(objects, arrows, strict=True):  # each object within reach of its goal
         assert np.hypot(*(obj[:2] - arrow[:2])) <= REACH + 1e-6
+
+
+def test_the_python_answer_is_the_commands(sample: Path) -> None:
+    """``answer_query`` from Python gives what ``care query --json`` prints: one assembly of
+    the answer for both."""
+    from care_maps.core.maps import MapKind
+    from care_maps.query.paths import PathConfig
+    from care_maps.replan.ask import answer_query
+
+    printed = json.loads(
+        _care("query", sample, "chair", "--map", "grid", "--json", "--from", FREE_START)
+    )
+    start = tuple(float(v) for v in FREE_START.split(","))
+    found = answer_query(sample, "chair", kind=MapKind.GRID, paths=PathConfig(start=start))
+    assert json.loads(json.dumps(found.as_dict())) == printed
