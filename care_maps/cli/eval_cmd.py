@@ -120,10 +120,10 @@ def eval_(
 
     Ground truth formats: native, annotations (JSON/YAML/CSV boxes), ply (labelled PLY),
     scannet, matterport, replica; see --gt and docs/evaluation.md."""
-    from care_maps.evaluate.job import run_eval
+    from care_maps.evaluate import evaluate
 
     config = settings.config()
-    report = run_eval(
+    report = evaluate(
         dataset, config, out, run=_execution(run, ray),
         gt=tuple(gt or ()), gt_defaults=_gt_defaults(gt_format, gt_transform, gt_class_map),
     )  # fmt: skip

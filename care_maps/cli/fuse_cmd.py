@@ -157,7 +157,7 @@ def grid(
 
     Settings not given are those the store's grid was built with (so a map made by
     `care run` is not rebuilt), else the defaults shown."""
-    from care_maps.fuse.grid import build_grid
+    from care_maps.fuse import fuse_grid
     from care_maps.fuse.recompute import recompute_grid
     from care_maps.fuse.viz_grid import log_grid
 
@@ -168,7 +168,7 @@ def grid(
         if recompute:
             path = recompute_grid(store, *_recompute_args(settings, config), run=how)
         else:
-            path = build_grid(store, config, run=how)
+            path = fuse_grid(store, config, run=how)
         if rrd is not None:
             log_grid(store, rrd, target=rrd_class)
     _summary(path)
@@ -222,7 +222,8 @@ def instances(
 
     Settings not given are those the store's instance map was built with, else the
     defaults shown."""
-    from care_maps.fuse.instances import build_instances, recompute_instances
+    from care_maps.fuse import fuse_instances
+    from care_maps.fuse.instances import recompute_instances
 
     # options checked (InstanceConfig.__post_init__) before any work
     config = settings.config(
@@ -234,7 +235,7 @@ def instances(
         if recompute:
             path = recompute_instances(store, *_recompute_args(settings, config))
         else:
-            path = build_instances(store, config, run=how)
+            path = fuse_instances(store, config, run=how)
         if rrd is not None:
             from care_maps.fuse.viz_instances import log_instances
 

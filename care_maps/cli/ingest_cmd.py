@@ -82,14 +82,14 @@ def ingest(
     """Read a robot recording or a dataset folder into a feature store (views, poses,
     features)."""
     from care_maps.cli.summary import geometry_line, ingest_line
-    from care_maps.ingest.pipeline import run_ingest
+    from care_maps.ingest import ingest
 
     config = job.config(
         read=read.config(),
         encoder_options=encoding.config(),
         select=selection.config(),
     )
-    path = run_ingest(recording, out, config, run=run.config())
+    path = ingest(recording, out, config, run=run.config()).path
     for line in (ingest_line(path), geometry_line(path)):
         if line is not None:
             typer.echo(line)

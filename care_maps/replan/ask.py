@@ -17,6 +17,7 @@ from typing import Any
 from care_maps.core.maps import MapKind
 from care_maps.query.goals import GoalConfig
 from care_maps.query.paths import PathConfig
+from care_maps.replan.batch import BatchConfig
 
 __all__ = [
     "QueryAnswer",
@@ -76,7 +77,7 @@ def answer_query(
     text: str,
     *,
     kind: MapKind = MapKind.INSTANCES,
-    top: int = 10,
+    top: int = BatchConfig.top,
     goal: GoalConfig | None = None,
     paths: PathConfig | None = None,
     weights: Path | None = None,
