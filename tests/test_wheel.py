@@ -4,6 +4,7 @@ that runs the main job from any directory and lives beside Hugging Face's ``eval
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 import sys
@@ -14,6 +15,8 @@ import pytest
 
 pytestmark = pytest.mark.slow
 ROOT = Path(__file__).resolve().parents[1]
+ENV = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+"""The user's environment: nothing of the checkout on the path (only what is installed)."""
 
 
 @pytest.fixture(scope="module")
@@ -68,12 +71,12 @@ def test_care_run_from_an_empty_directory(venv: Path, tmp_path: Path) -> None:
     here.mkdir()
     where = subprocess.run(
         [str(venv / "bin" / "python"), "-c", "import care_maps; print(care_maps.__file__)"],
-        cwd=here, check=True, capture_output=True, text=True,
+        cwd=here, check=True, capture_output=True, text=True, env=ENV,
     ).stdout.strip()  # fmt: skip
     assert where.startswith(str(venv)), where
     done = subprocess.run(
         [str(venv / "bin" / "care"), "run", "--out", "out", "--seeds", "1"],
-        cwd=here, capture_output=True, text=True, check=False,
+        cwd=here, capture_output=True, text=True, check=False, env=ENV,
     )  # fmt: skip
     assert done.returncode == 0, done.stderr[-2000:]
     assert (here / "out" / "eval" / "results.md").is_file()
@@ -91,7 +94,7 @@ def test_beside_hugging_faces_evaluate(venv: Path, tmp_path: Path) -> None:
     )
     done = subprocess.run(
         [str(venv / "bin" / "python"), "-c", code],
-        cwd=tmp_path, capture_output=True, text=True, check=False,
+        cwd=tmp_path, capture_output=True, text=True, check=False, env=ENV,
     )  # fmt: skip
     assert done.returncode == 0, done.stderr[-2000:]
     assert "care_maps" not in done.stdout

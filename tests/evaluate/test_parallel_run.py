@@ -92,7 +92,7 @@ def _cluster_run(dataset: Path, out: Path) -> subprocess.CompletedProcess[str]:
         return subprocess.run(
             [sys.executable, "-m", "care_maps.cli.main", "run", str(dataset), "--out", str(out),
              "--seeds", "1", "--no-rrd-ingest", "--ray-address", f"127.0.0.1:{port}"],
-            env=env, capture_output=True, text=True, timeout=180, cwd=ROOT,
+            env=env, capture_output=True, text=True, timeout=900, cwd=ROOT,
         )  # fmt: skip
     finally:
         for proc in reversed(nodes):

@@ -21,6 +21,7 @@ import os
 import re
 import resource
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -77,6 +78,15 @@ def care_process(
     )
 
 
+def _as_a_terminal_job() -> None:
+    """The child as a job a terminal or a scheduler started: SIGHUP and SIGTERM at their
+    default, whatever the test runner inherited (under ``nohup`` SIGHUP is ignored, and the
+    program rightly keeps ignoring it), and without CAP_DAC_* (:func:`_drop_dac`)."""
+    for signum in (signal.SIGHUP, signal.SIGTERM):
+        signal.signal(signum, signal.SIG_DFL)
+    _drop_dac()
+
+
 def care_popen(*args: object) -> subprocess.Popen[str]:
     return subprocess.Popen(
         [sys.executable, "-m", "care_maps.cli.main", *map(str, args)],
@@ -85,7 +95,7 @@ def care_popen(*args: object) -> subprocess.Popen[str]:
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        preexec_fn=_drop_dac,
+        preexec_fn=_as_a_terminal_job,
     )
 
 
