@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import site as sitelib
 import subprocess
 import sys
 import zipfile
@@ -43,14 +44,18 @@ def wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="module")
 def venv(tmp_path_factory: pytest.TempPathFactory, wheel: Path) -> Path:
-    """A fresh virtual environment with the wheel installed; the dependencies come from this
-    interpreter's (``--system-site-packages``: nothing is downloaded)."""
+    """A fresh virtual environment with the wheel installed. Its dependencies come from this
+    interpreter's site-packages, put on its path by a ``.pth`` line (nothing is downloaded),
+    without running that directory's own ``.pth`` files: a development install of this
+    checkout there (``pip install -e``) would otherwise shadow the wheel."""
     env = tmp_path_factory.mktemp("venv") / "env"
-    subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", str(env)], check=True)
+    subprocess.run([sys.executable, "-m", "venv", str(env)], check=True)
+    (site,) = (env / "lib").glob("python*/site-packages")
+    (site / "dependencies.pth").write_text("\n".join(sitelib.getsitepackages()) + "\n")
     subprocess.run(
         [str(env / "bin" / "python"), "-m", "pip", "install", "-q", "--no-deps", "--no-index",
          str(wheel)],
-        check=True, capture_output=True, text=True,
+        check=True, capture_output=True, text=True, env=ENV,
     )  # fmt: skip
     return env
 
