@@ -18,15 +18,14 @@ Run: ``python bench/startup.py`` (``--repeat 1`` for a quick look).
 from __future__ import annotations
 
 import argparse
-import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench.cold_query import _best as best_run  # noqa: E402
 from bench.docs_section import add_docs_flag, recorded  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -54,13 +53,9 @@ print(time.perf_counter() - start)
 
 
 def _best(argv: list[str], repeat: int) -> float:
-    """Best wall time (s) of ``argv`` in a fresh process, ``repeat`` times."""
-    best = float("inf")
-    for _ in range(repeat):
-        start = time.perf_counter()
-        subprocess.run(argv, check=True, capture_output=True, env=os.environ)
-        best = min(best, time.perf_counter() - start)
-    return best
+    """Best wall time (s) of ``argv`` in a fresh process, ``repeat`` times (the cold-query
+    bench's measure, its peak memory left aside)."""
+    return best_run(argv, repeat)[0]
 
 
 def _own_work(args: list[str], repeat: int) -> float:
