@@ -16,7 +16,7 @@ import enum
 import functools
 import inspect
 import json
-import textwrap
+import sys
 from typing import Any
 
 __all__ = ["field_docs", "member", "recorded_fields"]
@@ -34,6 +34,22 @@ def member(kind: type[enum.Enum], value: object, error: type[Exception], what: s
 
 
 @functools.cache
+def _classes(module: str) -> dict[str, ast.ClassDef]:
+    """Qualified name -> class statement of every class a module defines, its source
+    parsed once (``inspect.getsource`` of a class parses its whole module each time)."""
+    source = inspect.getsource(sys.modules[module])
+    found: dict[str, ast.ClassDef] = {}
+    todo: list[tuple[str, ast.AST]] = [("", ast.parse(source))]
+    while todo:
+        prefix, node = todo.pop()
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, ast.ClassDef):
+                found[prefix + child.name] = child
+                todo.append((f"{prefix}{child.name}.", child))
+    return found
+
+
+@functools.cache
 def field_docs(cls: type) -> dict[str, str]:
     """Field name -> the first paragraph of the docstring under it, for a dataclass and its
     bases (a field without one maps to '')."""
@@ -41,8 +57,7 @@ def field_docs(cls: type) -> dict[str, str]:
     for klass in reversed(cls.__mro__):
         if not dataclasses.is_dataclass(klass):
             continue
-        tree = ast.parse(textwrap.dedent(inspect.getsource(klass)))
-        body = tree.body[0].body  # type: ignore[attr-defined]
+        body = _classes(klass.__module__)[klass.__qualname__].body
         for stmt, after in zip(body, [*body[1:], None], strict=True):
             if not (isinstance(stmt, ast.AnnAssign) and isinstance(stmt.target, ast.Name)):
                 continue

@@ -32,7 +32,6 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from care_maps.core.codecs import StoreEncoding, decode_jpeg, encode_jpeg, jpeg_size
@@ -361,6 +360,8 @@ def group_rows(table: pa.Table) -> int:
         if pa.types.is_fixed_size_list(field.type):
             per_row = max(per_row, field.type.list_size)
         elif pa.types.is_list(field.type) and table.num_rows:
+            import pyarrow.compute as pc  # ~0.1 s to import: only a writer of lists needs it
+
             lengths = pc.list_value_length(column).to_numpy(zero_copy_only=False)
             per_row = max(per_row, int(lengths.mean()))
     return max(1, _GROUP_LIST_VALUES // per_row)

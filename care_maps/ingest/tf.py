@@ -21,13 +21,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from enum import StrEnum
-from typing import NoReturn
+from typing import TYPE_CHECKING, NoReturn
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
 from care_maps.core.errors import IngestError
 from care_maps.ingest.decode import StampedTransform
+
+if TYPE_CHECKING:  # scipy's transforms load when a chain is first interpolated: not at start-up
+    from scipy.spatial.transform import Rotation, Slerp
 
 __all__ = ["TFBuffer", "Uncovered", "check_transform"]
 
@@ -95,6 +97,8 @@ class _Edge:
     def rotations_at(self, t: np.ndarray) -> Rotation:
         """The rotations at stamps ``t`` within the samples' span: scipy's ``Slerp`` between
         the samples on either side (built once per edge)."""
+        from scipy.spatial.transform import Rotation, Slerp
+
         stamps, _, rots = self.arrays()
         if len(stamps) == 1:
             return Rotation.from_quat(np.repeat(rots, len(t), axis=0))
@@ -107,6 +111,8 @@ class _Edge:
         stamps, trans, rots = self.arrays()
         n = len(times)
         if self.static:
+            from scipy.spatial.transform import Rotation
+
             T = _matrices(trans[-1:], Rotation.from_quat(rots[-1:]))
             return np.repeat(T, n, axis=0), np.ones(n, bool)
         valid = (times >= stamps[0] - tolerance_ns) & (times <= stamps[-1] + tolerance_ns)

@@ -132,13 +132,35 @@ def _set(n: int) -> None:
     global _PROCESS_THREADS
     _PROCESS_THREADS = n
     sync_torch()
-    # BLAS libraries loaded later (a lazily imported module) start at their own default, so
-    # numpy and scipy are imported first: their BLAS is what the array work here calls
-    import numpy  # noqa: F401
-    import scipy.linalg  # noqa: F401
+    import numpy  # noqa: F401  (its BLAS is loaded with it)
 
+    _set_blas_env(n)
     threadpool_limits(limits=n)  # not used as a context: stays in effect for the process
     _set_arrow(n)
+
+
+BLAS_ENV = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "BLIS_NUM_THREADS")
+"""The variables a BLAS library reads once, when it is loaded. threadpoolctl sizes the
+libraries already loaded; scipy brings its own OpenBLAS with its first import, which most
+commands never make or make late (importing scipy just to size it cost ~0.2 s of every
+command's start-up), so the count is also left here for a library that arrives later.
+(``OMP_NUM_THREADS`` is not set: see :func:`sync_torch`.)"""
+
+
+def _set_blas_env(n: int) -> dict[str, str | None]:
+    """Set :data:`BLAS_ENV` to ``n``; returns the values before."""
+    before = {name: os.environ.get(name) for name in BLAS_ENV}
+    for name in BLAS_ENV:
+        os.environ[name] = str(n)
+    return before
+
+
+def _restore_env(before: dict[str, str | None]) -> None:
+    for name, value in before.items():
+        if value is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = value
 
 
 def _set_arrow(n: int) -> int:
@@ -175,10 +197,12 @@ def threads_for(work: Work) -> Iterator[int]:
     _PROCESS_THREADS = n
     sync_torch()
     arrow_before = _set_arrow(n)
+    env_before = _set_blas_env(n)
     try:
         with threadpool_limits(limits=n):
             yield n
     finally:
+        _restore_env(env_before)
         _PROCESS_THREADS = process_before
         torch = sys.modules.get("torch")
         if torch is not None:

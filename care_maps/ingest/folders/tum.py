@@ -43,7 +43,6 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
 from care_maps.core.errors import IngestError
 from care_maps.core.frames import Frame
@@ -230,6 +229,8 @@ class TumLayout(FolderLayout):
         out = np.repeat(np.eye(4)[None], len(times), axis=0)
         for axis in range(3):
             out[:, axis, 3] = np.interp(t, base, poses[:, axis, 3])
+        from scipy.spatial.transform import Rotation, Slerp  # here: not at the CLI's start-up
+
         rotations = Rotation.from_matrix(poses[:, :3, :3])
         if len(stamps) > 1:
             out[:, :3, :3] = Slerp(base, rotations)(t).as_matrix()
