@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from care_maps.evaluate.scene_test import scene_signflip
+from care_maps.evaluate.scene_test import N_SIGN_FLIPS, SceneTest, scene_signflip
 
 __all__ = [
     "PairedComparison",
@@ -144,6 +144,9 @@ class PairedComparison:
     """Scene-level sign-flip p-value (:mod:`care_maps.evaluate.scene_test`); NaN without ``groups``."""
     scenes: int = 0
     """Scenes (groups) compared; 0 without ``groups``."""
+    scene: SceneTest | None = None
+    """The whole scene-level test (its smallest attainable p, Monte Carlo error, effective
+    scenes and equivalence p-value); None without ``groups``."""
 
 
 def compare(
@@ -164,7 +167,7 @@ def compare(
     if a.shape != b.shape:
         msg = f"paired comparison needs aligned queries, got {a.shape} and {b.shape}"
         raise ValueError(msg)
-    lo, hi, scene_p, scenes = paired_interval(
+    lo, hi, scene = _interval(
         a, b, rng=rng, n_resamples=n_resamples, confidence=confidence, groups=groups
     )
     binary = bool(np.isin(a, (0.0, 1.0)).all() and np.isin(b, (0.0, 1.0)).all())
@@ -186,8 +189,9 @@ def compare(
         neither=float(np.sum((1 - a) * (1 - b))),
         first_ties=ties,
         p_value=mcnemar_exact(round(only_a), round(only_b)) if binary else float("nan"),
-        scene_p=scene_p,
-        scenes=scenes,
+        scene_p=float("nan") if scene is None else scene.p_value,
+        scenes=0 if scene is None else scene.scenes,
+        scene=scene,
     )
 
 
@@ -208,20 +212,40 @@ def paired_interval(
     :data:`care_maps.evaluate.scene_test.MIN_SCENES` scenes the interval is ``(nan, nan)``, as the
     test cannot reject there. Without ``groups`` the queries are the units: the paired
     percentile bootstrap, no scene p-value (NaN) and 0 scenes. ``n_resamples``: bootstrap
-    resamples, or the random sign patterns above
-    :data:`care_maps.evaluate.scene_test.EXACT_MAX_SCENES` scenes (all of them below); 0: no interval.
+    resamples (the scene test enumerates every sign pattern up to
+    :data:`care_maps.evaluate.scene_test.EXACT_MAX_SCENES` scenes, else draws
+    :data:`care_maps.evaluate.scene_test.N_SIGN_FLIPS`); 0: no interval.
     """
+    lo, hi, scene = _interval(
+        a, b, rng=rng, n_resamples=n_resamples, confidence=confidence, groups=groups
+    )
+    if scene is None:
+        scenes = 0 if groups is None else len(np.unique(np.asarray(groups)))
+        return lo, hi, float("nan"), scenes
+    return lo, hi, scene.p_value, scene.scenes
+
+
+def _interval(
+    a: np.ndarray,
+    b: np.ndarray,
+    *,
+    rng: np.random.Generator,
+    n_resamples: int,
+    confidence: float,
+    groups: np.ndarray | None,
+) -> tuple[float, float, SceneTest | None]:
+    """:func:`paired_interval`'s interval and, with ``groups``, the whole scene test."""
     if groups is None:
         lo, hi = paired_bootstrap_ci(a, b, rng=rng, n_resamples=n_resamples, confidence=confidence)
-        return lo, hi, float("nan"), 0
+        return lo, hi, None
     if n_resamples <= 0:
-        return float("nan"), float("nan"), float("nan"), len(np.unique(np.asarray(groups)))
+        return float("nan"), float("nan"), None
     test = scene_signflip(
-        a, b, np.asarray(groups), rng=rng, alpha=1 - confidence, resamples=n_resamples
+        a, b, np.asarray(groups), rng=rng, alpha=1 - confidence, resamples=N_SIGN_FLIPS
     )
     if test.low is None or test.high is None:
-        return float("nan"), float("nan"), test.p_value, test.scenes
-    return float(test.low), float(test.high), test.p_value, test.scenes
+        return float("nan"), float("nan"), test
+    return float(test.low), float(test.high), test
 
 
 def holm(p_values: np.ndarray) -> np.ndarray:

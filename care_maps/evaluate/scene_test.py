@@ -29,7 +29,20 @@ figure the paired table prints). The test of ``H0: delta = d`` takes
 ``>=`` has a tolerance (floating ties between patterns that are equal in exact arithmetic
 count as ties). With ``G`` scenes the smallest exact p-value is ``2 / 2^G`` (the observed
 pattern and its mirror image), so below :data:`MIN_SCENES` (6 at 0.05) the test cannot
-reject at all and the report prints "too few scenes" instead of an interval.
+reject at all and the report prints "too few scenes" instead of an interval. Scenes of very
+unequal sizes count for less: the rule is on the Kish effective number of scenes,
+``(sum n_g)^2 / sum n_g^2`` (:func:`effective_scenes`), as one scene of 200 queries beside
+seven of 10 dominates every sign pattern's sum (its p-value is 1 whatever the others say).
+The smallest attainable p-value is reported with every test (:attr:`SceneTest.min_p`), so a
+family of comparisons too large for its scenes says that it cannot reject instead of
+printing p-values that could never pass its correction. A Monte Carlo p-value comes with its
+standard error (:attr:`SceneTest.mc_error`).
+
+"Does as well" is a claim of its own: the two one-sided sign-flip tests (TOST) of
+``delta <= -m`` and ``delta >= m`` at the margin ``m`` = :data:`EQUIVALENCE_MARGIN`, fixed
+before any result; their larger p-value (:attr:`SceneTest.equivalence_p`) at or below
+``alpha`` shows the difference lies within the margin. One-sided, the smallest exact
+p-value is ``1 / 2^G``. Non-significance alone shows nothing of the kind.
 
 The 95% interval is the set of ``d`` the test does not reject, within ``[-1, 1]`` (a
 difference in success rates). It is computed exactly, not by bisection: for one pattern,
@@ -67,24 +80,35 @@ import numpy as np
 
 __all__ = [
     "ALPHA",
+    "EQUIVALENCE_MARGIN",
     "EXACT_MAX_SCENES",
     "MIN_SCENES",
     "N_SIGN_FLIPS",
     "SceneTest",
+    "effective_scenes",
+    "equivalence_p",
     "min_scenes",
     "scene_signflip",
     "scene_sums",
+    "scenes_for_family",
     "sign_vectors",
     "signflip_interval",
     "signflip_p",
+    "smallest_p",
 ]
 
 ALPHA = 0.05
 """Level of the test; the interval is its inversion (``1 - ALPHA`` = 95%)."""
-EXACT_MAX_SCENES = 16
-"""Up to this many scenes every sign pattern is enumerated (2^16 = 65,536 rows)."""
-N_SIGN_FLIPS = 20_000
-"""Random sign patterns drawn above :data:`EXACT_MAX_SCENES` scenes."""
+EXACT_MAX_SCENES = 20
+"""Up to this many scenes every sign pattern is enumerated (2^20 = 1,048,576: a few tens of
+milliseconds a comparison, by the doubling of :func:`_kept_sums`)."""
+N_SIGN_FLIPS = 100_000
+"""Random sign patterns drawn above :data:`EXACT_MAX_SCENES` scenes: the p-value's Monte
+Carlo standard error is at most 0.0016, 0.0007 near 0.05."""
+EQUIVALENCE_MARGIN = 0.03
+"""The equivalence margin, in success rate (3 points), fixed before any result: a difference
+shown to lie within +-3 points is "no difference that matters"; one not shown to is only
+"not shown to differ"."""
 TIE_TOLERANCE = 1e-9
 """``T* >= T - TIE_TOLERANCE * N`` (``N`` the query count, which bounds ``|T|``): a tie in
 exact arithmetic stays a tie in floating point."""
@@ -104,7 +128,33 @@ def min_scenes(alpha: float = ALPHA) -> int:
 
 
 MIN_SCENES = min_scenes()
-"""Fewest scenes at which the interval is reported at :data:`ALPHA` (6 at 0.05)."""
+"""Fewest effective scenes (:func:`effective_scenes`) at which the interval is reported at
+:data:`ALPHA` (6 at 0.05)."""
+
+
+def scenes_for_family(size: int, alpha: float = ALPHA) -> int:
+    """The fewest scenes at which a family of ``size`` two-sided sign-flip tests can reject
+    anything under Holm (or Bonferroni): the smallest ``G`` with ``2 / 2^G <= alpha / size``
+    (6 for one test at 0.05, 11 for 45)."""
+    return min_scenes(alpha / max(int(size), 1))
+
+
+def effective_scenes(counts: np.ndarray) -> float:
+    """Kish's effective number of scenes, ``(sum n_g)^2 / sum n_g^2``: the scene count for
+    equal sizes, fewer the more one scene dominates (0 without a query)."""
+    n = np.asarray(counts, np.float64)
+    square = float(np.sum(n * n))
+    return float(np.sum(n)) ** 2 / square if square > 0 else 0.0
+
+
+def smallest_p(scenes: int, patterns: int, exact: bool, *, sided: int = 2) -> float:
+    """The smallest p-value a sign-flip test over ``scenes`` scenes can give: ``2 / 2^G``
+    two-sided (the observed pattern and its mirror), ``1 / 2^G`` one-sided; with ``patterns``
+    random patterns no less than ``1 / (1 + patterns)`` either."""
+    if scenes < 1:
+        return 1.0
+    floor = sided / 2.0**scenes
+    return float(floor if exact else max(floor, 1.0 / (1 + patterns)))
 
 
 @dataclass(frozen=True)
@@ -122,6 +172,17 @@ class SceneTest:
     scenes: int
     exact: bool
     """All ``2^G`` sign patterns enumerated (else ``resamples`` random ones)."""
+    effective: float = 0.0
+    """Kish's effective number of scenes (:func:`effective_scenes`), which the interval's
+    rule counts."""
+    min_p: float = 1.0
+    """The smallest two-sided p-value this many scenes and patterns can give
+    (:func:`smallest_p`)."""
+    mc_error: float = 0.0
+    """Monte Carlo standard error of ``p_value`` (0 when exact)."""
+    equivalence_p: float = float("nan")
+    """p-value of the equivalence test within +-:data:`EQUIVALENCE_MARGIN` (TOST, the larger
+    of the two one-sided sign-flip p-values)."""
 
 
 def scene_sums(a: np.ndarray, b: np.ndarray, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -222,13 +283,58 @@ def _check(sums: np.ndarray, counts: np.ndarray, signs: np.ndarray) -> None:
 
 
 def _p_from_kept(
-    kept: tuple[np.ndarray, np.ndarray], total_s: float, total_n: float, d: float, exact: bool
+    kept: tuple[np.ndarray, np.ndarray],
+    total_s: float,
+    total_n: float,
+    d: float,
+    exact: bool,
+    *,
+    side: int = 0,
 ) -> float:
+    """p-value of ``delta = d``: two-sided (``side`` 0, ``|T*| >= |T|``), or one-sided
+    against ``delta > d`` (``side`` +1, ``T* >= T``) or ``delta < d`` (-1, ``T* <= T``)."""
     kept_s, kept_n = kept
-    observed = abs(total_s - d * total_n)
-    flipped = np.abs((2 * kept_s - total_s) - d * (2 * kept_n - total_n))
+    observed = total_s - d * total_n
+    flipped = (2 * kept_s - total_s) - d * (2 * kept_n - total_n)
+    if side == 0:
+        observed, flipped = abs(observed), np.abs(flipped)
+    elif side < 0:
+        observed, flipped = -observed, -flipped
     hits = np.count_nonzero(flipped >= observed - TIE_TOLERANCE * max(total_n, 1.0))
     return _p_of_count(hits, len(kept_s), exact)
+
+
+def _equivalence_from_kept(
+    kept: tuple[np.ndarray, np.ndarray],
+    total_s: float,
+    total_n: float,
+    exact: bool,
+    margin: float,
+) -> float:
+    """TOST: the larger of the one-sided p-values of ``delta <= -margin`` (against larger)
+    and ``delta >= margin`` (against smaller)."""
+    above = _p_from_kept(kept, total_s, total_n, -margin, exact, side=1)
+    below = _p_from_kept(kept, total_s, total_n, margin, exact, side=-1)
+    return max(above, below)
+
+
+def equivalence_p(
+    sums: np.ndarray,
+    counts: np.ndarray,
+    margin: float = EQUIVALENCE_MARGIN,
+    *,
+    signs: np.ndarray,
+    exact: bool,
+) -> float:
+    """p-value of the equivalence test ``|delta| < margin`` (two one-sided sign-flip tests,
+    the larger p); NaN without a scene."""
+    sums = np.asarray(sums, np.float64)
+    counts = np.asarray(counts, np.float64)
+    _check(sums, counts, signs)
+    if not len(sums):
+        return float("nan")
+    kept = _kept_sums(signs, sums, counts)
+    return _equivalence_from_kept(kept, float(sums.sum()), float(counts.sum()), exact, margin)
 
 
 def signflip_p(
@@ -304,9 +410,11 @@ def scene_signflip(
     ``a``, ``b``: per-query outcomes in ``[0, 1]`` (aligned; fractions where a strategy is
     averaged over seeds); ``groups``: the scene of each query; ``rng``: the comparison's
     generator (:func:`care_maps.evaluate.paired.comparison_rng`), drawn from only above
-    :data:`EXACT_MAX_SCENES` scenes. The interval is None below :func:`min_scenes` scenes
-    (``alpha``'s, :data:`MIN_SCENES` at 0.05); the p-value is always given (then never below
-    ``alpha``). Without a query: NaN estimate and p-value, no interval.
+    :data:`EXACT_MAX_SCENES` scenes. The interval is None below :func:`min_scenes` effective
+    scenes (``alpha``'s, :data:`MIN_SCENES` at 0.05; :func:`effective_scenes`); the p-value
+    is always given, with the smallest one attainable and, drawn at random, its Monte Carlo
+    error; so is the equivalence test's within :data:`EQUIVALENCE_MARGIN`. Without a query:
+    NaN estimate and p-values, no interval.
     """
     sums, counts = scene_sums(a, b, groups)
     scenes = len(sums)
@@ -316,9 +424,11 @@ def scene_signflip(
     kept = _kept_sums(signs, sums, counts)
     total_s, total_n = float(sums.sum()), float(counts.sum())
     p_value = _p_from_kept(kept, total_s, total_n, 0.0, exact)
+    effective = effective_scenes(counts)
     low = high = None
-    if scenes >= min_scenes(alpha):
+    if effective >= min_scenes(alpha) - TIE_TOLERANCE:
         low, high = _interval_from_kept(kept, total_s, total_n, exact, alpha)
+    patterns = len(kept[0])
     return SceneTest(
         estimate=total_s / total_n,
         low=low,
@@ -326,4 +436,8 @@ def scene_signflip(
         p_value=p_value,
         scenes=scenes,
         exact=exact,
+        effective=effective,
+        min_p=smallest_p(scenes, patterns, exact),
+        mc_error=0.0 if exact else float(np.sqrt(p_value * (1 - p_value) / patterns)),
+        equivalence_p=_equivalence_from_kept(kept, total_s, total_n, exact, EQUIVALENCE_MARGIN),
     )

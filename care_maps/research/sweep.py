@@ -8,7 +8,12 @@ module re-encodes the same recordings under each setting of a grid over (bias ra
 noise scale, view-dependent bias, view noise), builds both maps, plays the pre-registered
 rules (:data:`care_maps.evaluate.report.preregistered.PAPER_SETTINGS`) and max confidence, and
 reports each measure's paired gain over max confidence with its scene-level 95%
-interval (Holm over every comparison of the sweep) (``sweep.parquet``) and a figure of it (``sweep.png``): the figure the paper lacks.
+interval and its scene-level sign-flip p, Holm-corrected over every comparison of the sweep
+(``sweep.parquet``), and a figure of it (``sweep.png``): the figure the paper lacks. Holm
+over ``m`` comparisons needs a p-value of ``0.05 / m`` at least once, and ``G`` scenes give
+no less than ``2 / 2^G`` (:func:`care_maps.evaluate.scene_test.scenes_for_family`): with
+too few scenes per setting the table says the sweep cannot reject (``family_can_reject``)
+instead of printing corrected p-values that could never pass.
 
 Every setting is a perception override of the dataset's recorded model
 (``EncoderOptions.perception = "default:key=value,..."``), so the scenes and the
@@ -38,6 +43,7 @@ from care_maps.evaluate.config import DEFAULT_BOOTSTRAP
 from care_maps.evaluate.job import EvalConfig, run_eval
 from care_maps.evaluate.paired import holm
 from care_maps.evaluate.report.preregistered import PAPER_SETTINGS, headline_table
+from care_maps.evaluate.scene_test import ALPHA, scenes_for_family
 from care_maps.replan.strategies import StrategyName
 from care_maps.research.dataset_stats import MeasureConfig, map_dataset
 from care_maps.runtime.execution import Execution
@@ -46,6 +52,7 @@ __all__ = [
     "SWEEP_KNOBS",
     "SweepConfig",
     "SweepDesign",
+    "comparisons",
     "main",
     "plot_sweep",
     "run_sweep",
@@ -79,7 +86,8 @@ class SweepConfig:
     design: SweepDesign = SweepDesign.OAT
     """Which settings are run (:class:`SweepDesign`)."""
     bootstrap: int = DEFAULT_BOOTSTRAP
-    """Random sign patterns of each interval above 16 scenes (every pattern below)."""
+    """0: no intervals (otherwise the scene test's own patterns,
+    :mod:`care_maps.evaluate.scene_test`)."""
     workers: int = 1
     """Evaluation processes."""
     measure: MeasureConfig = field(default_factory=MeasureConfig)
@@ -116,16 +124,9 @@ def _tag(setting: dict[str, float]) -> str:
     return "_".join(f"{k}{setting[k]:g}" for k in SWEEP_KNOBS)
 
 
-def run_sweep(
-    dataset: Path, out: Path, config: SweepConfig | None = None, *, progress: bool = True
-) -> pa.Table:
-    """Run every setting on ``dataset`` under ``out`` (stores per setting are kept, so a
-    re-run resumes) and write ``out/sweep.parquet`` and ``out/sweep.png``."""
-    from tqdm import tqdm
-
-    config = config or SweepConfig()
-    out = Path(out)
-    evaluation = EvalConfig(
+def _evaluation() -> EvalConfig:
+    """What each setting is evaluated with: the pre-registered rules and max confidence."""
+    return EvalConfig(
         strategies=(
             StrategyName.NO_REPLAN,
             StrategyName.MAX_CONFIDENCE,
@@ -139,6 +140,28 @@ def run_sweep(
         seeds=1,
         bootstrap=0,
     )
+
+
+def comparisons(config: SweepConfig | None = None) -> int:
+    """The size of the sweep's Holm family: every setting's pre-registered rules against max
+    confidence, on each instance protocol and each grid protocol."""
+    evaluation = _evaluation()
+    per_setting = len(evaluation.protocols) * len(PAPER_SETTINGS[MapKind.INSTANCES]) + len(
+        evaluation.exclude_radii
+    ) * len(PAPER_SETTINGS[MapKind.GRID])
+    return len(sweep_settings(config or SweepConfig())) * per_setting
+
+
+def run_sweep(
+    dataset: Path, out: Path, config: SweepConfig | None = None, *, progress: bool = True
+) -> pa.Table:
+    """Run every setting on ``dataset`` under ``out`` (stores per setting are kept, so a
+    re-run resumes) and write ``out/sweep.parquet`` and ``out/sweep.png``."""
+    from tqdm import tqdm
+
+    config = config or SweepConfig()
+    out = Path(out)
+    evaluation = _evaluation()
     rows = []
     settings = sweep_settings(config)
     for setting in tqdm(settings, desc="sweep", unit="setting", disable=not progress):
@@ -176,12 +199,20 @@ def run_sweep(
                     "lo": r["lo"],
                     "hi": r["hi"],
                     "mcnemar_p": r["mcnemar_p"],
+                    "scene_p": r["scene_p"],
+                    "scene_min_p": r["scene_min_p"],
+                    "scenes": r["scenes"],
                     "n_queries": r["n_queries"],
                 }
             )
-    adjusted = holm(np.array([r["mcnemar_p"] for r in rows], np.float64))
+    # one family: every (setting, map, protocol, measure) compared, on the scene p-values
+    adjusted = holm(np.array([r["scene_p"] for r in rows], np.float64))
+    floor = min((r["scene_min_p"] for r in rows), default=1.0)
     for r, h in zip(rows, adjusted, strict=True):
-        r["holm_p"] = float(h)  # one family: every (setting, map, protocol, measure) compared
+        r["holm_p"] = float(h)
+        r["family_size"] = len(rows)
+        r["family_can_reject"] = bool(floor <= ALPHA / len(rows))
+        r["scenes_needed"] = scenes_for_family(len(rows))
     result = pa.Table.from_pylist(rows)
     write_table_atomic(result, out / "sweep.parquet")
     plot_sweep(result, out / "sweep.png", config)

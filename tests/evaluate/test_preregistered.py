@@ -7,12 +7,14 @@ import itertools
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute
 import pytest
 from statsmodels.stats.contingency_tables import mcnemar
 from statsmodels.stats.multitest import multipletests
 
 from care_maps.evaluate.report.preregistered import (
     PAPER_SETTINGS,
+    Reading,
     best_of_k_table,
     by_class_table,
     headline_table,
@@ -97,8 +99,12 @@ def test_headline_against_statsmodels_and_a_resampling_loop() -> None:
             assert _signflip_p(a, b, scenes, end - outward) > 0.05
             assert _signflip_p(a, b, scenes, end + outward) <= 0.05
     family = [r for r in vs_max if r["family"] == "pre-registered"]
-    expected = multipletests([r["mcnemar_p"] for r in family], method="holm")[1]
+    # Holm over the scene-level p-values, not the query-level McNemar ones
+    expected = multipletests([r["scene_p"] for r in family], method="holm")[1]
     np.testing.assert_allclose([r["holm_p"] for r in family], expected)
+    # 8 scenes: the smallest scene p is 2/256, below 0.05/3, so the family can reject
+    assert all(r["family_can_reject"] for r in family)
+    assert family[0]["family_min_p"] == pytest.approx(2 / 2**SCENES)
 
 
 def test_best_of_k_corrects_over_every_setting_tried() -> None:
@@ -106,7 +112,7 @@ def test_best_of_k_corrects_over_every_setting_tried() -> None:
     rows = best_of_k_table(attempts, bootstrap=50).to_pylist()
     assert len(rows) == 4
     assert {r["settings_tried"] for r in rows} == {4}
-    expected = multipletests([r["mcnemar_p"] for r in rows], method="holm")[1]
+    expected = multipletests([r["scene_p"] for r in rows], method="holm")[1]
     np.testing.assert_allclose([r["holm_p"] for r in rows], expected)
     best = [r for r in rows if r["best"] and r["strategy"] == "max_entropy"]
     assert len(best) == 1
@@ -127,3 +133,36 @@ def test_by_class_and_the_query_breakdown_count_queries() -> None:
     assert br["queries"] == SCENES * PER_SCENE
     assert br["unsolvable"] == sum(v == 0 for v in solved["oracle", "-", 0].values())
     assert br["first_attempt_solved"] == sum(solved["no_replan", "-", 0].values())
+
+
+def test_a_family_its_scenes_cannot_reject_says_so() -> None:
+    """Five scenes: the smallest two-sided sign-flip p is 2/32 = 0.0625 > 0.05, so no row
+    of any family can pass Holm: the rows say so instead of reading as a finding."""
+    attempts, _ = _attempts()
+    keep = pa.compute.is_in(attempts.column("scene"), pa.array([f"s{i}" for i in range(5)]))
+    rows = headline_table(attempts.filter(keep), bootstrap=50).to_pylist()
+    assert rows
+    for r in rows:
+        assert not r["family_can_reject"]
+        assert r["family_min_p"] == pytest.approx(min(1.0, 2 / 2**5 * r["baseline_choices"]))
+        assert r["reading"] == Reading.CANNOT_REJECT
+
+
+def test_a_baseline_chosen_as_the_best_of_several_is_corrected() -> None:
+    """Against the best random top-k, chosen from every random setting run, each scene p
+    enters Holm multiplied by their number (Bonferroni for the choice)."""
+    attempts, _ = _attempts()
+    extra = []
+    for k in (2, 4):
+        rows = attempts.filter(pa.compute.equal(attempts.column("strategy"), "max_confidence"))
+        extra += [
+            {**r, "strategy": "random_topk", "criterion": "confidence", "k": k}
+            for r in rows.to_pylist()
+        ]
+    table = pa.concat_tables([attempts, pa.Table.from_pylist(extra, schema=attempts.schema)])
+    rows = headline_table(table, bootstrap=50).to_pylist()
+    vs_random = [r for r in rows if r["baseline_choices"] > 1 and r["family"] == "pre-registered"]
+    assert vs_random
+    assert {r["baseline_choices"] for r in vs_random} == {2}
+    expected = multipletests([min(1.0, 2 * r["scene_p"]) for r in vs_random], method="holm")[1]
+    np.testing.assert_allclose([r["holm_p"] for r in vs_random], expected)

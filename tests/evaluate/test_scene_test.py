@@ -13,14 +13,18 @@ from scipy.stats import permutation_test
 
 from care_maps.evaluate.scene_test import (
     ALPHA,
+    EQUIVALENCE_MARGIN,
     EXACT_MAX_SCENES,
     MIN_SCENES,
+    effective_scenes,
+    equivalence_p,
     min_scenes,
     scene_signflip,
     scene_sums,
     sign_vectors,
     signflip_interval,
     signflip_p,
+    smallest_p,
 )
 from care_maps.research.coverage import coverage_markdown, coverage_table, simulate_null
 
@@ -141,7 +145,7 @@ def test_exact_p_value_matches_scipy_exact() -> None:
         assert ours == pytest.approx(theirs, abs=1e-12)
 
 
-@pytest.mark.parametrize(("scenes", "seed"), [(20, 1), (30, 2), (45, 3)])
+@pytest.mark.parametrize(("scenes", "seed"), [(21, 1), (30, 2), (45, 3)])
 def test_random_p_value_matches_scipy_within_monte_carlo_error(scenes: int, seed: int) -> None:
     sums, counts = _z(scenes, seed)
     delta = sums.sum() / counts.sum()
@@ -158,9 +162,9 @@ def test_random_p_value_matches_scipy_within_monte_carlo_error(scenes: int, seed
 
 def test_random_p_value_counts_the_observed_pattern() -> None:
     """``(1 + hits) / (1 + B)``: never zero, and one when every pattern ties."""
-    sums = np.full(20, 2.0)
-    counts = np.full(20, 10.0)
-    signs, _ = sign_vectors(20, rng=np.random.default_rng(0), resamples=999)
+    sums = np.full(21, 2.0)
+    counts = np.full(21, 10.0)
+    signs, _ = sign_vectors(21, rng=np.random.default_rng(0), resamples=999)
     assert signflip_p(sums, counts, 0.0, signs=signs, exact=False) == pytest.approx(1 / 1000)
     assert signflip_p(sums, counts, 0.2, signs=signs, exact=False) == 1.0
 
@@ -282,3 +286,79 @@ def test_coverage_table_smoke() -> None:
     text = coverage_markdown(rows)
     assert text.count("\n") == len(rows) + 1
     assert "too few scenes" in text
+
+
+def _brute_one_sided(sums, counts, d, side):
+    """Every sign pattern: the share whose signed sum reaches the observed one in the
+    direction ``side`` (+1: at least as large, -1: at most as large)."""
+    z = [s - d * n for s, n in zip(sums, counts, strict=True)]
+    observed = side * sum(z)
+    hits = sum(
+        side * sum(s * x for s, x in zip(signs, z, strict=True)) >= observed - 1e-9
+        for signs in itertools.product((1, -1), repeat=len(z))
+    )
+    return hits / 2 ** len(z)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_equivalence_p_is_the_larger_one_sided_brute_force_p(seed: int) -> None:
+    """TOST: ``max(p(delta <= -m), p(delta >= m))``, each one-sided p by plain enumeration."""
+    rng = np.random.default_rng(seed)
+    counts = rng.integers(5, 30, 9).astype(float)
+    sums = np.round(rng.uniform(-0.1, 0.1, 9) * counts)
+    signs, exact = sign_vectors(9, rng=rng)
+    m = EQUIVALENCE_MARGIN
+    expected = max(_brute_one_sided(sums, counts, -m, +1), _brute_one_sided(sums, counts, m, -1))
+    assert equivalence_p(sums, counts, signs=signs, exact=exact) == pytest.approx(expected)
+
+
+def test_equivalence_needs_a_small_and_precise_difference() -> None:
+    """Twelve scenes agreeing on a zero difference are shown equivalent within 3 points; the
+    same with a 5-point difference, or with three scenes, are not."""
+    counts = np.full(12, 20.0)
+    same = np.array([1, -1, 0, 0, 1, -1, 0, 0, 1, -1, 0, 0], float)
+    signs, exact = sign_vectors(12, rng=np.random.default_rng(0))
+    assert equivalence_p(same, counts, signs=signs, exact=exact) <= ALPHA
+    assert equivalence_p(same + 1, counts, signs=signs, exact=exact) > ALPHA
+    signs3, exact3 = sign_vectors(3, rng=np.random.default_rng(0))
+    # one-sided, three scenes cannot go below 1/8
+    assert equivalence_p(same[:3], counts[:3], signs=signs3, exact=exact3) >= 1 / 8
+
+
+def test_effective_scenes_is_kish() -> None:
+    """Hand-worked: equal sizes give the count; one scene of 200 and seven of 10 give
+    270^2 / (200^2 + 7 * 10^2) = 1.79."""
+    assert effective_scenes(np.full(8, 13.0)) == pytest.approx(8)
+    assert effective_scenes(np.array([200.0] + [10.0] * 7)) == pytest.approx(72900 / 40700)
+    assert effective_scenes(np.zeros(0)) == 0.0
+
+
+def test_one_dominant_scene_gets_no_interval() -> None:
+    """The issue's case: one scene of 200 queries beside seven of 10. Eight scenes, but
+    1.8 effective ones: no interval (its p-value is 1 whatever the small scenes say)."""
+    a, b, groups = _outcomes([0] + [3] * 7, 10)
+    big_a = np.concatenate([a[10:], np.zeros(200)])
+    big_b = np.concatenate([b[10:], np.zeros(200)])
+    big_groups = np.concatenate([groups[10:], np.full(200, 99)])
+    big_a[-5:] = 1.0  # the big scene: +5 of 200
+    big_b[-105:-5] = 1.0  # and -100 of 200 (net -95)
+    res = scene_signflip(big_a, big_b, big_groups, rng=np.random.default_rng(0))
+    assert res.scenes == 8
+    assert res.effective == pytest.approx(effective_scenes(np.array([200.0] + [10.0] * 7)))
+    assert res.low is None
+    assert res.p_value == pytest.approx(_brute_p(*scene_sums(big_a, big_b, big_groups)))
+
+
+def test_smallest_attainable_p_and_monte_carlo_error() -> None:
+    assert smallest_p(6, 64, exact=True) == pytest.approx(2 / 64)
+    assert smallest_p(6, 64, exact=True, sided=1) == pytest.approx(1 / 64)
+    assert smallest_p(40, 999, exact=False) == pytest.approx(1 / 1000)
+    a, b, groups = _outcomes([1, 2, 0, 3, 1, 2, 1, 0], 10)
+    res = scene_signflip(a, b, groups, rng=np.random.default_rng(0))
+    assert res.exact
+    assert res.min_p == pytest.approx(2 / 2**8)
+    assert res.mc_error == 0.0
+    a, b, groups = simulate_null(np.random.default_rng(5), EXACT_MAX_SCENES + 4)
+    res = scene_signflip(a, b, groups, rng=np.random.default_rng(1), resamples=4000)
+    assert not res.exact
+    assert res.mc_error == pytest.approx(np.sqrt(res.p_value * (1 - res.p_value) / 4000))

@@ -98,3 +98,15 @@ def test_the_explore_experiment_runs_end_to_end_at_a_tiny_size(tmp_path: Path) -
     for condition in Condition:
         name = condition if condition == Condition.BEFORE else f"{condition}-2"
         assert (stores / name / "cells.parquet").is_file(), name
+
+
+def test_the_sweep_has_enough_scenes_for_its_holm_family() -> None:
+    """The default sweep compares 5 settings x (3 rules on the instance protocol + 3 on each
+    of the 2 grid protocols) = 45 times; Holm over 45 can reject only if some p reaches
+    0.05 / 45, and G scenes give no less than 2 / 2^G: 11 scenes (2/2048 <= 0.00111 <
+    2/1024)."""
+    from care_maps.research.reproduce import SWEEP_SCENES
+    from care_maps.research.sweep import comparisons
+
+    assert comparisons() == 5 * (3 + 2 * 3)
+    assert 2 / 2**SWEEP_SCENES <= 0.05 / 45 < 2 / 2 ** (SWEEP_SCENES - 1)

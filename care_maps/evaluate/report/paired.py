@@ -142,6 +142,10 @@ def difference_text(row: dict) -> str:
     lo, hi = row.get("lo"), row.get("hi")
     if lo is None or hi is None or np.isnan(lo) or np.isnan(hi):
         scenes = row.get("scenes") or 0
+        effective = row.get("effective_scenes")
+        if effective is not None and not np.isnan(effective) and effective < scenes - 0.05:
+            # unequal scenes: the rule counts effective ones (care_maps.evaluate.scene_test)
+            return f"{diff} [no interval: {scenes} scenes, {effective:.1f} effective; it holds from {MIN_SCENES}]"
         return f"{diff} [no interval: {scenes} scene(s), it holds from {MIN_SCENES}]"
     return f"{diff} [{lo:+.1f}, {hi:+.1f}]"
 
