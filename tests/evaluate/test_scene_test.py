@@ -334,7 +334,7 @@ def test_effective_scenes_is_kish() -> None:
 
 
 def test_one_dominant_scene_gets_no_interval() -> None:
-    """The issue's case: one scene of 200 queries beside seven of 10. Eight scenes, but
+    """One scene of 200 queries beside seven of 10. Eight scenes, but
     1.8 effective ones: no interval (its p-value is 1 whatever the small scenes say)."""
     a, b, groups = _outcomes([0] + [3] * 7, 10)
     big_a = np.concatenate([a[10:], np.zeros(200)])
