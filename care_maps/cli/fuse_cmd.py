@@ -34,13 +34,21 @@ RrdOpt = Annotated[
 ]
 
 
-def _recompute_opt(source: str) -> Any:
-    return Annotated[
-        bool,
-        typer.Option(
-            help=f"Only recompute the columns for --vocabulary / --logit-scale from {source}."
-        ),
-    ]
+def _recompute_help(source: str) -> str:
+    return f"Only recompute the columns for --vocabulary / --logit-scale from {source}."
+
+
+GridRecomputeOpt = Annotated[
+    bool,
+    typer.Option(
+        help=_recompute_help(
+            "the store's views (the grid's settings as built; the same columns as a rebuild)"
+        )
+    ),
+]
+InstancesRecomputeOpt = Annotated[
+    bool, typer.Option(help=_recompute_help("instance_views.parquet"))
+]
 
 
 fuse_app = typer.Typer(
@@ -138,9 +146,7 @@ def grid(
     store: StoreArg,
     settings: Options[GridConfig],
     run: Options[Execution],
-    recompute: _recompute_opt(
-        "the store's views (the grid's settings as built; the same columns as a rebuild)"
-    ) = False,
+    recompute: GridRecomputeOpt = False,
     rrd: RrdOpt = None,
     up_axis: UpAxisOpt = None,
     floor_z: FloorOpt = None,
@@ -205,7 +211,7 @@ def instances(
     store: StoreArg,
     settings: Options[InstanceConfig],
     run: Options[Execution],
-    recompute: _recompute_opt("instance_views.parquet") = False,
+    recompute: InstancesRecomputeOpt = False,
     set_: Annotated[
         list[str] | None,
         typer.Option(

@@ -21,6 +21,7 @@ import sys
 import tempfile
 import threading
 import traceback
+import types
 from pathlib import Path
 from typing import Any
 
@@ -236,7 +237,7 @@ def _raise_again(unraisable: Any) -> None:
 def _handlers_before() -> dict[int, Any]:
     """The handler of each interrupting signal before this run (ours of an earlier run in
     this process, or the loading one, count as the default)."""
-    before = {}
+    before: dict[int, Any] = {}
     for signum in STOPS:
         handler = signal.getsignal(signum)
         if handler in (_stop_now, stop_while_loading, _interrupt):
@@ -308,6 +309,7 @@ def _leave(code: object, answered: list[int]) -> None:
 def _main() -> None:
     debug = "--debug" in sys.argv[1:] or os.environ.get("CARE_DEBUG") == "1"
     sys.argv = [a for a in sys.argv if a != "--debug"]
+    click_errors: types.ModuleType  # one of two modules of the same exceptions
     try:  # typer vendors click
         from typer._click import exceptions as click_errors
     except ImportError:  # pragma: no cover - older typer
@@ -330,8 +332,8 @@ def _main() -> None:
         if not err.format_message().strip():  # no arguments: the help was shown
             sys.exit(err.exit_code)
         ctx = getattr(err, "ctx", None)
-        command = ctx.command_path if ctx is not None else "care"
-        typer.echo(f"error: {_first_line(err.format_message())} (see `{command} --help`)", err=True)
+        path = ctx.command_path if ctx is not None else "care"
+        typer.echo(f"error: {_first_line(err.format_message())} (see `{path} --help`)", err=True)
         sys.exit(err.exit_code)
     except (KeyboardInterrupt, typer.Abort):
         _say()

@@ -31,7 +31,7 @@ import types
 import typing
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import Annotated, Any, TypeVar, Union
+from typing import Annotated, Any, TypeGuard, TypeVar, Union
 
 import typer
 
@@ -102,7 +102,7 @@ def _optional(tp: Any) -> Any:
     return tp
 
 
-def _is_enum(tp: Any) -> bool:
+def _is_enum(tp: Any) -> TypeGuard[type[enum.Enum]]:
     return isinstance(tp, type) and issubclass(tp, enum.Enum)
 
 
@@ -223,7 +223,8 @@ def _option(
         parse = check_frame_id
     enum_type = item if _is_enum(item) else inner if _is_enum(inner) else None
     choices = tuple(str(m.value) for m in enum_type) if enum_type else ()
-    if choices:  # in the help text too: a narrow terminal cuts the metavar, not the help
+    # in the help text too: a narrow terminal cuts the metavar, not the help
+    if choices and enum_type:
         help_ = with_choices(help_, enum_type, many=item is not None)
     if parse is not None:  # read as text, converted by the parser, None: not given
         shown = "none" if f.default is None else _text(f.default)

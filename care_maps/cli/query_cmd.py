@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Annotated, Any, NoReturn
+from typing import Annotated, Any, NoReturn, cast
 
 import typer
 
@@ -20,7 +20,7 @@ from care_maps.cli.choices import MapKind
 from care_maps.cli.options import Options, config_options, point_xy, with_choices
 from care_maps.query.goals import GoalConfig
 from care_maps.query.paths import PathConfig
-from care_maps.replan.attempts import ReplanConfig
+from care_maps.replan.attempts import Choice, ReplanConfig
 from care_maps.replan.batch import BatchConfig
 
 __all__ = ["register"]
@@ -43,7 +43,7 @@ def _resolve(store: Path, kind: str, text: str, weights: Path | None = None) -> 
     from care_maps.query import load_map
     from care_maps.query.openvocab import open_query
 
-    cmap = load_map(store, MapKind(kind).value, weights=weights)  # type: ignore[arg-type]
+    cmap = load_map(store, MapKind(kind).value, weights=weights)
     target = open_query(cmap, text)
     if target.match.method != "vocabulary":
         typer.echo(f"query {target.match.describe()}", err=True)
@@ -59,7 +59,7 @@ AnswerRrdOpt = Annotated[
     ),
 ]
 
-_BATCH = {
+_BATCH: dict[str, dict[str, Any]] = {
     "k": {"flags": ("-k",), "min": 1},
     "attempts": {"min": 1},
     "top": {"min": 1},
@@ -118,6 +118,8 @@ def query(
     if batch is not None:
         _batch(store, kind, batch, out, weights, goal.config(), config, paths)
         return
+    if text is None:  # no --batch: TEXT was given (checked above)
+        _fail("give either TEXT or --batch FILE")
     from care_maps.replan.ask import answer_query
 
     target = _resolve(store, kind, text, weights)
@@ -240,10 +242,11 @@ def replan(
     if get_strategy(config.strategy).travel:
         distance = _candidate_distances(cmap, answer, config.strategy)
     offered = offer_next(answer, target, ids, config=config, visited_at=places, distance=distance)
-    out = dataclasses.asdict(offered.choice)
+    choice = cast(Choice, offered.choice)  # offer_next always has one (first_offer: None)
+    out = dataclasses.asdict(choice)
     found = offered.offer is not None
     out["frame_id"] = answer.goals.frame_id
-    out["position"] = position_in_frame(answer, offered.choice.candidate) if found else None
+    out["position"] = position_in_frame(answer, choice.candidate) if found else None
     out["class"] = match.names[0]
     out["method"] = match.method
     way = offered_dict(answer, offered)
@@ -252,7 +255,7 @@ def replan(
     if rrd is not None:
         from care_maps.cli.answer_rrd import replan_rrd
 
-        drive = offered.offer.drive if found else None
+        drive = offered.offer.drive if offered.offer is not None else None
         replan_rrd(rrd, store, target, answer, ids, drive, out["path_note"])
     typer.echo(json.dumps(out))
 
@@ -281,7 +284,7 @@ def _batch(
         _fail(f"{batch}: no queries in it")
     out = out or batch.with_name(f"{batch.stem}.answers.parquet")
     check_file_output(out, inputs=[store, batch], flag="--out", magic=(b"PAR1",))
-    cmap = load_map(store, kind, weights=weights)  # type: ignore[arg-type]
+    cmap = load_map(store, kind, weights=weights)
     start = time.perf_counter()
     from care_maps.replan.ask import goal_maker, travel_from
 

@@ -104,10 +104,11 @@ def run(
             "not evaluated (docs/evaluation.md: Your own annotations)"
         )
     if result.report is not None:
-        typer.echo(result.report.tables.rstrip())
-        if result.report.travel:
-            typer.echo("\n" + result.report.travel.rstrip())
-        typer.echo(f"\nfull report: {out / 'eval' / 'results.md'}")
+        typer.echo(result.report.overview.rstrip())
+        typer.echo(
+            f"\nfull report (every rule and k, intervals, paired and SPL tests): "
+            f"{out / 'eval' / 'results.md'} (its tables: {out / 'eval'}/*.parquet)"
+        )
     typer.echo(f"stores: {', '.join(str(p) for p in result.stores)}")
     typer.echo(f"open the maps and every decision in Rerun:\n  {result.rerun_command()}")
     if result.failed:  # each was reported in one line as it failed; the others completed

@@ -80,7 +80,7 @@ class StoreEncoding(StrEnum):
 def encode_u16(image: np.ndarray) -> bytes:
     """One zstd frame of a (H, W) ``uint16`` image's little-endian bytes, row-major."""
     raw = np.ascontiguousarray(image, dtype="<u2")
-    return _ZSTD.compress(memoryview(raw).cast("B"), asbytes=True)
+    return _ZSTD.compress(raw.data.cast("B"), asbytes=True)  # raw.data: memoryview(raw)
 
 
 def decode_u16(data: bytes, width: int, height: int) -> np.ndarray:

@@ -42,7 +42,7 @@ import sys
 from collections.abc import Callable, Iterable, Iterator
 from enum import StrEnum
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeGuard
 
 from care_maps.core.errors import CareError, OutputError
 
@@ -322,7 +322,7 @@ def _human(n: float) -> str:
     return f"{n:.1f} TiB"
 
 
-def is_disk_full(err: BaseException) -> bool:
+def is_disk_full(err: BaseException) -> TypeGuard[OSError]:
     """ENOSPC, EDQUOT or EFBIG (a file-size limit): no more bytes can be written."""
     return isinstance(err, OSError) and err.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
 
@@ -365,7 +365,7 @@ def staged(path: Path, *, directory: bool = False) -> Iterator[Path]:
         written = _tree_size(tmp) if tmp.exists() else 0
         remove_path(tmp)
         if is_disk_full(err):
-            raise disk_full(path, written, err) from err  # type: ignore[arg-type]
+            raise disk_full(path, written, err) from err
         raise
     remove_path(tmp)
 
@@ -511,7 +511,7 @@ def write_marker(
     the input it was made from (so the rebuild command is known even without meta.json)."""
     directory = Path(directory)
     old = read_marker(directory) or {}
-    marker = {"kind": kind, "tables": {**old.get("tables", {}), **(tables or {})}}
+    marker: dict[str, Any] = {"kind": kind, "tables": {**old.get("tables", {}), **(tables or {})}}
     if source or old.get("source"):
         marker["source"] = source or old.get("source")
     atomic_write_text(directory / MARKER, json.dumps(marker, indent=1, sort_keys=True))
@@ -819,7 +819,7 @@ def whole_output(out: Path, kind: OutputKind, inputs: Iterable[Path] = ()) -> It
         except BaseException as err:
             remove_path(tmp)
             if is_disk_full(err):
-                raise disk_full(out, 0, err) from err  # type: ignore[arg-type]
+                raise disk_full(out, 0, err) from err
             if isinstance(err, CareError) and str(tmp) in str(err):
                 renamed = _renamed(err, str(err).replace(str(tmp), str(out)))
                 if renamed is not None:

@@ -832,7 +832,7 @@ class StoreWriter:
                 written = sum(p.stat().st_size for p in self.tmp.iterdir() if p.is_file())
             remove_path(self.tmp)
         if exc is not None and is_disk_full(exc):
-            raise disk_full(self.path, written, exc) from exc  # type: ignore[arg-type]
+            raise disk_full(self.path, written, exc) from exc
 
 
 def _in_frame(to_map: np.ndarray | None, cam_to_world: list[float]) -> np.ndarray:

@@ -25,6 +25,7 @@ import pyarrow.parquet as pq
 
 from care_maps.core.errors import CareError, EvalError, GroundTruthError
 from care_maps.core.keys import VOCABULARY_KEY
+from care_maps.core.maps import MapKind
 from care_maps.core.store import read_map_frame, read_table
 from care_maps.query.map import MAP_TABLES
 from care_maps.truth.formats.matterport import CATEGORY_MAPPING
@@ -82,6 +83,7 @@ class GtSource:
         except ValueError as err:
             msg = f"--gt-format {fmt!r}: choose one of {', '.join(f.value for f in GtFormat)}"
             raise GroundTruthError(msg) from err
+        matrix: np.ndarray | None
         if isinstance(transform, list | tuple):
             matrix = np.asarray(transform, np.float64)
             if matrix.size != 16:
@@ -171,7 +173,7 @@ def scene_points(store: Path) -> np.ndarray:
     return np.stack([table.column(c).to_numpy() for c in "xyz"], axis=1)
 
 
-def _vocabulary(store: Path, kind: str) -> tuple[str, ...]:
+def _vocabulary(store: Path, kind: MapKind) -> tuple[str, ...]:
     path = store / f"{MAP_TABLES[kind]}.parquet"
     md = pq.read_schema(path).metadata or {}
     raw = md.get(VOCABULARY_KEY)
@@ -183,7 +185,7 @@ def check_ground_truth(
     *,
     where: str,
     store: Path,
-    maps: tuple[str, ...],
+    maps: tuple[MapKind, ...],
     label_distance: float,
     unknown: UnknownClasses,
 ) -> list[str]:

@@ -20,6 +20,7 @@ import zlib
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TypedDict
 
 import numpy as np
 import pyarrow as pa
@@ -173,7 +174,7 @@ def _seed_of(config: EvalConfig, *parts: object) -> np.random.Generator:
 
 def _combos(config: EvalConfig, kind: str) -> list[tuple[str, str, int, int]]:
     """(strategy, criterion, k, seed) of every episode to play; the oracle first."""
-    out = []
+    out: list[tuple[str, str, int, int]] = []
     names = sorted(config.strategies, key=lambda n: not STRATEGIES[n].needs_truth)
     for name in names:
         s = STRATEGIES[name]
@@ -185,6 +186,17 @@ def _combos(config: EvalConfig, kind: str) -> list[tuple[str, str, int, int]]:
         seeds = range(config.seeds) if s.random else [-1]
         out += [(name, c, k, seed) for c, k in sets for seed in seeds]
     return out
+
+
+class _EpisodeOptions(TypedDict):
+    """The options :func:`evaluate_queries` plays an episode with (and its closed form)."""
+
+    criterion: str
+    k: int
+    attempts: int
+    rank: np.ndarray | None
+    positions: np.ndarray | None
+    exclude_radius: float
 
 
 def _empty_attempts(n_q: int, attempts: int) -> Attempts:
@@ -214,6 +226,8 @@ def evaluate_queries(
     shortest = (
         shortest_to_success(walk.start, qs.success) if walk is not None else np.full(n_q, np.nan)
     )
+    conf: np.ndarray | None
+    rank: np.ndarray | None
     if cmap.num_candidates:
         # ranked by log-confidence (docs/method.md): float32 probabilities tie at 1.0 and let the
         # lowest id win; the rows report P itself
@@ -231,7 +245,7 @@ def evaluate_queries(
     expected_of: dict[tuple[str, str, int], np.ndarray] = {}  # the closed form has no seed
     for name, criterion, k, seed in _combos(config, kind):
         strategy = STRATEGIES[name]
-        kw = {
+        kw: _EpisodeOptions = {
             "criterion": criterion if criterion != NO_CRITERION else "confidence",
             "k": max(k, 1),
             "attempts": config.attempts,
@@ -360,7 +374,7 @@ def scene_query_sets(
         if not (scene.store / f"{MAP_TABLES[kind]}.parquet").is_file():
             msg = f"{scene.store}: no {MAP_TABLES[kind]}.parquet; run `care fuse` (or drop --maps {kind})"
             raise EvalError(msg)
-        cmap = load_map(scene.store, kind)  # type: ignore[arg-type]
+        cmap = load_map(scene.store, kind)
         if kind == MapKind.INSTANCES:
             labels = scene_point_labels(scene.store, gt, config.label_distance)
             for protocol in config.protocols:
@@ -605,7 +619,7 @@ def run_eval(
         open_runner(Runner.of(run)) as live,
     ):
         attempts = run_scenes(scenes, config, staged, run=run)
-        ks = {kind: config.ks(kind) for kind in MAP_TABLES}
+        ks: dict[str, Sequence[int]] = {kind: config.ks(kind) for kind in MAP_TABLES}
         header = describe(config, scenes, attempts)
         dropped = {name: classes for name, classes in left_out.items() if classes}
         if dropped:

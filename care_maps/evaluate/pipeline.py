@@ -20,6 +20,7 @@ import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import overload
 
 import pyarrow as pa
 import pyarrow.compute as pc
@@ -233,7 +234,7 @@ class SceneLogTask:
             target = list(self.target) if self.target else None
             log_grid(self.store, self.grid_rrd, target=target, scene=self.name)
         if self.eval_rrd is not None and self.scene is not None:
-            maps = {kind: load_map(self.store, kind) for kind in self.maps}  # type: ignore[misc]
+            maps = {kind: load_map(self.store, kind) for kind in self.maps}
             write_evaluation_rrd(
                 self.eval_rrd, self.attempts, self.summary, maps, scene=self.name,
                 gt=self.scene.gt.load(self.scene.recording, self.store), store=self.store,
@@ -266,6 +267,10 @@ def _log_task(
     )  # fmt: skip
 
 
+@overload
+def _run_task(task: RecordingTask) -> RecordingOutcome: ...
+@overload
+def _run_task(task: SceneLogTask) -> None: ...
 def _run_task(task: RecordingTask | SceneLogTask) -> RecordingOutcome | None:
     return task()
 

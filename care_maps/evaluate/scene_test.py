@@ -237,7 +237,7 @@ def sign_vectors(
     return (1 - 2 * bits.view(np.int8)).reshape(scenes, resamples).T, False
 
 
-def _p_of_count(count: int, patterns: int, exact: bool) -> float:
+def _p_of_count(count: int | np.integer, patterns: int, exact: bool) -> float:
     """The p-value of ``count`` patterns reaching the observed statistic."""
     return float(count / patterns if exact else (1 + count) / (1 + patterns))
 

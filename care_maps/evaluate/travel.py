@@ -15,6 +15,7 @@ from __future__ import annotations
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -51,7 +52,8 @@ class SceneTravel:
         ids = np.asarray(qs.candidate_ids, np.int64)
         if self.rule == TravelStart.FIRST_POSE:
             if "first" not in self._kept:
-                self._kept["first"] = self.legs.from_point(self.start)
+                start_xy = cast("tuple[float, float]", self.start)  # the first_pose rule has one
+                self._kept["first"] = self.legs.from_point(start_xy)
             start = np.broadcast_to(self._kept["first"][ids], qs.success.shape)
         else:
             if len(self.region) == 0:

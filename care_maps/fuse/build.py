@@ -187,11 +187,11 @@ class StagedMap:
             msg = f"{problem}; the {self.spec.kind} writer does not match care_maps.fuse.schemas"
             raise FuseError(msg)
         for table in self.spec.tables:
-            tmp = self._staged.pop(table, None)
-            if tmp is None or not tmp.is_file():
+            staged = self._staged.pop(table, None)
+            if staged is None or not staged.is_file():
                 continue
             final = self.store.table_path(table)
-            tmp.replace(final)
+            staged.replace(final)
             record_table(final)
 
     def __enter__(self) -> StagedMap:

@@ -23,7 +23,7 @@ class PointLabeller(Protocol):
 
 def best_iou(
     masks: Sequence[np.ndarray], point_labels: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per ground-truth instance, the best IoU of any mask and that mask's index.
 
     Args:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -132,7 +133,8 @@ def _unstamped_options(record: dict) -> tuple[UpAxis, float | None]:
         return UpAxis.AUTO, None
     try:
         floor = options.get("floor_z")
-        return UpAxis(options.get("up_axis")), None if floor is None else float(floor)
+        up: Any = options.get("up_axis")  # any JSON value: not a member is a ValueError
+        return UpAxis(up), None if floor is None else float(floor)
     except (TypeError, ValueError):
         return UpAxis.AUTO, None
 

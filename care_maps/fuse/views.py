@@ -18,6 +18,7 @@ from __future__ import annotations
 from collections.abc import Iterator, Sequence
 from contextlib import ExitStack, closing
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 import scipy.sparse as sp
@@ -157,7 +158,8 @@ def _batches(
                 raise FuseError(msg)
             fh, fw, d = shapes.pop()
             fshape = (fh, fw)
-            stacked = np.stack(fmaps).astype(np.float32).reshape(len(fr), fh * fw, d)
+            given = cast("list[np.ndarray]", fmaps)  # with features every view has its map
+            stacked = np.stack(given).astype(np.float32).reshape(len(fr), fh * fw, d)
         batch = ViewBatch(
             view_ids=np.array([i for i, _, _ in pending], np.int64),
             depth=np.stack([f.depth_m for f in fr]),

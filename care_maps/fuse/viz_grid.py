@@ -71,7 +71,7 @@ _STATUS_CONTEXT = rr.AnnotationContext(
 class LayerStyle:
     """Colour map and how its range is chosen for one measure."""
 
-    colormap: str
+    colormap: rr.components.ColormapLike
     fixed: tuple[float, float] | None = None
     """A fixed range (a probability is 0..1); None: the 1st..99th percentile of the finite
     values, so one outlier cell does not wash out the layer."""
@@ -179,7 +179,7 @@ def measure_layers(
     return layers
 
 
-def _tab_title(layer: str, lo: float, hi: float, colormap: str) -> str:
+def _tab_title(layer: str, lo: float, hi: float, colormap: rr.components.ColormapLike) -> str:
     return f"{layer} [{lo:.3g}, {hi:.3g}] {colormap}"
 
 

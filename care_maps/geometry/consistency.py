@@ -28,6 +28,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
+from typing import TypedDict
 
 import numpy as np
 
@@ -445,6 +446,15 @@ COVER = 0.8
 """Share of the pair directions judged as given that a better reading must judge too."""
 
 
+class _VerdictBase(TypedDict):
+    """The fields every :class:`Verdict` of :func:`judge` shares."""
+
+    given: Agreement
+    range_m: float
+    views: int
+    pairs: int
+
+
 def judge(
     samples: Sequence[DepthSample],
     mistakes: Sequence[Mistake],
@@ -457,7 +467,12 @@ def judge(
     pairs = pick_pairs(samples, max_pairs, runs)
     given = agreement(samples, pairs, Hypothesis("as given"))
     depth_range = median_range(samples)
-    base = {"given": given, "range_m": depth_range, "views": len(samples), "pairs": len(pairs)}
+    base: _VerdictBase = {
+        "given": given,
+        "range_m": depth_range,
+        "views": len(samples),
+        "pairs": len(pairs),
+    }
     plausible = RANGE_M[0] <= depth_range <= RANGE_M[1]
     if given.pairs < MIN_PAIRS and plausible:
         return Verdict(Status.UNJUDGED, **base)

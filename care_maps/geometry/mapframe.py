@@ -100,9 +100,8 @@ def estimate_map_frame(
 def _frame(up: np.ndarray, floor: float, method: str, fraction: float, tol: float) -> MapFrame:
     if np.array_equal(up, [0.0, 0.0, 1.0]) and abs(floor) <= tol and method != "given":
         return MapFrame(np.eye(4), (0.0, 0.0, 1.0), float(floor), "identity", fraction)
-    return MapFrame(
-        map_from_up(up, floor), tuple(float(v) for v in up), float(floor), method, fraction
-    )  # type: ignore[arg-type]
+    x, y, z = (float(v) for v in up)
+    return MapFrame(map_from_up(up, floor), (x, y, z), float(floor), method, fraction)
 
 
 def _floor_plane(

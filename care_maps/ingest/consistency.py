@@ -168,7 +168,7 @@ def _percent(x: float) -> str:
 
 def describe_verdict(verdict: dict[str, Any] | Verdict) -> str:
     """One line of what the check found (ingest's summary, ``care topics``, ``care check``)."""
-    v = verdict.as_json() if isinstance(verdict, Verdict) else verdict
+    v: dict[str, Any] = verdict.as_json() if isinstance(verdict, Verdict) else verdict
     status = v.get("status")
     figures = (
         f"{_percent(v['agree'])} of reprojected depth agrees across {v['pairs_judged']} view "

@@ -214,7 +214,7 @@ def decode_label(msg: Any, topic: str) -> np.ndarray:
     return arr[..., 0].astype(np.uint16)
 
 
-def camera_info(msg: Any, topic: str) -> tuple[np.ndarray, int, int]:
+def camera_info(msg: Any, topic: str | None) -> tuple[np.ndarray, int, int]:
     """(K (3, 3), width, height) of a CameraInfo; ROS 1 names the matrix ``K``, ROS 2 ``k``."""
     k = getattr(msg, "k", None)
     if k is None:
@@ -226,7 +226,7 @@ def camera_info(msg: Any, topic: str) -> tuple[np.ndarray, int, int]:
     return K, int(msg.width), int(msg.height)
 
 
-def distortion(msg: Any, topic: str) -> Distortion:
+def distortion(msg: Any, topic: str | None) -> Distortion:
     """``distortion_model`` and D of a CameraInfo (ROS 1 ``D``, ROS 2 ``d``); one line when a
     non-zero D cannot be applied (:func:`care_maps.ingest.undistort.parse_distortion`)."""
     d = getattr(msg, "d", None)

@@ -112,7 +112,8 @@ class CameraIntrinsics:
         if len(values) != 4:
             msg = f"{_FLAG} {text!r}: expected {_FORMS}."
             raise IngestError(msg)
-        return cls(*values)
+        fx, fy, cx, cy = values
+        return cls(fx, fy, cx, cy)
 
     @classmethod
     def from_file(cls, path: Path) -> CameraIntrinsics:
@@ -141,6 +142,7 @@ class CameraIntrinsics:
         if not isinstance(data, dict):
             msg = "the file holds no mapping"
             raise TypeError(msg)
+        d: tuple[float, ...]
         if "intrinsic_matrix" in data:  # Open3D: column-major
             K = np.asarray(data["intrinsic_matrix"], np.float64).reshape(3, 3).T
             size = (int(data.get("width", 0)), int(data.get("height", 0)))

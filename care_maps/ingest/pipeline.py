@@ -412,7 +412,7 @@ def _stream(
     def flush() -> None:
         with threads_for(Work.ENCODE):  # the model's products scale with cores
             features = encoder.encode_views(batch) if encoder is not None else None
-        if features is not None and len(features) != len(batch):
+        if encoder is not None and features is not None and len(features) != len(batch):
             msg = f"encoder {encoder.name!r} returned {len(features)} feature maps for {len(batch)} views"
             raise IngestError(msg)
         for i, frame in enumerate(batch):

@@ -97,7 +97,7 @@ def _image_digest(msg: Any) -> bytes:
     h = hashlib.sha1(usedforsecurity=False)
     for name in ("format", "encoding", "width", "height", "step"):
         h.update(f"{name}={getattr(msg, name, None)};".encode())
-    h.update(memoryview(np.ascontiguousarray(np.asarray(msg.data, np.uint8))))
+    h.update(np.ascontiguousarray(np.asarray(msg.data, np.uint8)).data)  # its memoryview
     return h.digest()
 
 
@@ -365,8 +365,8 @@ class RecordingFrames:
         if not o.static_pose and self.camera_frame:
             self._resolve_world_frame()
         if o.static_pose:  # the camera frame is the world: any convention is consistent
-            given = o.camera_convention or CameraConvention.OPTICAL
-            self.convention = ConventionFound(given, "static pose")
+            stated = o.camera_convention or CameraConvention.OPTICAL
+            self.convention = ConventionFound(stated, "static pose")
 
     def _first_image_frame(self) -> str | None:
         """The first colour image's ``header.frame_id`` (no camera info names the frame):

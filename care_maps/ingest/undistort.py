@@ -63,7 +63,7 @@ class Distortion(NamedTuple):
 NO_DISTORTION = Distortion("", ())
 
 
-def parse_distortion(model: str, coefficients: Any, topic: str) -> Distortion:
+def parse_distortion(model: str, coefficients: Any, topic: str | None) -> Distortion:
     """The distortion of a camera info; one line naming ``topic`` when it cannot be applied
     (an unknown model with non-zero D, a non-finite or too long D)."""
     d = np.asarray([] if coefficients is None else coefficients, np.float64).ravel()

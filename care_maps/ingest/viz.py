@@ -70,7 +70,7 @@ _POINT_STRIDE = 4
 """Pixels between back-projected points (16x fewer points than pixels)."""
 _DEPTH_RANGE_M = (0.0, 6.0)
 """Colour range of the depth view; indoor RGB-D cameras see a few metres."""
-_DEPTH_COLORMAP = "turbo"
+_DEPTH_COLORMAP: rr.components.ColormapLike = "turbo"
 _SCALE_SIZE = (16, 240)
 """Rows and columns of the depth scale strip (metres grow to the right)."""
 _DEPTH_SCALE_NAME = (
@@ -153,7 +153,9 @@ class IngestLogger:
             rr.GraphNodes(
                 node_ids=names, labels=names, positions=[(0.0, -80.0 * i) for i in range(3)]
             ),
-            rr.GraphEdges(edges=[names[:2], names[1:]], graph_type="directed"),
+            rr.GraphEdges(
+                edges=[(names[0], names[1]), (names[1], names[2])], graph_type="directed"
+            ),
             static=True,
         )
         rec.log(

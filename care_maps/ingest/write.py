@@ -27,7 +27,7 @@ import os
 import shutil
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from PIL import Image
@@ -36,6 +36,9 @@ from care_maps.core.errors import IngestError
 from care_maps.core.frames import DEFAULT_CAMERA_FRAME, DEFAULT_WORLD_FRAME, Frame
 from care_maps.ingest.formats import RecordingFormat
 from care_maps.ingest.typestores import ros1_typestore, ros2_typestore
+
+if TYPE_CHECKING:
+    from rosbags.typesys.store import Msg
 
 __all__ = [
     "BASE_FRAME",
@@ -309,7 +312,7 @@ class _Messages:
         self.ros1 = sink.ros1
         self._seq = 0
 
-    def header(self, t_ns: int, frame_id: str) -> object:
+    def header(self, t_ns: int, frame_id: str) -> Msg:
         stamp = self.t["builtin_interfaces/msg/Time"](sec=t_ns // 10**9, nanosec=t_ns % 10**9)
         if self.ros1:
             self._seq += 1

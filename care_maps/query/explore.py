@@ -37,6 +37,7 @@ from dataclasses import dataclass
 from enum import StrEnum
 
 import numpy as np
+import numpy.typing as npt
 
 from care_maps.core.checks import check_numbers
 from care_maps.core.config import member
@@ -253,7 +254,7 @@ def raster(layout: GridLayout, xy: np.ndarray, values: np.ndarray, fill: float =
     return out
 
 
-def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
+def look_at(eye: npt.ArrayLike, target: npt.ArrayLike) -> np.ndarray:
     """(4, 4) optical camera-to-map pose (x right, y down, z forward) at ``eye`` looking at
     ``target`` with no roll (x stays level); straight down when ``target`` lies below."""
     eye, target = np.asarray(eye, np.float64), np.asarray(target, np.float64)
@@ -409,7 +410,10 @@ def choose_views(
     ix, iy = np.nonzero(np.asarray(stand, bool))
     step = max(1, round(0.1 / layout.cell_size))  # viewpoints on a lattice of about 10 cm
     lattice = (ix % step == 0) & (iy % step == 0)
-    base = _Floor(layout, np.array(interest, np.float64), np.asarray(heights, np.float64), None)
+    # no cells to stand on yet: ``base`` is only for the lattice's centres
+    base = _Floor(
+        layout, np.array(interest, np.float64), np.asarray(heights, np.float64), np.empty((0, 2))
+    )
     floor = _Floor(layout, base.interest, base.heights, base.centres(ix[lattice], iy[lattice]))
     views: list[Viewpoint] = []
     for _ in range(50 * config.views):  # each round adds a view or clears a target

@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -146,7 +147,8 @@ def _clearance(space: FreeSpace, ix: int, iy: int) -> float:
 
 def _travel(store: Path, roadmap: Roadmap, config: PathConfig) -> Travel | None:
     """Paths from ``config.start``, else the recording's first pose (None: no views)."""
-    start = config.start or Store(store).first_position()
+    given = cast("tuple[float, float] | None", config.start)  # x, y: PathConfig checks it
+    start = given or Store(store).first_position()
     return None if start is None else roadmap.travel(start, config.start_reach)
 
 

@@ -411,7 +411,8 @@ class GoalMaker:
         if not 0 <= candidate < cmap.num_candidates:
             msg = f"candidate {candidate} is not in the map (0..{cmap.num_candidates - 1})"
             raise QueryError(msg)
-        return tuple(float(v) for v in cmap.positions[candidate])  # type: ignore[return-value]
+        x, y, z = (float(v) for v in cmap.positions[candidate])  # a row of the (N, 3) positions
+        return x, y, z
 
     def _goal(
         self, candidate: int, target: tuple[float, float, float], found: Approach | None

@@ -407,7 +407,7 @@ def _vocabulary_text(
 
 
 def load_map(
-    store: Path, kind: MapKind = MapKind.INSTANCES, *, weights: Path | None = None
+    store: Path, kind: MapKind | str = MapKind.INSTANCES, *, weights: Path | None = None
 ) -> CandidateMap:
     """Read a store's ``instances.parquet`` or ``cells.parquet`` (and ``text.parquet``).
 
@@ -421,6 +421,7 @@ def load_map(
     if kind not in MAP_TABLES:
         msg = f"unknown map kind {kind!r}; choose one of {', '.join(MAP_TABLES)}"
         raise QueryError(msg)
+    kind = MapKind(kind)  # a known name as its member (CandidateMap.kind is one)
     path = store / f"{MAP_TABLES[kind]}.parquet"
     if (store / META_FILE).is_file():  # a store's map: built from this store, as it is
         check_map_files(Store(store), [MAP_TABLES[kind]])

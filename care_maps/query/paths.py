@@ -38,6 +38,7 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
+import numpy.typing as npt
 
 from care_maps.core.errors import QueryError
 from care_maps.fuse.layout import GridLayout
@@ -157,7 +158,7 @@ class Roadmap:
         size, (ox, oy) = self.layout.cell_size, self.layout.origin
         return math.floor((xy[0] - ox) / size), math.floor((xy[1] - oy) / size)
 
-    def centres(self, flat: np.ndarray) -> np.ndarray:
+    def centres(self, flat: npt.ArrayLike) -> np.ndarray:
         """(M, 2) map (x, y) of the cells of flat index ``flat``."""
         ix, iy = np.divmod(np.asarray(flat, np.int64), self.layout.shape[1])
         size, (ox, oy) = self.layout.cell_size, self.layout.origin

@@ -25,10 +25,11 @@ with nothing to offer, says which and why, and goes on to the next the rule pick
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 from functools import cached_property
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -109,7 +110,7 @@ class Offer:
         return {
             "path_state": self.state.value,
             "path_note": self.note,
-            "reachable_goal": self.drive.as_dict() if detour else None,
+            "reachable_goal": self.drive.as_dict() if detour and self.drive is not None else None,
             "reachable_distance": self.distance if detour else None,
         }
 
@@ -144,10 +145,11 @@ class AnswerGoals:
     @cached_property
     def reachable(self) -> np.ndarray | None:
         """(nx, ny) bool: the cells the start reaches (None without paths)."""
-        if not self.usable:
+        travel = self.travel
+        if travel is None or not self.usable:
             return None
-        roadmap = self.travel.roadmap
-        return np.isfinite(self.travel.distance).reshape(roadmap.layout.shape)
+        roadmap = travel.roadmap
+        return np.isfinite(travel.distance).reshape(roadmap.layout.shape)
 
     @cached_property
     def roadmap(self) -> Roadmap | None:
@@ -155,7 +157,7 @@ class AnswerGoals:
             return self.travel.roadmap
         return Roadmap.for_goals(self.goals)
 
-    def _xy(self, xy: tuple[float, float] | np.ndarray) -> tuple[float, float]:
+    def _xy(self, xy: tuple[float, ...] | np.ndarray) -> tuple[float, float]:
         x, y, _ = self.goals.in_frame(np.array([xy[0], xy[1], 0.0]))[0]
         return float(x), float(y)
 
@@ -178,10 +180,11 @@ class AnswerGoals:
             f"{self.clearance:g} m (no cell a robot of that radius may stand on within "
             f"{self.paths.start_reach:g} m of it)"
         )
-        passable = np.flatnonzero(self.roadmap.passable.reshape(-1))
+        roadmap = self.travel.roadmap  # what self.roadmap is with a travel
+        passable = np.flatnonzero(roadmap.passable.reshape(-1))
         if len(passable) == 0:
             return f"{head}; no cell of the grid keeps that clearance"
-        centres = self.roadmap.centres(passable)
+        centres = roadmap.centres(passable)
         gap = np.hypot(*(centres - self.travel.start).T)
         nx_, ny_ = self._xy(centres[np.argmin(gap)])
         return (
@@ -205,13 +208,15 @@ class AnswerGoals:
         goal = self.goals.goal(self.cmap, candidate)
         if goal.keeps_clearance is False:
             return self._tight(goal)
-        if not self.usable:
+        travel = self.travel
+        if travel is None or not self.usable:
             return Offer(candidate, goal, goal, self._paths_state(), self.start_note, None, None)
-        metres = self.travel.distance_to(goal)
+        metres = travel.distance_to(goal)
         if math.isfinite(metres):
-            points = self.travel.waypoints(goal)
+            points = travel.waypoints(goal)
             return Offer(candidate, goal, goal, PathState.REACHABLE, None, metres, points)
-        alt = self.goals.goal_within(self.cmap, candidate, self.reachable)
+        reachable = cast(np.ndarray, self.reachable)  # an array wherever there are paths
+        alt = self.goals.goal_within(self.cmap, candidate, reachable)
         c, reach = self.clearance, self.goals.config.reach
         x, y = self._xy(goal.position)
         cut = f"the nearest approach point ({x:.2f}, {y:.2f}) is cut off from the start"
@@ -228,8 +233,8 @@ class AnswerGoals:
             f"{cut} at --clearance {c:g} m; sent to the nearest reachable one, "
             f"({ax:.2f}, {ay:.2f}), {off:.2f} m from the object"
         )
-        metres = self.travel.distance_to(alt)
-        points = self.travel.waypoints(alt)
+        metres = travel.distance_to(alt)
+        points = travel.waypoints(alt)
         return Offer(candidate, goal, alt, PathState.DETOUR, note, metres, points)
 
     def _tight(self, goal: Goal) -> Offer:
@@ -261,11 +266,13 @@ class AnswerGoals:
         if self.goals.config.allow_tight_goals:
             if not self.usable:
                 return np.ones(n, bool)
-            near = approach_cells(Roadmap(self.roadmap.layout, self.reachable), xy, reach)
+            reachable = cast(np.ndarray, self.reachable)  # an array wherever there are paths
+            near = approach_cells(Roadmap(self.roadmap.layout, reachable), xy, reach)
             return ~keeps | (near >= 0)
         if not self.usable:
             return keeps
-        return approach_cells(Roadmap(self.roadmap.layout, self.reachable), xy, reach) >= 0
+        reachable = cast(np.ndarray, self.reachable)
+        return approach_cells(Roadmap(self.roadmap.layout, reachable), xy, reach) >= 0
 
 
 @dataclass(frozen=True)
@@ -285,7 +292,7 @@ class Offered:
 def offer_next(
     answer: AnswerGoals,
     query: Any,
-    visited: list[int] | np.ndarray = (),  # type: ignore[assignment]
+    visited: Sequence[int] | np.ndarray = (),
     *,
     skip: list[int] | None = None,
     **rule: Any,
@@ -329,6 +336,6 @@ def first_offer(answer: AnswerGoals, order: np.ndarray) -> Offered:
             later = np.flatnonzero(ok)
             if len(later) == 0:
                 return Offered(None, None, passed, len(ok))
-            c = int(order[i + 1 + later[0]])
-            return Offered(None, answer.offer(c), passed, int(later[0]))
+            best = int(order[i + 1 + later[0]])
+            return Offered(None, answer.offer(best), passed, int(later[0]))
     return Offered(None, None, passed)

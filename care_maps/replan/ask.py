@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from care_maps.core.maps import MapKind
 from care_maps.query.goals import GoalConfig
@@ -124,7 +124,8 @@ def travel_from(store: Path, goals: Any, config: PathConfig) -> Any:
     from care_maps.query.paths import Roadmap
 
     roadmap = Roadmap.for_goals(goals)
-    start = config.start or first_position(store)
+    given = cast("tuple[float, float] | None", config.start)  # x, y: PathConfig checks it
+    start = given or first_position(store)
     if roadmap is None or start is None:
         return None
     return roadmap.travel(start, config.start_reach)

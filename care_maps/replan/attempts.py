@@ -17,8 +17,9 @@ robot stands.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -115,7 +116,7 @@ class Attempts:
     @property
     def solved(self) -> np.ndarray:
         """(Q,) bool: some attempt succeeded."""
-        return self.success.any(axis=1)
+        return cast(np.ndarray, self.success.any(axis=1))
 
 
 @dataclass(frozen=True)
@@ -204,7 +205,7 @@ def run_attempts(
     success: np.ndarray,
     columns: dict[str, np.ndarray],
     *,
-    criterion: Criterion = Criterion.CONFIDENCE,
+    criterion: Criterion | str = Criterion.CONFIDENCE,
     k: int = DEFAULT_K,
     attempts: int = DEFAULT_ATTEMPTS,
     rank: np.ndarray | None = None,
@@ -271,7 +272,7 @@ def run_attempts(
                 available, np.where(live, cand[:, a - 1], -1), positions, exclude_radius
             )
             available[~live] = False
-            if walk is not None:
+            if walk is not None and here is not None and legs is not None:  # all or none set
                 here = _walk_on(walk, here, cand[:, a - 1], legs[:, a - 1], live)
             pick, set_size = _step(
                 strategy, conf, available, columns,
@@ -286,7 +287,7 @@ def run_attempts(
             value[:, 0] = np.where(first_rows, conf[rows, np.maximum(chosen, 0)], value[:, 0])
         cand[:, a] = chosen
         ok[:, a] = (chosen >= 0) & success[rows, np.maximum(chosen, 0)]
-        if legs is not None:
+        if legs is not None and here is not None:  # both set with a walk
             legs[:, a] = np.where(chosen >= 0, here[rows, np.maximum(chosen, 0)], np.nan)
     return Attempts(cand, ok, value, fell, size, legs)
 
@@ -324,12 +325,12 @@ class Choice:
 def next_goal(
     cmap: CandidateMap,
     query: str | int,
-    visited: list[int] | np.ndarray = (),  # type: ignore[assignment]
+    visited: Sequence[int] | np.ndarray = (),
     *,
     config: ReplanConfig = _REPLAN,
-    visited_at: np.ndarray | list[tuple[float, float]] = (),  # type: ignore[assignment]
+    visited_at: np.ndarray | Sequence[tuple[float, float]] = (),
     distance: np.ndarray | list[float] | None = None,
-    skip: list[int] | np.ndarray = (),  # type: ignore[assignment]
+    skip: Sequence[int] | np.ndarray = (),
 ) -> Choice:
     """The next candidate to try for ``query`` after the ``visited`` (failed) ones.
 

@@ -23,7 +23,7 @@ def expected_random_success(
     conf: np.ndarray,
     success: np.ndarray,
     *,
-    criterion: Criterion = Criterion.CONFIDENCE,
+    criterion: Criterion | str = Criterion.CONFIDENCE,
     k: int = DEFAULT_K,
     attempts: int = DEFAULT_ATTEMPTS,
     rank: np.ndarray | None = None,

@@ -34,6 +34,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from enum import StrEnum
+from typing import cast
 
 import numpy as np
 
@@ -139,7 +140,8 @@ def best_of(
         # max confidence: the confidence tie-break is moot, argmax's first maximum is the lower id
         if mask.all():
             return confidence.argmax(axis=1), np.full(len(mask), mask.shape[1] > 0)
-        return np.where(mask, confidence, -np.inf).argmax(axis=1), mask.any(axis=1)
+        best = np.where(mask, confidence, -np.inf).argmax(axis=1)
+        return best, cast(np.ndarray, mask.any(axis=1))
     values = np.asarray(values)
     if np.isnan(values).any():
         values = np.where(np.isnan(values), -np.inf if maximise else np.inf, values)
@@ -148,7 +150,7 @@ def best_of(
     score = np.where(mask, values if maximise else -values, -np.inf)
     best = score.max(axis=1, keepdims=True) if score.shape[1] else score[:, :1]
     tie = score == best
-    found = mask.any(axis=1)
+    found = cast(np.ndarray, mask.any(axis=1))  # (Q,) bool: an axis reduction of a 2-d mask
     if score.shape[1] == 0:
         return np.zeros(len(score), np.int64), found
     n_tie = tie.sum(axis=1)
@@ -189,7 +191,7 @@ def _best_of_sparse(
 def uniform_of(mask: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """One candidate drawn uniformly from each row's ``mask``: ``(candidate, found)``."""
     draw = rng.random(mask.shape)
-    return np.where(mask, draw, -1.0).argmax(axis=1), mask.any(axis=1)
+    return np.where(mask, draw, -1.0).argmax(axis=1), cast(np.ndarray, mask.any(axis=1))
 
 
 def topk_confidence(
@@ -242,7 +244,8 @@ def topk_category(
     return available & (rank < k)
 
 
-CRITERIA: dict[Criterion, Callable[..., np.ndarray]] = {
+# keyed by the Criterion members, looked up by plain strings too (a StrEnum member is its str)
+CRITERIA: dict[str, Callable[..., np.ndarray]] = {
     Criterion.CONFIDENCE: topk_confidence,
     Criterion.CATEGORY: topk_category,
 }
@@ -439,7 +442,8 @@ class Strategy:
     """Chooses by the distance from the robot's place too (:attr:`Situation.distance`)."""
 
 
-STRATEGIES: dict[StrategyName, Strategy] = {
+# keyed by the StrategyName members, looked up by plain strings too (options, table values)
+STRATEGIES: dict[str, Strategy] = {
     s.name: s
     for s in (
         Strategy(StrategyName.NO_REPLAN, "No replan (top1 acc)", None),

@@ -36,6 +36,7 @@ from enum import StrEnum
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 
 from care_maps.core.encoders import EncoderOptions, make_encoder
 from care_maps.core.encoders.base import RecordingContext
@@ -139,7 +140,7 @@ def random_views(
     return out
 
 
-def sign_flip_p(diffs: np.ndarray) -> float:
+def sign_flip_p(diffs: npt.ArrayLike) -> float:
     """Two-sided exact sign-flip p-value of ``mean(diffs)`` (one difference per scene):
     the share of the 2^S sign patterns whose |mean| reaches the observed one."""
     d = np.asarray(diffs, np.float64)
@@ -178,7 +179,7 @@ def _with_views(
     ]
     encoder = make_encoder("labels", EncoderOptions())
     encoder.prepare(RecordingContext(recording, tuple(old.meta.label_names)))
-    features = encoder.encode_views(frames) if frames else []
+    features: np.ndarray | list[np.ndarray] = encoder.encode_views(frames) if frames else []
     names, text = old.text_embeddings()
     meta = {
         k: v

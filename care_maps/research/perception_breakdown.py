@@ -20,6 +20,7 @@ import argparse
 import tempfile
 from collections import Counter
 from pathlib import Path
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -28,6 +29,7 @@ from care_maps.core.encoders.base import RecordingContext
 from care_maps.core.maps import MapKind
 from care_maps.core.store import read_table
 from care_maps.evaluate.pipeline import SAMPLE
+from care_maps.fuse.config import ProposalMethod
 from care_maps.fuse.instances import InstanceConfig, build_instances
 from care_maps.ingest.pipeline import IngestConfig, run_ingest
 from care_maps.ingest.source import RecordingFrames
@@ -35,6 +37,9 @@ from care_maps.query import confidence, load_map
 from care_maps.runtime.execution import Execution
 from care_maps.truth.formats.native import read_native
 from care_maps.world.perception.model import PerceptionPreset
+
+if TYPE_CHECKING:
+    from care_maps.world.perception.encoder import LabelsEncoder
 
 
 def main() -> None:
@@ -60,11 +65,11 @@ def main() -> None:
             IngestConfig(encoder="labels", encoder_options=options),
             run=Execution(progress=False),
         )
-        build_instances(store, InstanceConfig(proposals="labels"))
+        build_instances(store, InstanceConfig(proposals=ProposalMethod.LABELS))
         cmap = load_map(store, MapKind.INSTANCES)
         inst = read_table(store / "instances.parquet", ["source_id"]).column("source_id")
         inst = inst.to_numpy().astype(np.int64)
-    enc = make_encoder("labels", options)
+    enc = cast("LabelsEncoder", make_encoder("labels", options))  # the registry's "labels"
     enc.prepare(RecordingContext(args.recording, tuple(names)))
 
     truth = gt.instance_class_names()

@@ -32,6 +32,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from enum import StrEnum
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -39,7 +40,7 @@ import pyarrow.compute as pc
 
 from care_maps.core.maps import MapKind
 from care_maps.core.store import write_table_atomic
-from care_maps.evaluate.config import DEFAULT_BOOTSTRAP
+from care_maps.evaluate.config import DEFAULT_BOOTSTRAP, QueryProtocol
 from care_maps.evaluate.job import EvalConfig, run_eval
 from care_maps.evaluate.paired import holm
 from care_maps.evaluate.report.preregistered import PAPER_SETTINGS, headline_table
@@ -136,7 +137,7 @@ def _evaluation() -> EvalConfig:
         ),
         k_instances=tuple(sorted({k for _, _, k in PAPER_SETTINGS[MapKind.INSTANCES]})),
         k_grid=tuple(sorted({k for _, _, k in PAPER_SETTINGS[MapKind.GRID]})),
-        protocols=("instance",),
+        protocols=(QueryProtocol.INSTANCE,),
         seeds=1,
         bootstrap=0,
     )
@@ -307,7 +308,7 @@ def main() -> None:
     parser.add_argument("--bootstrap", type=int, default=defaults.bootstrap)
     args = parser.parse_args()
     try:
-        values = settings_of(args.values)
+        values: dict[str, Any] = settings_of(args.values)  # knob -> values, as SweepConfig's
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)

@@ -311,7 +311,7 @@ def _defer_stops(came: list[int]) -> dict[int, Any]:
     (Python code) could be cut. Returns the handlers to put back."""
     if threading.current_thread() is not threading.main_thread():
         return {}
-    ours = {signum: signal.getsignal(signum) for signum in STOPS}
+    ours: dict[int, Any] = {signum: signal.getsignal(signum) for signum in STOPS}
     ours = {signum: handler for signum, handler in ours.items() if callable(handler)}
     for signum in ours:
         signal.signal(signum, lambda signum, frame: came.append(signum))
@@ -438,7 +438,7 @@ def _ray(runner: Runner) -> Any:
         if runner.address:
             _check_reachable(runner.address)
         global _RAY_LOCAL
-        ours = {signum: signal.getsignal(signum) for signum in STOPS}
+        ours: dict[int, Any] = {signum: signal.getsignal(signum) for signum in STOPS}
         _RAY_LOCAL = not runner.address
         ray.init(
             address=runner.address,

@@ -11,7 +11,7 @@ same bytes with or without it (``tests/care/test_readahead.py``).
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Iterable, Iterator
+from collections.abc import Generator, Iterable
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import TypeVar
 
@@ -28,7 +28,7 @@ _END = object()
 """Returned by ``next`` once the stream is exhausted (and ever after)."""
 
 
-def read_ahead(items: Iterable[T], depth: int) -> Iterator[T]:
+def read_ahead(items: Iterable[T], depth: int) -> Generator[T, None, None]:
     """The items of ``items`` in order, up to ``depth`` of them produced ahead of the
     consumer on one background thread (``depth`` <= 0: produced in the caller's thread).
 

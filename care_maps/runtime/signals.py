@@ -21,7 +21,7 @@ import signal
 import sys
 import threading
 from collections.abc import Callable
-from typing import Any, TypeVar
+from typing import Any, NoReturn, TypeVar
 
 __all__ = [
     "STOPS",
@@ -102,7 +102,7 @@ def _quiet() -> None:
         os.close(null)
 
 
-def _leave(signum: int) -> None:
+def _leave(signum: int) -> NoReturn:
     """End this worker now, its semaphores released first."""
     release_semaphores()
     os._exit(exit_code(signum))

@@ -108,8 +108,8 @@ def thread_count(work: Work) -> int:
             raise CareError(msg)
         if work not in PINNED:
             return n or _cores()
-    n = THREADS[work]
-    return _cores() if n is None else n
+    count = THREADS[work]
+    return _cores() if count is None else count
 
 
 _PROCESS_THREADS: int | None = None

@@ -119,8 +119,8 @@ def rotate_part(part: Part, quarter_turns: int, offset: np.ndarray) -> Part:
     axis = part.axis
     if k % 2 == 1 and axis in (0, 1):
         axis = 1 - axis
-    centre = (cx + offset[0], cy + offset[1], cz + offset[2])
-    return Part(part.kind, tuple(float(c) for c in centre), (sx, sy, sz), part.colour, axis)
+    centre = (float(cx + offset[0]), float(cy + offset[1]), float(cz + offset[2]))
+    return Part(part.kind, centre, (sx, sy, sz), part.colour, axis)
 
 
 def merge_meshes(

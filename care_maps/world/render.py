@@ -75,9 +75,12 @@ class Renderer:
         self.config = config or RenderConfig()
         mesh = scene.mesh
         self._rc = o3d.t.geometry.RaycastingScene()
+        # dtype and device stated (open3d's stubs require them): the array's own, on the CPU,
+        # as Tensor(array) chooses them
+        self._cpu = o3d.core.Device("CPU:0")
         self._rc.add_triangles(
-            o3d.core.Tensor(mesh.vertices.astype(np.float32)),
-            o3d.core.Tensor(mesh.triangles.astype(np.uint32)),
+            o3d.core.Tensor(mesh.vertices.astype(np.float32), o3d.core.float32, self._cpu),
+            o3d.core.Tensor(mesh.triangles.astype(np.uint32), o3d.core.uint32, self._cpu),
         )
         self._o3d = o3d
         self.K = intrinsics(self.config.width, self.config.height, self.config.hfov_deg)
@@ -101,7 +104,8 @@ class Renderer:
         rays = np.concatenate([np.broadcast_to(T[:3, 3], dirs.shape), dirs], axis=-1).astype(
             np.float32
         )
-        ans = self._rc.cast_rays(self._o3d.core.Tensor(rays), nthreads=self.config.threads)
+        rays_t = self._o3d.core.Tensor(rays, self._o3d.core.float32, self._cpu)
+        ans = self._rc.cast_rays(rays_t, nthreads=self.config.threads)
         t = ans["t_hit"].numpy()
         hit = np.isfinite(t)
         prim = ans["primitive_ids"].numpy().astype(np.int64)

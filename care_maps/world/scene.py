@@ -537,8 +537,8 @@ class _RoomFurnisher:
         return None
 
     def place_on(self, spec: ClassSpec) -> PlacedObject | None:
-        supports = [
-            o
+        supports = [  # (object, its support surface)
+            (o, o.surface)
             for o in self.placer.objects
             if o.room_id == self.room_id and o.class_name in spec.supports and o.surface is not None
         ]
@@ -546,8 +546,7 @@ class _RoomFurnisher:
             return None
         built, _ = build_instance(spec, self.rng)
         for _ in range(self.TRIES):
-            sup = supports[int(self.rng.integers(len(supports)))]
-            sx0, sx1, sy0, sy1, z = sup.surface
+            sup, (sx0, sx1, sy0, sy1, z) = supports[int(self.rng.integers(len(supports)))]
             turns = int(self.rng.integers(4))
             lo, hi = _local_bounds(built, turns)
             if hi[0] - lo[0] > sx1 - sx0 or hi[1] - lo[1] > sy1 - sy0:

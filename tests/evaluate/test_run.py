@@ -36,10 +36,13 @@ def test_care_run_on_the_bundled_sample(tmp_path: Path) -> None:
     ]
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-2000:]
-    assert "| Min stderr | confidence |" in done.stdout
-    assert "## Travel: path length and SPL" in done.stdout  # every rule's SPL, paired tests
+    assert "| Min stderr (confidence, k=4) " in done.stdout  # the pre-registered grid rule
+    results = (out / "eval" / "results.md").read_text()
+    assert "| Min stderr | confidence |" in results  # every rule and k
+    assert "## Travel: path length and SPL" in results  # every rule's SPL, paired tests
     assert (out / "eval" / "plots" / "travel_grid_exclude-1m.png").is_file()
-    assert "protocol `instance` (29 queries)" in done.stdout  # one query per GT instance
+    assert "protocol `instance` (29 queries)" in results  # one query per GT instance
+    assert "instance 29" in done.stdout
     assert "rerun " in done.stdout
     assert (out / "eval" / "results.md").is_file()
     counts = rrd_entity_counts(out / "scene_000.eval.rrd")
@@ -90,3 +93,67 @@ def test_care_run_on_the_bundled_sample(tmp_path: Path) -> None:
     assert first.filter(pl.col("query") == "bed")["method"].unique().to_list() == ["vocabulary"]
     free_rows = first.filter(pl.col("query") == "somewhere to sit 0")
     assert free_rows["method"][0].startswith("joins the vocabulary")
+
+
+def _table_after(lines: list[str], title: str) -> tuple[list[str], list[list[str]]]:
+    """The header and rows (cells stripped) of the printed table under the line that
+    starts with ``title``."""
+    start = next(i for i, line in enumerate(lines) if line.startswith(title))
+    rows = []
+    for line in lines[start + 1 :]:
+        if not line.startswith("|"):
+            break
+        rows.append([c.strip() for c in line.strip().strip("|").split("|")])
+    return rows[0], rows[2:]
+
+
+@pytest.mark.slow
+def test_care_run_prints_what_a_user_reads_first(tmp_path: Path) -> None:
+    """`care run` on the sample, as the README runs it, prints one small table per map (no
+    replan, max confidence, the pre-registered rules, the oracle: success and SPL of each
+    protocol, as summary.parquet has them) and where the full report is, in at most 30
+    lines of results and no note repeated in the cells; the full tables stay in results.md."""
+    import pyarrow.parquet as pq
+
+    from care_maps.evaluate.report.overview import overview_rules
+    from care_maps.evaluate.report.rates import MAP_TITLES
+    from care_maps.replan.strategies import STRATEGIES
+
+    if not (SAMPLE / "index.json").is_file():
+        pytest.skip("the bundled sample is not present")
+    out = tmp_path / "out"
+    done = subprocess.run(
+        [sys.executable, "-m", "care_maps.cli.main", "run", "--out", str(out), "--workers", "1"],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    lines = done.stdout.splitlines()
+    first = next(i for i, line in enumerate(lines) if not line.startswith(str(out / "stores")))
+    last = next(i for i, line in enumerate(lines) if line.startswith("full report"))
+    assert last - first + 1 <= 30, done.stdout  # the results, from the first table's title
+    assert str(out / "eval" / "results.md") in lines[last]
+    assert "no interval" not in done.stdout  # not in every cell: once under each table
+    assert done.stdout.count("No 95% intervals: 1 scene;") == 2  # the sample: one scene
+    summary = {
+        (r["map"], r["protocol"], r["strategy"], r["criterion"], r["k"]): r
+        for r in pq.read_table(out / "eval" / "summary.parquet").to_pylist()
+        if not r["closed_form"]
+    }
+    for kind in ("grid", "instances"):
+        head, rows = _table_after(lines, MAP_TITLES[kind].split(":")[0])
+        protocols = sorted({key[1] for key in summary if key[0] == kind})
+        assert head == ["rule", *(c for p in protocols for c in (f"{p} success", "SPL"))]
+        rules = overview_rules(kind)
+        assert len(rows) == len(rules)
+        for (strategy, criterion, k), cells in zip(rules, rows, strict=True):
+            assert cells[0].startswith(STRATEGIES[strategy].label)
+            if STRATEGIES[strategy].uses_set:
+                assert cells[0].endswith(f"({criterion}, k={k})")
+            for i, protocol in enumerate(protocols):
+                r = summary[kind, protocol, strategy, criterion, k]
+                assert cells[1 + 2 * i] == f"{r['rate']:.1f}"
+                assert cells[2 + 2 * i] == f"{r['spl']:.1f}"
+    results = (out / "eval" / "results.md").read_text()  # nothing lost
+    assert "| Max pwKL (ablation) | category |" in results
+    assert "## Travel: path length and SPL" in results
+    assert "## Pre-registered comparison" in results

@@ -18,7 +18,8 @@ when :func:`make_encoder` builds it, so importing this module pulls in neither t
 from __future__ import annotations
 
 import importlib.metadata
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
+from typing import cast
 
 from care_maps.core.encoders.base import Encoder, EncoderOptions, RecordingContext, l2_normalise
 from care_maps.core.errors import EncoderError
@@ -95,4 +96,6 @@ ENCODERS = EncoderRegistry()
 
 def make_encoder(name: str, options: EncoderOptions | None = None) -> Encoder:
     """Instantiate the encoder registered as ``name``."""
-    return ENCODERS.load(name)(options or EncoderOptions())
+    # a registered encoder class takes one EncoderOptions (the base declares no __init__)
+    cls = cast("Callable[[EncoderOptions], Encoder]", ENCODERS.load(name))
+    return cls(options or EncoderOptions())

@@ -8,9 +8,10 @@ query, replan) is encoder-agnostic: it sees only these arrays.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -80,7 +81,8 @@ class Encoder(ABC):
         load the text tower alone, so a query does not pay for the image side it never
         runs; :meth:`encode_views` may then fail, :attr:`version` and :attr:`dim` must
         stay those of the whole encoder (the store's record is checked against them)."""
-        return cls(options)
+        # a registered encoder class takes one EncoderOptions (this base declares no __init__)
+        return cast("Callable[[EncoderOptions], Encoder]", cls)(options)
 
     def prepare(self, context: RecordingContext) -> None:  # noqa: B027 - optional hook
         """Called once per recording before :meth:`encode_views`; default does nothing."""

@@ -36,13 +36,16 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
 from care_maps.core.encoders.base import Encoder, EncoderOptions
 from care_maps.core.errors import EncoderError
 from care_maps.core.frames import Frame
+
+if TYPE_CHECKING:
+    from transformers import CLIPTextConfig
 
 __all__ = ["DEFAULT_CHECKPOINT", "PROMPT_TEMPLATE", "ClipEncoder"]
 
@@ -248,7 +251,7 @@ def _load_text(weights: str) -> tuple[Any, Any]:
         # the text config of a whole checkpoint may keep its own default projection size;
         # the whole model's projection_dim is what the text projection was saved with
         whole = CLIPConfig.from_pretrained(source)
-        text = whole.text_config
+        text = cast("CLIPTextConfig", whole.text_config)  # a config object once loaded
         text.projection_dim = whole.projection_dim
         model = CLIPTextModelWithProjection.from_pretrained(
             source, config=text, dtype=torch.float32

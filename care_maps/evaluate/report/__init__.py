@@ -4,7 +4,8 @@ Its modules import one way: :mod:`~care_maps.evaluate.report.rates` (success rat
 :mod:`~care_maps.evaluate.report.paired` (paired comparisons and the per-query outcomes), then
 :mod:`~care_maps.evaluate.report.travel` (path length, SPL and its paired tests, success against
 distance) and :mod:`~care_maps.evaluate.report.preregistered` (the paper's settings fixed in advance),
-then :mod:`~care_maps.evaluate.report.write`, which writes them all as one report.
+then :mod:`~care_maps.evaluate.report.overview` (the small table ``care run`` prints), then
+:mod:`~care_maps.evaluate.report.write`, which writes them all as one report.
 """
 
 from __future__ import annotations

@@ -95,7 +95,7 @@ def paired_table(
     solved, first = known or outcomes(attempts)
     rows = []
     for (kind, protocol), rules in sorted(solved.items()):
-        baselines = []
+        baselines: list[tuple[str, str, int]] = []
         if (StrategyName.MAX_CONFIDENCE, NO_CRITERION, 0) in rules:
             baselines.append((StrategyName.MAX_CONFIDENCE, NO_CRITERION, 0))
         best_random = _best(rules, StrategyName.RANDOM_TOPK)

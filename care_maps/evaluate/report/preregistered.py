@@ -83,7 +83,7 @@ TABLE_NAMES = ("preregistered", "best_of_k", "by_class", "query_breakdown")
 Rule = tuple[str, str, int]
 """(strategy, criterion, k); criterion ``-`` and k 0 for rules without a candidate set."""
 
-PAPER_SETTINGS: dict[MapKind, tuple[Rule, ...]] = {
+PAPER_SETTINGS: dict[str, tuple[Rule, ...]] = {
     MapKind.INSTANCES: (
         (StrategyName.MAX_ENTROPY, Criterion.CONFIDENCE, 8),
         (StrategyName.MIN_STDERR, Criterion.CATEGORY, 2),

@@ -9,6 +9,7 @@ query counts once, as in the paper); 95% confidence intervals resample queries.
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -44,7 +45,7 @@ QUERY_KEYS = ["scene", "map", "protocol", "unit", "query"]
 RULE_KEYS = ["strategy", "criterion", "k"]
 """What a replan rule is in the attempt rows: its strategy, criterion and k (criterion
 ``care_maps.evaluate.config.NO_CRITERION`` and k 0 for the strategies without a candidate set)."""
-MAP_TITLES = {
+MAP_TITLES: dict[str, str] = {
     MapKind.INSTANCES: "Instance map (OpenMask3D-like): retrieval success (%)",
     MapKind.GRID: "Grid map (VLMaps-like): subgoal success (%)",
 }
@@ -412,7 +413,7 @@ def per_scene_markdown(summary: pa.Table, scenes: pa.Table) -> str:
     return "\n".join(out)
 
 
-_COLOURS = {
+_COLOURS: dict[str, str] = {
     StrategyName.NO_REPLAN: "black",
     StrategyName.ORACLE: "tab:gray",
     StrategyName.MAX_CONFIDENCE: "tab:blue",
@@ -453,7 +454,7 @@ def plot_success(summary: pa.Table, ks: dict[str, Sequence[int]], out_dir: Path)
     for kind, protocol in sorted({(r["map"], r["protocol"]) for r in summary.to_pylist()}):
         kvals = list(ks[kind])
         rows = [(s, c) for s, cf, c in _row_order(summary, kind, protocol) if not cf]
-        criteria = [c for c in CRITERIA if any(rc == c for _, rc in rows)]
+        criteria: list[str | None] = [c for c in CRITERIA if any(rc == c for _, rc in rows)]
         fig, axes = plt.subplots(
             1, max(len(criteria), 1), figsize=(11, 4.5), sharey=True, squeeze=False
         )
@@ -486,7 +487,7 @@ def plot_success(summary: pa.Table, ks: dict[str, Sequence[int]], out_dir: Path)
         fig.suptitle(f"{MAP_TITLES.get(kind, kind)}, protocol {protocol}", fontsize=11)
         fig.tight_layout(rect=(0, 0, 0.8, 1))
         path = out_dir / f"success_{kind}_{protocol}.png"
-        write_atomic(path, lambda tmp, fig=fig: fig.savefig(tmp, dpi=110, format="png"))
+        write_atomic(path, partial(fig.savefig, dpi=110, format="png"))
         plt.close(fig)
         paths.append(path)
     return paths

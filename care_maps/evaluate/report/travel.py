@@ -11,6 +11,7 @@ pre-registered family is the success table's.
 
 from __future__ import annotations
 
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -135,9 +136,9 @@ def _base_name(rule: Rule) -> str:
 
 
 def travel_markdown(summary: pa.Table, pairs: pa.Table, start: str = "") -> str:
-    """The travel section of ``results.md`` (also what ``care run`` prints): per map and
-    protocol, each rule at its best SPL's k with success, SPL, path length and its paired
-    SPL difference against each baseline. ``start``: where the walks start (" from the
+    """The travel section of ``results.md``: per map and protocol, each rule at its best
+    SPL's k with success, SPL, path length and its paired SPL difference against each
+    baseline. ``start``: where the walks start (" from the
     recording's first pose"), empty when travel is off: then no section."""
     shown = best_spl_rules(summary)
     if not shown:  # travel asked for (``start``) and no query walked: say why
@@ -266,7 +267,7 @@ def plot_travel(curves: dict[tuple[str, str], list[tuple]], out_dir: Path) -> li
         ax.set_title(f"{MAP_TITLES.get(kind, kind).split(':')[0]}, protocol {protocol}")
         fig.tight_layout()
         path = out_dir / f"travel_{kind}_{protocol}.png"
-        write_atomic(path, lambda tmp, fig=fig: fig.savefig(tmp, dpi=110, format="png"))
+        write_atomic(path, partial(fig.savefig, dpi=110, format="png"))
         plt.close(fig)
         paths.append(path)
     return paths

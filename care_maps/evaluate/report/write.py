@@ -14,6 +14,7 @@ from care_maps.core.outputs import atomic_write_text
 from care_maps.core.store import write_table_atomic
 from care_maps.evaluate.config import DEFAULT_BOOTSTRAP
 from care_maps.evaluate.report import preregistered
+from care_maps.evaluate.report.overview import overview_markdown, overview_rows
 from care_maps.evaluate.report.paired import outcomes, paired_markdown, paired_table
 from care_maps.evaluate.report.rates import (
     AUROC_MEASURES,
@@ -37,12 +38,16 @@ class Report:
     markdown: str
     """The whole ``results.md``."""
     tables: str
-    """Its success-rate tables (what ``care run`` prints)."""
+    """Its success-rate tables, every rule and k."""
     summary: pa.Table
     auroc: pa.Table
     paths: tuple[Path, ...]
     travel: str = ""
-    """Its travel section: path length, SPL and paired SPL tests (``care run`` prints it)."""
+    """Its travel section: path length, SPL and paired SPL tests."""
+    overview: str = ""
+    """What ``care run`` prints: per map, success and SPL of no replan, max confidence, the
+    pre-registered rules and the oracle (:mod:`care_maps.evaluate.report.overview`); not
+    written to ``results.md``, which has all of it."""
 
 
 def _auroc_markdown(table: pa.Table) -> str:
@@ -133,4 +138,6 @@ def write_report(
     )
     md_path = out / "results.md"
     atomic_write_text(md_path, md)
-    return Report(md, tables, summary, aucs, (*paths, *prereg.paths, md_path, *plots), travel)
+    overview = overview_markdown(overview_rows(summary, scenes))
+    written = (*paths, *prereg.paths, md_path, *plots)
+    return Report(md, tables, summary, aucs, written, travel, overview)

@@ -206,7 +206,7 @@ class FolderLayout(ABC):
         the optical frame (``--camera-convention body``). A layout calls it on every pose it
         reads, before interpolating or its own conversions; a non-finite pose (tracking
         lost) stays one."""
-        pose = np.asarray(matrix, np.float64)
+        pose: np.ndarray = np.asarray(matrix, np.float64)
         if not np.isfinite(pose).all():
             return pose
         if self.pose_convention() is PoseConvention.WORLD_TO_CAMERA:

@@ -83,6 +83,14 @@ def _camera_values(path: Path, data: dict[str, Any]) -> tuple[dict[str, float], 
     return values, size
 
 
+def _intrinsics(values: dict[str, float], size: dict[str, int], source: str) -> Intrinsics:
+    """The camera of :func:`_camera_values`' numbers."""
+    return Intrinsics(
+        fx=values["fx"], fy=values["fy"], cx=values["cx"], cy=values["cy"],
+        width=size["width"], height=size["height"], source=source,
+    )  # fmt: skip
+
+
 def read_intrinsics_json(
     path: Path, *, default_scale: float = DEPTH_MILLIMETRES
 ) -> tuple[Intrinsics, float]:
@@ -91,7 +99,7 @@ def read_intrinsics_json(
     ``depth_scale`` is TUM's, ``default_scale``)."""
     data = json_file(path, _WHAT)
     values, size = _camera_values(path, data)
-    return Intrinsics(**values, **size, source=path.name), _depth_scale(path, data, default_scale)
+    return _intrinsics(values, size, path.name), _depth_scale(path, data, default_scale)
 
 
 def _depth_scale(path: Path, data: dict[str, Any], default: float) -> float:
@@ -148,7 +156,7 @@ class GenericLayout(FolderLayout):
                 camera = self.camera()[0]
             else:
                 values, size = _camera_values(path, data)
-                camera = Intrinsics(**values, **size, source=INTRINSICS_FILE)
+                camera = _intrinsics(values, size, INTRINSICS_FILE)
             self._camera = (camera, self.scale(scale))
         return self._camera
 

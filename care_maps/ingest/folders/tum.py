@@ -251,7 +251,9 @@ class TumLayout(FolderLayout):
         self._calibration()
         pairs, n_colour = self.pairs()
         times = np.array([stamp for stamp, _, _ in pairs], np.int64)
-        poses, valid = self._poses_at(times) if len(times) else (np.zeros((0, 4, 4)), [])
+        poses, valid = (
+            self._poses_at(times) if len(times) else (np.zeros((0, 4, 4)), np.zeros(0, bool))
+        )
         lost = {"no_depth": n_colour - len(pairs), "no_pose": len(pairs) - int(np.sum(valid))}
         self.dropped.update({reason: n for reason, n in lost.items() if n})
         views = [

@@ -108,7 +108,7 @@ def _objects_from_csv(path: Path) -> list[dict[str, Any]]:
             msg = f"{path}: header has no 'class' column (expected {', '.join(CSV_COLUMNS)})"
             raise GroundTruthError(msg)
         for n, row in enumerate(rows[1:], start=2):
-            obj = {k: v.strip() for k, v in zip(header, row, strict=False)}
+            obj: dict[str, Any] = {k: v.strip() for k, v in zip(header, row, strict=False)}
             obj["_where"] = f"line {n}"
             out.append(obj)
         return out
@@ -117,7 +117,7 @@ def _objects_from_csv(path: Path) -> list[dict[str, Any]]:
         if len(cells) < 7:
             msg = f"{path}: line {n}: expected class, cx, cy, cz, sx, sy, sz[, yaw][, room], got {len(cells)} field(s)"
             raise GroundTruthError(msg)
-        obj: dict[str, Any] = dict(zip(CSV_COLUMNS[:7], cells[:7], strict=True))
+        obj = dict(zip(CSV_COLUMNS[:7], cells[:7], strict=True))
         rest = cells[7:]
         if rest:
             try:

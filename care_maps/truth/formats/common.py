@@ -219,8 +219,9 @@ def room_of_dict(doc: Any, index: int, path: Path) -> Room:
         msg = f"{path}: room {index} ('{doc.get('name')}'): needs a 'polygon' of at least 3 [x, y] points"
         raise GroundTruthError(msg)
     z_min, z_max = doc.get("z_min"), doc.get("z_max")
+    room_id: Any = doc.get("room_id", index)  # as read (a number, or text of one)
     return Room(
-        int(doc.get("id", doc.get("room_id", index))),
+        int(doc.get("id", room_id)),
         str(doc.get("name", f"room{index}")),
         polygon,
         -np.inf if z_min is None else float(z_min),

@@ -133,7 +133,8 @@ def read_matterport(path: Path) -> GroundTruth:
     meshes = _meshes(house)
     house_rooms = _read_house(house)
     categories: dict[int, str] | None = None
-    all_xyz, all_inst, class_of, room_of_instance, rooms = [], [], {}, {}, []
+    class_of: dict[int, str] = {}
+    all_xyz, all_inst, room_of_instance, rooms = [], [], {}, []
     used: set[int] = set()
     for region, mesh in enumerate(meshes):
         stem = mesh.with_suffix("")
@@ -281,7 +282,8 @@ def write_matterport(gt: GroundTruth, house: Path, name: str) -> list[Path]:
     lines = [
         f"ASCII 1.1\nH {name} - 0 0 0 0 0 0 0 {len(rooms)} 0 1  0 0 0 0 0  0 0 0 0 0 0  0 0 0 0 0"
     ]
-    vertex_lines, surfaces = [], []
+    vertex_lines: list[str] = []
+    surfaces: list[str] = []
     for n, r in enumerate(rooms):
         poly = np.asarray(r.floor_polygon)
         zlo = r.z_min if np.isfinite(r.z_min) else -1e3

@@ -20,14 +20,14 @@ def _splitmix(x: np.ndarray) -> np.ndarray:
         return z ^ (z >> np.uint64(31))
 
 
-def _hash(seed: int, *parts: np.ndarray | int) -> np.ndarray:
+def _hash(seed: int, *parts: np.ndarray | np.integer | int) -> np.ndarray:
     h = _splitmix(np.asarray(np.uint64(seed & 0xFFFFFFFFFFFFFFFF)))
     for p in parts:
         h = _splitmix(h ^ np.asarray(p).astype(np.uint64))
     return h
 
 
-def uniform(seed: int, *parts: np.ndarray | int) -> np.ndarray:
+def uniform(seed: int, *parts: np.ndarray | np.integer | int) -> np.ndarray:
     """Uniform [0, 1) numbers that depend only on ``seed`` and ``parts`` (counter-based)."""
     return (_hash(seed, *parts) >> np.uint64(11)).astype(np.float64) * 2.0**-53
 

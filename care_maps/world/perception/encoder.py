@@ -46,8 +46,9 @@ class LabelsEncoder(Encoder):
 
     def __init__(self, options: EncoderOptions | None = None, model: PerceptionModel | None = None):
         options = options or EncoderOptions()
-        self.spec = None if model is not None else str(options.perception)
+        self.spec: str | None = None
         if model is None:
+            self.spec = str(options.perception)
             model, _ = perception_model(self.spec)
         self.model = model
         self.scene_seed: int | None = None

@@ -124,7 +124,7 @@ class PerceptionModel:
     @classmethod
     def ideal(cls) -> PerceptionModel:
         """No bias, no noise, no bleeding: every visible instance reads as its true class."""
-        zero = {
+        zero: dict[str, Any] = {
             f.name: 0.0
             for f in fields(cls)
             if f.name.endswith(("_rate", "_gain", "_noise")) or f.name == "bleed"
@@ -159,7 +159,7 @@ def _parse(key: str, value: Any, kind: type) -> Any:
         try:
             return kind(str(value).strip())
         except ValueError as err:
-            choices = ", ".join(c.value for c in kind)  # type: ignore[attr-defined]
+            choices = ", ".join(c.value for c in kind)
             msg = f"perception knob {key}={value!r}: choose one of {choices}"
             raise EncoderError(msg) from err
     try:
@@ -206,7 +206,7 @@ def perception_model(
     if name not in PERCEPTION_PRESETS:
         msg = f"perception preset {name!r}: choose one of {', '.join(PERCEPTION_PRESETS)}"
         raise EncoderError(msg)
-    model, from_record = PERCEPTION_PRESETS[name], False
+    model, from_record = PERCEPTION_PRESETS[PerceptionPreset(name)], False
     if name == PerceptionPreset.DEFAULT and recorded:
         model, from_record = PerceptionModel().with_values(recorded), True
     values = {}
