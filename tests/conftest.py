@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import sys
-from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+
+from tests.support.cli import InProcessCli
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 
@@ -35,21 +35,6 @@ def save_tiny_clip():
 
 
 @pytest.fixture
-def run_cli(capsys: pytest.CaptureFixture[str]) -> Callable[..., tuple[int, str, str]]:
+def run_cli(capsys: pytest.CaptureFixture[str]) -> InProcessCli:
     """Run ``care ARGS`` in-process through ``care_maps.cli.main.main``: (exit code, stdout, stderr)."""
-    from care_maps.cli import main as cli
-
-    def run(*args: str) -> tuple[int, str, str]:
-        argv = sys.argv
-        sys.argv = ["care", *map(str, args)]
-        code = 0
-        try:
-            cli.main()
-        except SystemExit as exc:
-            code = int(exc.code or 0)
-        finally:
-            sys.argv = argv
-        out, err = capsys.readouterr()
-        return code, out, err
-
-    return run
+    return InProcessCli(capsys)

@@ -116,9 +116,9 @@ def test_given_then_recorded_then_default() -> None:
 def test_a_later_grid_command_reuses_the_maps_settings(tmp_path: Path, run_cli) -> None:
     """Built at scale 30 and stride 3: `--recompute` alone keeps scale 30 (it reset it to
     100), and `care fuse grid` with no options neither rebuilds it nor changes a byte."""
-    from tests.fuse.test_grid import _store
+    from tests.support.stores import grid_store
 
-    store = _store(tmp_path / "s", n=2)
+    store = grid_store(tmp_path / "s", n=2)
     cells = store / "cells.parquet"
     args = ["fuse", "grid", str(store), "--cell-size", "0.1", "--stride", "3"]
     assert run_cli(*args, "--logit-scale", "30")[0] == 0

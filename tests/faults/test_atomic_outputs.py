@@ -29,6 +29,9 @@ from pathlib import Path
 
 import pytest
 
+from tests.support.cli import call_main, care_popen
+from tests.support.faults import EVAL_FLAGS, assert_fault, leftovers
+
 pytestmark = pytest.mark.slow
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -189,28 +192,18 @@ class Versions:
 
 def _cli(*args: object) -> None:
     """``care ARGS`` in this process (for fixtures of a wider scope than ``care``)."""
-    from care_maps.cli import main as cli
-
-    argv = sys.argv
-    sys.argv = ["care", *map(str, args)]
-    code = 0
-    try:
-        cli.main()
-    except SystemExit as exc:
-        code = exc.code
-    finally:
-        sys.argv = argv
+    code = call_main(*args)
     assert not code, (args, code)
 
 
 @pytest.fixture(scope="module")
-def evals(fx, good: Path, tmp_path_factory: pytest.TempPathFactory) -> Versions:
+def evals(good: Path, tmp_path_factory: pytest.TempPathFactory) -> Versions:
     """``care eval --maps instances`` and then ``--maps instances,grid`` over it."""
     root = tmp_path_factory.mktemp("atomic_evals")
     os.environ["TQDM_DISABLE"] = "1"
-    _cli("eval", good / "store", "--out", root / "old", *fx.EVAL_FLAGS, "--maps", "instances")
+    _cli("eval", good / "store", "--out", root / "old", *EVAL_FLAGS, "--maps", "instances")
     shutil.copytree(root / "old", root / "new")
-    _cli("eval", good / "store", "--out", root / "new", *fx.EVAL_FLAGS, *NEW_MAPS)
+    _cli("eval", good / "store", "--out", root / "new", *EVAL_FLAGS, *NEW_MAPS)
     versions = Versions(root / "old", root / "new")
     assert _files(versions.old) != _files(versions.new)
     assert not list(root.rglob(".*"))  # nothing left beside or inside them
@@ -223,14 +216,14 @@ def _over_old(evals: Versions, folder: Path) -> Path:
     return folder / "ev"
 
 
-def _resume_eval(care, fx, good: Path, evals: Versions, snapshot: Path, where: Path) -> None:
+def _resume_eval(care, good: Path, evals: Versions, snapshot: Path, where: Path) -> None:
     """From what a kill left (``snapshot``), the same command again: it finishes, and
     leaves the new version and no temporary."""
     shutil.copytree(snapshot, where, symlinks=True)
-    code, _, err = care("eval", good / "store", "--out", where / "ev", *fx.EVAL_FLAGS, *NEW_MAPS)
+    code, _, err = care("eval", good / "store", "--out", where / "ev", *EVAL_FLAGS, *NEW_MAPS)
     assert code == 0, err
     assert evals.which(where / "ev") == "new"
-    assert not fx.leftovers(where)
+    assert not leftovers(where)
 
 
 def _one_of_each(snaps: list[Path], state) -> dict[tuple, Path]:
@@ -245,13 +238,13 @@ def _one_of_each(snaps: list[Path], state) -> dict[tuple, Path]:
 
 
 def test_eval_killed_when_attempts_change_is_old_or_new(
-    care, fx, good: Path, evals: Versions, tmp_path: Path
+    care, good: Path, evals: Versions, tmp_path: Path
 ) -> None:
     """``care eval --maps instances,grid`` over ``--maps instances`` results, killed the
     moment ``attempts.parquet`` changes: the folder is the old results or the new."""
     out = _over_old(evals, tmp_path / "w")
     before = (out / "attempts.parquet").stat()
-    proc = fx.care_popen("eval", good / "store", "--out", out, *fx.EVAL_FLAGS, *NEW_MAPS)
+    proc = care_popen("eval", good / "store", "--out", out, *EVAL_FLAGS, *NEW_MAPS)
     deadline = time.monotonic() + 240
     while proc.poll() is None and time.monotonic() < deadline:
         try:
@@ -268,22 +261,22 @@ def test_eval_killed_when_attempts_change_is_old_or_new(
     proc.send_signal(signal.SIGKILL)
     proc.communicate()
     assert evals.which(out) in ("old", "new")
-    code, _, err = care("eval", good / "store", "--out", out, *fx.EVAL_FLAGS, *NEW_MAPS)
+    code, _, err = care("eval", good / "store", "--out", out, *EVAL_FLAGS, *NEW_MAPS)
     assert code == 0, err
     assert evals.which(out) == "new"
-    assert not fx.leftovers(out.parent)
+    assert not leftovers(out.parent)
 
 
 # -- (b) a kill at every step ---------------------------------------------------------------
 
 
 def test_eval_killed_anywhere_is_old_or_new(
-    care, fx, good: Path, evals: Versions, tmp_path: Path
+    care, good: Path, evals: Versions, tmp_path: Path
 ) -> None:
     out = _over_old(evals, tmp_path / "w")
     snaps_dir = tmp_path / "snaps"
     r = _hooked(
-        EVAL_MAIN, "eval", good / "store", "--out", out, *fx.EVAL_FLAGS, *NEW_MAPS,
+        EVAL_MAIN, "eval", good / "store", "--out", out, *EVAL_FLAGS, *NEW_MAPS,
         watch=out.parent, snapshots=snaps_dir,
     )  # fmt: skip
     assert r.returncode == 0, r.stderr
@@ -299,7 +292,7 @@ def test_eval_killed_anywhere_is_old_or_new(
     staged = [snap for state, snap in firsts.items() if ".ev.tmp-PID" in state[1]]
     assert len(staged) == 2, firsts
     for i, snap in enumerate(staged):
-        _resume_eval(care, fx, good, evals, snap, tmp_path / f"resume{i}")
+        _resume_eval(care, good, evals, snap, tmp_path / f"resume{i}")
 
 
 # -- (c) care run ---------------------------------------------------------------------------
@@ -314,7 +307,7 @@ def _serial():
 
 def _run_config(seeds: int):
     """``care run`` on the fault suite's recording: its maps as the ``good`` store's, the
-    evaluation as ``fx.EVAL_FLAGS`` but for ``seeds``."""
+    evaluation as ``EVAL_FLAGS`` but for ``seeds``."""
     from care_maps.evaluate.config import EvalConfig, RunConfig
     from care_maps.fuse.grid import GridConfig
     from care_maps.fuse.instances import InstanceConfig
@@ -354,7 +347,7 @@ def _run_state(runs: Runs, run: Path) -> tuple[str, tuple[str, ...]]:
 
 
 def test_run_killed_anywhere_is_old_or_new(
-    care, fx, recording: Path, runs: Runs, tmp_path: Path
+    care, recording: Path, runs: Runs, tmp_path: Path
 ) -> None:
     from care_maps.evaluate.pipeline import run_all
 
@@ -380,7 +373,7 @@ def test_run_killed_anywhere_is_old_or_new(
     shutil.copytree(snap, where, symlinks=True)
     run_all(recording, where / "run", _run_config(2), run=_serial())
     assert _run_state(runs, where / "run")[0] == "new"
-    assert not fx.leftovers(where)
+    assert not leftovers(where)
     code, out, err = care("check", where / "run")
     assert code == 0, err
     assert out.strip() == f"{where / 'run'}: ok (1 stores and its evaluation verified)"
@@ -389,9 +382,7 @@ def test_run_killed_anywhere_is_old_or_new(
 # -- (d) care check -------------------------------------------------------------------------
 
 
-def test_check_verifies_an_evaluation(
-    care, fx, good: Path, evals: Versions, tmp_path: Path
-) -> None:
+def test_check_verifies_an_evaluation(care, good: Path, evals: Versions, tmp_path: Path) -> None:
     out = tmp_path / "ev"
     shutil.copytree(evals.new, out)
     files = len([p for p in out.rglob("*") if p.is_file()]) - 1  # not the marker
@@ -406,7 +397,7 @@ def test_check_verifies_an_evaluation(
         else:
             path.write_bytes(kept[:500])
         code, _, err = care("check", out)
-        fx.assert_fault(
+        assert_fault(
             code, err, rf"^error: {re.escape(str(path))}: missing, truncated or altered since it "
             rf"was written; re-run `care eval` with --out {re.escape(str(out))}",
             clean=(tmp_path,),
@@ -415,7 +406,7 @@ def test_check_verifies_an_evaluation(
     # a re-run writes what is damaged again, the cached scene included
     for damage in ("summary.parquet", "scenes/store.parquet"):
         (out / damage).write_bytes((out / damage).read_bytes()[:500])
-    code, _, err = care("eval", good / "store", "--out", out, *fx.EVAL_FLAGS, *NEW_MAPS)
+    code, _, err = care("eval", good / "store", "--out", out, *EVAL_FLAGS, *NEW_MAPS)
     assert code == 0, err
     assert evals.which(out) == "new"
     assert care("check", out)[0] == 0
@@ -425,7 +416,7 @@ def test_check_verifies_an_evaluation(
 
 
 def test_eval_killed_anywhere_without_exchange(
-    care, fx, good: Path, evals: Versions, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    care, good: Path, evals: Versions, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Where the two directories cannot be exchanged, the old one is renamed aside and the
     new one into place: a kill between the two leaves the output missing, and the next run
@@ -438,11 +429,11 @@ def test_eval_killed_anywhere_without_exchange(
     monkeypatch.setattr(outputs, "exchange", unsupported)
     out = _over_old(evals, tmp_path / "w")
     snaps_dir = tmp_path / "snaps"
-    args = ("eval", good / "store", "--out", out, *fx.EVAL_FLAGS, *NEW_MAPS)
+    args = ("eval", good / "store", "--out", out, *EVAL_FLAGS, *NEW_MAPS)
     r = _hooked(EVAL_MAIN, *args, watch=out.parent, snapshots=snaps_dir, no_exchange=True)
     assert r.returncode == 0, r.stderr
     assert evals.which(out) == "new"
-    assert not fx.leftovers(out.parent)
+    assert not leftovers(out.parent)
     snaps = _snapshots(snaps_dir)
     states = {snap.name: (evals.which(snap / "ev"), _others(snap, "ev")) for snap in snaps}
     assert {which for which, _ in states.values()} == {"old", "new", "missing"}, states
@@ -463,4 +454,4 @@ def test_eval_killed_anywhere_without_exchange(
     code, _, err = care(*args[:2], "--out", tmp_path / "resumed" / "ev", *args[4:])
     assert code == 0, err
     assert evals.which(tmp_path / "resumed" / "ev") == "new"
-    assert not fx.leftovers(tmp_path / "resumed")
+    assert not leftovers(tmp_path / "resumed")

@@ -24,6 +24,9 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from care_maps.core.store import Store
+from tests.support.faults import assert_fault, read_meta, tables
+from tests.support.messages import camera_info_msg, image_msg, tf_msg
+from tests.support.recordings import Stamped, write_bag
 
 W, H = 320, 240
 K = np.array([[262.5, 0.0, 159.5], [0.0, 262.5, 119.5], [0.0, 0.0, 1.0]])
@@ -100,57 +103,17 @@ def _distorted(frames: list, model: str, d: tuple[float, ...]) -> list:
 def _write_bag(path: Path, frames: list, lens: tuple[str, tuple[float, ...]] = ZERO) -> Path:
     """A rosbag2 (mcap storage) of rgb8 colour, 16UC1 depth, camera info with the given
     distortion model and D, and the camera poses on /tf, 100 ms apart."""
-    from rosbags.rosbag2 import StoragePlugin, Writer
-    from rosbags.typesys import Stores, get_typestore
-
-    ts = get_typestore(Stores.ROS2_HUMBLE)
-    T = ts.types
-
-    def header(t: int, frame: str = "camera_optical_frame") -> object:
-        stamp = T["builtin_interfaces/msg/Time"](sec=t // 10**9, nanosec=t % 10**9)
-        return T["std_msgs/msg/Header"](stamp=stamp, frame_id=frame)
-
-    def image(t: int, data: np.ndarray, encoding: str) -> object:
-        flat = np.ascontiguousarray(data).view(np.uint8).reshape(-1)
-        return T["sensor_msgs/msg/Image"](
-            header=header(t), height=H, width=W, encoding=encoding, is_bigendian=0,
-            step=flat.size // H, data=flat,
-        )  # fmt: skip
-
-    def tf(t: int, pose: np.ndarray) -> object:
-        q, p = Rotation.from_matrix(pose[:3, :3]).as_quat(), pose[:3, 3]
-        transform = T["geometry_msgs/msg/Transform"](
-            translation=T["geometry_msgs/msg/Vector3"](x=p[0], y=p[1], z=p[2]),
-            rotation=T["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]),
-        )
-        stamped = T["geometry_msgs/msg/TransformStamped"](
-            header=header(t, "map"), child_frame_id="camera_optical_frame", transform=transform
-        )
-        return T["tf2_msgs/msg/TFMessage"](transforms=[stamped])
-
-    def info(t: int) -> object:
-        roi = T["sensor_msgs/msg/RegionOfInterest"](
-            x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
-        )
-        return T["sensor_msgs/msg/CameraInfo"](
-            header=header(t), height=H, width=W, distortion_model=lens[0],
-            d=np.asarray(lens[1], np.float64), k=K.ravel(), r=np.eye(3).ravel(),
-            p=np.c_[K, np.zeros(3)].ravel(), binning_x=0, binning_y=0, roi=roi,
-        )  # fmt: skip
-
-    connections: dict[str, object] = {}
-    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
-        for t, (rgb, depth, pose) in zip(STAMPS[: len(frames)], frames, strict=True):
-            for topic, msg in (
-                ("/tf", tf(t, pose)),
-                ("/camera/color/camera_info", info(t)),
-                ("/camera/color/image_raw", image(t, rgb, "rgb8")),
-                ("/camera/depth/image_raw", image(t, depth, "16UC1")),
-            ):
-                if topic not in connections:
-                    connections[topic] = writer.add_connection(topic, msg.__msgtype__, typestore=ts)
-                writer.write(connections[topic], t, bytes(ts.serialize_cdr(msg, msg.__msgtype__)))
-    return path
+    messages: list[Stamped] = []
+    for t, (rgb, depth, pose) in zip(STAMPS[: len(frames)], frames, strict=True):
+        q = Rotation.from_matrix(pose[:3, :3]).as_quat()
+        info = camera_info_msg(t, K, W, H, distortion_model=lens[0], d=lens[1])
+        messages += [
+            ("/tf", t, tf_msg(t, "map", "camera_optical_frame", pose[:3, 3], q)),
+            ("/camera/color/camera_info", t, info),
+            ("/camera/color/image_raw", t, image_msg(t, rgb, "rgb8")),
+            ("/camera/depth/image_raw", t, image_msg(t, depth, "16UC1")),
+        ]
+    return write_bag(path, messages)
 
 
 def _views(store: Path) -> list:
@@ -205,7 +168,7 @@ def twin_store(tmp_path_factory: pytest.TempPathFactory, twin: list) -> Path:
 @pytest.mark.slow
 @pytest.mark.parametrize("model", sorted(LENSES))
 def test_distorted_views_match_the_undistorted_twin(
-    care, fx, twin: list, twin_store: Path, tmp_path: Path, model: str
+    care, twin: list, twin_store: Path, tmp_path: Path, model: str
 ) -> None:
     lens = (model, LENSES[model])
     recorded = _distorted(twin, *lens)
@@ -232,12 +195,12 @@ def test_distorted_views_match_the_undistorted_twin(
         # depth is picked, never blended: every valid stored depth is one the twin has
         mm = np.rint(got.depth_m[got.depth_m > 0] * 1000)
         assert np.isin(mm, np.rint(want.depth_m * 1000)).all()
-    assert fx.meta(tmp_path / "store")["distortion"] == [{"model": model, "D": list(lens[1])}]
+    assert read_meta(tmp_path / "store")["distortion"] == [{"model": model, "D": list(lens[1])}]
 
 
 @pytest.mark.slow
 def test_zero_distortion_stores_the_recording_as_it_was(
-    care, fx, twin: list, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    care, twin: list, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """All-zero D, whatever the model, stores the same bytes as ingest without any
     undistortion step, and records no distortion."""
@@ -253,22 +216,22 @@ def test_zero_distortion_stores_the_recording_as_it_was(
         bag = _write_bag(tmp_path / f"bag {name}", frames, lens)
         code, _, err = care("ingest", bag, "--out", tmp_path / name)
         assert code == 0, err
-        assert fx.meta(tmp_path / name)["distortion"] == []
-        stores[name] = fx.tables(tmp_path / name)["views.parquet"]
+        assert read_meta(tmp_path / name)["distortion"] == []
+        stores[name] = tables(tmp_path / name)["views.parquet"]
     monkeypatch.setattr("care_maps.ingest.source.undistort", lambda image, *_, **__: image)
     code, _, err = care("ingest", tmp_path / "bag plumb_bob", "--out", tmp_path / "no step")
     assert code == 0, err
-    assert set(stores.values()) == {fx.tables(tmp_path / "no step")["views.parquet"]}
+    assert set(stores.values()) == {tables(tmp_path / "no step")["views.parquet"]}
 
 
 @pytest.mark.slow
-def test_nonzero_distortion_changes_the_store(care, fx, twin: list, tmp_path: Path) -> None:
+def test_nonzero_distortion_changes_the_store(care, twin: list, tmp_path: Path) -> None:
     frames = twin[:2]
     for name, lens in {"zero": ZERO, "distorted": ("plumb_bob", LENSES["plumb_bob"])}.items():
         code, _, err = care("ingest", _write_bag(tmp_path / name, frames, lens), "--out",
                             tmp_path / f"store {name}")  # fmt: skip
         assert code == 0, err
-    zero, distorted = (fx.meta(tmp_path / f"store {n}") for n in ("zero", "distorted"))
+    zero, distorted = (read_meta(tmp_path / f"store {n}") for n in ("zero", "distorted"))
     assert zero["fingerprint"] != distorted["fingerprint"]
     views = [_views(tmp_path / f"store {n}") for n in ("zero", "distorted")]
     for a, b in zip(*views, strict=True):
@@ -297,10 +260,10 @@ def test_ros1_camera_info_names_d_in_capitals() -> None:
 
 
 @pytest.mark.slow
-def test_unknown_model_with_nonzero_d_is_refused(care, fx, twin: list, tmp_path: Path) -> None:
+def test_unknown_model_with_nonzero_d_is_refused(care, twin: list, tmp_path: Path) -> None:
     bag = _write_bag(tmp_path / "bag", twin[:1], ("kannala_brandt8", (0.1, 0.0, 0.0, 0.0)))
     code, _, err = care("ingest", bag, "--out", tmp_path / "store")
-    fx.assert_fault(
+    assert_fault(
         code,
         err,
         r"bag: topic /camera/color/camera_info: camera_info distortion_model "

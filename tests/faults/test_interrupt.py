@@ -18,6 +18,10 @@ from pathlib import Path
 
 import pytest
 
+from tests.support.cli import care_popen, care_process
+from tests.support.faults import EVAL_FLAGS, assert_fault, leftovers, snapshot
+from tests.support.processes import appears, loading, wait_for
+
 pytestmark = pytest.mark.slow
 
 WITHIN = 1.5
@@ -37,12 +41,12 @@ writing its temporary, and having committed its output (about to exit)."""
 
 
 def _interrupt(
-    fx, args: tuple[object, ...], at: Callable[[object], Callable[[], bool]]
+    args: tuple[object, ...], at: Callable[[object], Callable[[], bool]]
 ) -> tuple[int | None, str, float]:
     """Run ``care ARGS``, Ctrl-C it once ``at(proc)()`` holds: (exit code, stderr, seconds the
     exit took after the signal; 0 when it had finished before)."""
-    proc = fx.care_popen(*args)
-    if not fx.wait_for(proc, at(proc)):
+    proc = care_popen(*args)
+    if not wait_for(proc, at(proc)):
         _, err = proc.communicate()
         return proc.returncode, err, 0.0
     sent = time.monotonic()
@@ -55,7 +59,7 @@ def _interrupt(
     return proc.returncode, err, time.monotonic() - sent
 
 
-def _check(fx, code: int | None, err: str, took: float) -> None:
+def _check(code: int | None, err: str, took: float) -> None:
     if code == 0:
         # finished before the signal came, or the signal came as the finished program was
         # exiting (a poll then a send is a race): the callers check the outputs are whole
@@ -63,61 +67,61 @@ def _check(fx, code: int | None, err: str, took: float) -> None:
         return
     # on a loaded machine the unwinding may outlast the grace: what it left is a temporary
     # of a dead process, which the re-run each test makes must sweep (checked there)
-    fx.assert_fault(code, err, r"^error: interrupted", exit_code=130)
+    assert_fault(code, err, r"^error: interrupted", exit_code=130)
     assert took < WITHIN, took
 
 
 @pytest.mark.parametrize("moment", MOMENTS)
-def test_ctrl_c_during_fuse_grid_overwrite(fx, copy_good, moment: str) -> None:
+def test_ctrl_c_during_fuse_grid_overwrite(copy_good, moment: str) -> None:
     store = copy_good("store")
-    before = fx.snapshot(store)
+    before = snapshot(store)
     at = {
-        "loading": fx.loading,
-        "locked": lambda _: fx.appears(store.parent, f".{store.name}.lock"),
-        "staged": lambda _: fx.appears(store, ".cell_views.parquet.tmp-*"),
+        "loading": loading,
+        "locked": lambda _: appears(store.parent, f".{store.name}.lock"),
+        "staged": lambda _: appears(store, ".cell_views.parquet.tmp-*"),
         "committed": lambda _: _changed(store / "cells.parquet"),
     }[moment]
-    code, err, took = _interrupt(fx, ("fuse", "grid", store, "--overwrite"), at)
-    _check(fx, code, err, took)
-    assert fx.snapshot(store) == before  # the old map, or the same map built again
-    assert fx.care_process("fuse", "grid", store).returncode == 0
-    assert not fx.leftovers(store.parent)
+    code, err, took = _interrupt(("fuse", "grid", store, "--overwrite"), at)
+    _check(code, err, took)
+    assert snapshot(store) == before  # the old map, or the same map built again
+    assert care_process("fuse", "grid", store).returncode == 0
+    assert not leftovers(store.parent)
 
 
 @pytest.mark.parametrize("moment", MOMENTS)
-def test_ctrl_c_during_ingest(fx, recording: Path, tmp_path: Path, moment: str) -> None:
+def test_ctrl_c_during_ingest(recording: Path, tmp_path: Path, moment: str) -> None:
     out = tmp_path / "store"
     at = {
-        "loading": fx.loading,
-        "locked": lambda _: fx.appears(tmp_path, ".store.lock"),
-        "staged": lambda _: fx.appears(tmp_path, ".store.tmp-*/views.parquet"),
+        "loading": loading,
+        "locked": lambda _: appears(tmp_path, ".store.lock"),
+        "staged": lambda _: appears(tmp_path, ".store.tmp-*/views.parquet"),
         "committed": lambda _: _changed(out / "meta.json"),
     }[moment]
-    code, err, took = _interrupt(fx, ("ingest", recording, "--out", out), at)
-    _check(fx, code, err, took)
+    code, err, took = _interrupt(("ingest", recording, "--out", out), at)
+    _check(code, err, took)
     if out.exists():  # committed whole before the signal came, or not at all
-        assert fx.care_process("check", out).returncode == 0
-    assert fx.care_process("ingest", recording, "--out", out).returncode == 0
-    assert not fx.leftovers(tmp_path)
+        assert care_process("check", out).returncode == 0
+    assert care_process("ingest", recording, "--out", out).returncode == 0
+    assert not leftovers(tmp_path)
 
 
 @pytest.mark.parametrize("moment", MOMENTS[1:3])
-def test_ctrl_c_during_eval_over_earlier_results(fx, good: Path, copy_good, moment: str) -> None:
+def test_ctrl_c_during_eval_over_earlier_results(good: Path, copy_good, moment: str) -> None:
     ev = copy_good("eval")
-    before = fx.snapshot(ev)
+    before = snapshot(ev)
     at = {
-        "locked": lambda _: fx.appears(ev.parent, f".{ev.name}.lock"),
-        "staged": lambda _: fx.appears(ev.parent, f".{ev.name}.tmp-*"),
+        "locked": lambda _: appears(ev.parent, f".{ev.name}.lock"),
+        "staged": lambda _: appears(ev.parent, f".{ev.name}.tmp-*"),
     }[moment]
-    code, err, took = _interrupt(fx, ("eval", good / "store", "--out", ev, *fx.EVAL_FLAGS), at)
-    _check(fx, code, err, took)
-    assert fx.snapshot(ev) == before  # the same inputs: the old results or identical new ones
-    assert fx.care_process("eval", good / "store", "--out", ev, *fx.EVAL_FLAGS).returncode == 0
-    assert not fx.leftovers(ev.parent)
-    assert fx.snapshot(ev) == before
+    code, err, took = _interrupt(("eval", good / "store", "--out", ev, *EVAL_FLAGS), at)
+    _check(code, err, took)
+    assert snapshot(ev) == before  # the same inputs: the old results or identical new ones
+    assert care_process("eval", good / "store", "--out", ev, *EVAL_FLAGS).returncode == 0
+    assert not leftovers(ev.parent)
+    assert snapshot(ev) == before
 
 
-def test_a_job_started_to_ignore_ctrl_c_keeps_ignoring_it(fx, copy_good) -> None:
+def test_a_job_started_to_ignore_ctrl_c_keeps_ignoring_it(copy_good) -> None:
     """A shell's background job (``care ... &`` in a script) starts with SIGINT ignored; it is
     not ours to undo that (``nohup`` relies on it)."""
     import subprocess
@@ -131,7 +135,7 @@ def test_a_job_started_to_ignore_ctrl_c_keeps_ignoring_it(fx, copy_good) -> None
         cwd=Path(__file__).resolve().parents[2], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
         text=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
     )  # fmt: skip
-    assert fx.wait_for(proc, fx.appears(store.parent, f".{store.name}.lock")), proc.communicate()
+    assert wait_for(proc, appears(store.parent, f".{store.name}.lock")), proc.communicate()
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 0, err

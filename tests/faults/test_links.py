@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.support.faults import assert_fault
+
 pytestmark = pytest.mark.slow
 
 COMMANDS = {
@@ -61,7 +63,7 @@ def _state(tmp_path: Path) -> dict[str, str]:
 @pytest.mark.parametrize("target", list(TARGETS))
 @pytest.mark.parametrize("command", list(COMMANDS))
 def test_an_output_that_is_a_link_is_refused(
-    care, fx, good: Path, recording: Path, tmp_path: Path, command: str, target: str
+    care, good: Path, recording: Path, tmp_path: Path, command: str, target: str
 ) -> None:
     work = tmp_path / "work"
     work.mkdir()
@@ -71,13 +73,13 @@ def test_an_output_that_is_a_link_is_refused(
     link.symlink_to(pointed)
     before = _state(work)
     code, _, err = care(*COMMANDS[command](recording, store, link))
-    line = fx.assert_fault(code, err, r"link: is a symbolic link; not replaced or followed")
+    line = assert_fault(code, err, r"link: is a symbolic link; not replaced or followed")
     assert str(pointed) in line  # names where it points
     assert _state(work) == before
     assert link.is_symlink()
 
 
-def test_the_way_out_it_names_works(care, fx, recording: Path, tmp_path: Path) -> None:
+def test_the_way_out_it_names_works(care, recording: Path, tmp_path: Path) -> None:
     """Given the directory the link points to, the ingest writes there; the link stays."""
     target = tmp_path / "emptydir"
     target.mkdir()
@@ -101,7 +103,7 @@ def test_links_among_the_parents_are_followed(care, recording: Path, tmp_path: P
     assert (tmp_path / "data").is_symlink()
 
 
-def test_batch_answers_out_is_a_link(care, fx, good: Path, tmp_path: Path) -> None:
+def test_batch_answers_out_is_a_link(care, good: Path, tmp_path: Path) -> None:
     queries = tmp_path / "q.txt"
     queries.write_text("chair\n")
     user = tmp_path / "mine.parquet"
@@ -110,5 +112,5 @@ def test_batch_answers_out_is_a_link(care, fx, good: Path, tmp_path: Path) -> No
     link.symlink_to(user)
     before = _state(tmp_path)
     code, _, err = care("query", good / "store", "--batch", queries, "--out", link)
-    fx.assert_fault(code, err, r"answers\.parquet: is a symbolic link", clean=(tmp_path,))
+    assert_fault(code, err, r"answers\.parquet: is a symbolic link", clean=(tmp_path,))
     assert _state(tmp_path) == before

@@ -16,6 +16,17 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
+from tests.support.cli import care_popen, care_process
+from tests.support.faults import (
+    EVAL_FLAGS,
+    assert_fault,
+    chmod,
+    leftovers,
+    read_meta,
+    snapshot,
+    tables,
+)
+
 MAP_FILES = ("cells.parquet", "cell_views.parquet", "instances.parquet", "instance_views.parquet")
 
 
@@ -46,11 +57,11 @@ def _truncate(path: Path, keep: int = 600) -> None:
         "stride-0",
     ],
 )
-def test_grid_bad_option(care, fx, copy_good, flags, pattern: str, exit_code: int) -> None:
+def test_grid_bad_option(care, copy_good, flags, pattern: str, exit_code: int) -> None:
     store = copy_good("store")
-    before = fx.snapshot(store)
+    before = snapshot(store)
     code, _, err = care("fuse", "grid", store, "--overwrite", *flags)
-    fx.assert_fault(code, err, pattern, exit_code=exit_code, clean=(store.parent,), intact=before)
+    assert_fault(code, err, pattern, exit_code=exit_code, clean=(store.parent,), intact=before)
 
 
 @pytest.mark.parametrize(
@@ -64,19 +75,19 @@ def test_grid_bad_option(care, fx, copy_good, flags, pattern: str, exit_code: in
     ],
     ids=["proposals-unknown", "features-unknown", "set-nan", "set-unknown-field", "voxel-negative"],
 )
-def test_instances_bad_option(care, fx, copy_good, flags, pattern: str, exit_code: int) -> None:
+def test_instances_bad_option(care, copy_good, flags, pattern: str, exit_code: int) -> None:
     store = copy_good("store")
-    before = fx.snapshot(store)
+    before = snapshot(store)
     code, _, err = care("fuse", "instances", store, "--overwrite", *flags)
-    fx.assert_fault(code, err, pattern, exit_code=exit_code, clean=(store.parent,), intact=before)
+    assert_fault(code, err, pattern, exit_code=exit_code, clean=(store.parent,), intact=before)
 
 
-def test_grid_too_fine_for_memory_is_refused_before_allocating(care, fx, copy_good) -> None:
+def test_grid_too_fine_for_memory_is_refused_before_allocating(care, copy_good) -> None:
     store = copy_good("store")
-    before = fx.snapshot(store)
+    before = snapshot(store)
     started = time.perf_counter()
     code, _, err = care("fuse", "grid", store, "--cell-size", "1e-7", "--overwrite")
-    fx.assert_fault(
+    assert_fault(
         code,
         err,
         r"--cell-size 1e-07: .* needs .* GiB, more than the .* available; raise --cell-size",
@@ -88,11 +99,11 @@ def test_grid_too_fine_for_memory_is_refused_before_allocating(care, fx, copy_go
 
 
 @pytest.mark.parametrize("table", ["views.parquet", "features.parquet"])
-def test_fuse_on_damaged_store(care, fx, copy_good, table: str) -> None:
+def test_fuse_on_damaged_store(care, copy_good, table: str) -> None:
     store = copy_good("store")
     _truncate(store / table)
     code, _, err = care("fuse", "grid", store, "--cell-size", "0.2")
-    fx.assert_fault(
+    assert_fault(
         code,
         err,
         rf"{table}: damaged or truncated table; rebuild it with `care ingest .* --force`",
@@ -100,18 +111,18 @@ def test_fuse_on_damaged_store(care, fx, copy_good, table: str) -> None:
     )
 
 
-def test_fuse_store_with_invalid_meta_json(care, fx, copy_good, recording: Path) -> None:
+def test_fuse_store_with_invalid_meta_json(care, copy_good, recording: Path) -> None:
     store = copy_good("store")
     (store / "meta.json").write_text("{not json")
     code, _, err = care("fuse", "instances", store)
-    fx.assert_fault(
+    assert_fault(
         code, err, r"meta\.json: not valid JSON .* `care ingest .*scene_000\.mcap", clean=(store,)
     )
     assert care("ingest", recording, "--out", store, "--encoder", "labels")[0] == 0
     assert care("fuse", "instances", store, "--proposals", "labels")[0] == 0
 
 
-def test_text_embeddings_of_another_dimension(care, fx, copy_good) -> None:
+def test_text_embeddings_of_another_dimension(care, copy_good) -> None:
     """A store whose text embeddings do not match its features' dimension (another tool wrote
     text.parquet): one line naming both dimensions."""
     from care_maps.core.outputs import file_digest
@@ -124,11 +135,11 @@ def test_text_embeddings_of_another_dimension(care, fx, copy_good) -> None:
         schema=pa.schema([("name", pa.string()), ("embedding", pa.list_(pa.float32()))]),
     ).replace_schema_metadata(text.schema.metadata)
     pq.write_table(short, store / "text.parquet")
-    meta = fx.meta(store)
+    meta = read_meta(store)
     meta["tables"]["text.parquet"] = file_digest(store / "text.parquet")
     (store / "meta.json").write_text(json.dumps(meta))
     code, _, err = care("fuse", "grid", store, "--cell-size", "0.2", "--overwrite")
-    fx.assert_fault(
+    assert_fault(
         code,
         err,
         r"text\.parquet: text embeddings of dimension 7, but the store's features have \d+",
@@ -147,32 +158,30 @@ def test_text_embeddings_of_another_dimension(care, fx, copy_good) -> None:
     ],
 )
 def test_damaged_map_is_found_and_rebuilt(
-    care, fx, copy_good, good: Path, table, kind, rebuild
+    care, copy_good, good: Path, table, kind, rebuild
 ) -> None:
     store = copy_good("store")
     _truncate(store / table)
     code, _, err = care("check", store)
-    fx.assert_fault(code, err, rf"{table}: .*rebuild it with `{rebuild} .* --overwrite`")
+    assert_fault(code, err, rf"{table}: .*rebuild it with `{rebuild} .* --overwrite`")
     if not table.endswith("_views.parquet"):  # queries read the candidate tables only
         code, _, err = care("query", store, "chair", "--map", kind)
-        fx.assert_fault(
-            code, err, rf"{table}: damaged or truncated table; rebuild it with `{rebuild}"
-        )
+        assert_fault(code, err, rf"{table}: damaged or truncated table; rebuild it with `{rebuild}")
     flags = ("--cell-size", "0.1") if kind == "grid" else ("--proposals", "labels")
     code, _, err = care("fuse", kind, store, *flags)  # no --overwrite: it knows it is damaged
     assert code == 0, err
     assert care("check", store)[0] == 0
     assert care("query", store, "chair", "--map", kind)[0] == 0
-    assert fx.tables(store) == fx.tables(good / "store")  # rebuilt byte for byte
+    assert tables(store) == tables(good / "store")  # rebuilt byte for byte
 
 
-def test_fuse_rrd_is_a_user_file(care, fx, copy_good, tmp_path: Path) -> None:
+def test_fuse_rrd_is_a_user_file(care, copy_good, tmp_path: Path) -> None:
     store = copy_good("store")
     rrd = tmp_path / "holiday.jpg"
     rrd.write_bytes(b"\xff\xd8\xff\xe0 my photo")
-    before = fx.snapshot(rrd, store)
+    before = snapshot(rrd, store)
     code, _, err = care("fuse", "grid", store, "--cell-size", "0.2", "--rrd", rrd)
-    fx.assert_fault(
+    assert_fault(
         code,
         err,
         r"holiday\.jpg: exists and is not a file care wrote",
@@ -180,15 +189,15 @@ def test_fuse_rrd_is_a_user_file(care, fx, copy_good, tmp_path: Path) -> None:
         intact=before,
     )
     assert care("fuse", "grid", store, "--cell-size", "0.2", "--rrd", tmp_path / "g.rrd")[0] == 0
-    assert fx.snapshot(rrd) == {str(rrd): before[str(rrd)]}
+    assert snapshot(rrd) == {str(rrd): before[str(rrd)]}
 
 
 @pytest.mark.slow
-def test_fuse_disk_full_keeps_previous_map(care, fx, copy_good) -> None:
+def test_fuse_disk_full_keeps_previous_map(care, copy_good) -> None:
     store = copy_good("store")
-    before = fx.snapshot(store)
-    r = fx.care_process("fuse", "grid", store, "--cell-size", "0.07", fsize=40_000)
-    fx.assert_fault(
+    before = snapshot(store)
+    r = care_process("fuse", "grid", store, "--cell-size", "0.07", fsize=40_000)
+    assert_fault(
         r.returncode,
         r.stderr,
         r"file-size limit reached .*free on",
@@ -201,9 +210,9 @@ def test_fuse_disk_full_keeps_previous_map(care, fx, copy_good) -> None:
 
 
 @pytest.mark.slow
-def test_killed_fuse_is_swept_by_the_next_run(care, fx, copy_good) -> None:
+def test_killed_fuse_is_swept_by_the_next_run(care, copy_good) -> None:
     store = copy_good("store")
-    proc = fx.care_popen("fuse", "grid", store, "--cell-size", "0.05")
+    proc = care_popen("fuse", "grid", store, "--cell-size", "0.05")
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and not list(store.glob(".cell_views.parquet.tmp-*")):
         time.sleep(0.005)
@@ -214,18 +223,16 @@ def test_killed_fuse_is_swept_by_the_next_run(care, fx, copy_good) -> None:
     code, _, err = care("fuse", "grid", store, "--cell-size", "0.05")
     assert code == 0, err
     assert not any(p.exists() for p in stale)
-    assert not fx.leftovers(store.parent)
+    assert not leftovers(store.parent)
 
 
 @pytest.mark.slow
-def test_fuse_store_directory_not_writable(care, fx, copy_good) -> None:
+def test_fuse_store_directory_not_writable(care, copy_good) -> None:
     store = copy_good("store")
-    before = fx.snapshot(store)
-    with fx.chmod(store, 0o555):
-        r = fx.care_process("fuse", "grid", store, "--cell-size", "0.07")
-    fx.assert_fault(
-        r.returncode, r.stderr, r"permission denied", clean=(store.parent,), intact=before
-    )
+    before = snapshot(store)
+    with chmod(store, 0o555):
+        r = care_process("fuse", "grid", store, "--cell-size", "0.07")
+    assert_fault(r.returncode, r.stderr, r"permission denied", clean=(store.parent,), intact=before)
     assert care("fuse", "grid", store, "--cell-size", "0.07")[0] == 0
 
 
@@ -314,19 +321,19 @@ def test_fuse_store_directory_not_writable(care, fx, copy_good) -> None:
         "store-is-a-file",
     ],
 )
-def test_query_replan_bad_input(care, fx, good: Path, args, pattern: str, exit_code: int) -> None:
+def test_query_replan_bad_input(care, good: Path, args, pattern: str, exit_code: int) -> None:
     store = good / "store"
-    before = fx.snapshot(store)
+    before = snapshot(store)
     code, _, err = care(*(a.format(store=store) for a in args))
-    fx.assert_fault(code, err, pattern, exit_code=exit_code, intact=before)
+    assert_fault(code, err, pattern, exit_code=exit_code, intact=before)
     assert care("replan", store, "chair", "--visited", "0")[0] == 0
 
 
 @pytest.mark.slow
-def test_query_store_without_maps(care, fx, recording: Path, tmp_path: Path) -> None:
+def test_query_store_without_maps(care, recording: Path, tmp_path: Path) -> None:
     assert care("ingest", recording, "--out", tmp_path / "store", "--encoder", "labels")[0] == 0
     code, _, err = care("query", tmp_path / "store", "chair", "--map", "grid")
-    fx.assert_fault(code, err, r"cells\.parquet: no such table; build it first")
+    assert_fault(code, err, r"cells\.parquet: no such table; build it first")
     assert care("fuse", "grid", tmp_path / "store", "--cell-size", "0.2")[0] == 0
     assert care("query", tmp_path / "store", "chair", "--map", "grid")[0] == 0
 
@@ -335,28 +342,28 @@ def test_query_store_without_maps(care, fx, recording: Path, tmp_path: Path) -> 
 
 
 @pytest.mark.slow
-def test_eval_out_is_a_file(care, fx, good: Path, tmp_path: Path) -> None:
+def test_eval_out_is_a_file(care, good: Path, tmp_path: Path) -> None:
     out = tmp_path / "results.csv"
     out.write_text("a,b\n1,2\n")
-    before = fx.snapshot(out)
-    code, _, err = care("eval", good / "store", "--out", out, *fx.EVAL_FLAGS)
-    fx.assert_fault(
+    before = snapshot(out)
+    code, _, err = care("eval", good / "store", "--out", out, *EVAL_FLAGS)
+    assert_fault(
         code,
         err,
         r"results\.csv: is a regular file; not replaced",
         clean=(tmp_path,),
         intact=before,
     )
-    assert care("eval", good / "store", "--out", tmp_path / "eval", *fx.EVAL_FLAGS)[0] == 0
+    assert care("eval", good / "store", "--out", tmp_path / "eval", *EVAL_FLAGS)[0] == 0
 
 
-def test_eval_out_is_a_user_directory(care, fx, good: Path, tmp_path: Path) -> None:
+def test_eval_out_is_a_user_directory(care, good: Path, tmp_path: Path) -> None:
     user = tmp_path / "papers"
     user.mkdir()
     (user / "draft.md").write_text("# draft")
-    before = fx.snapshot(user)
-    code, _, err = care("eval", good / "store", "--out", user, *fx.EVAL_FLAGS)
-    fx.assert_fault(
+    before = snapshot(user)
+    code, _, err = care("eval", good / "store", "--out", user, *EVAL_FLAGS)
+    assert_fault(
         code,
         err,
         r"papers: directory holds files care did not write",
@@ -366,21 +373,19 @@ def test_eval_out_is_a_user_directory(care, fx, good: Path, tmp_path: Path) -> N
 
 
 @pytest.mark.slow
-def test_eval_out_inside_a_store(care, fx, copy_good) -> None:
+def test_eval_out_inside_a_store(care, copy_good) -> None:
     store = copy_good("store")
-    before = fx.snapshot(store)
-    code, _, err = care("eval", store, "--out", store / "eval", *fx.EVAL_FLAGS)
-    fx.assert_fault(code, err, r"is the input .* or inside it", clean=(store,), intact=before)
+    before = snapshot(store)
+    code, _, err = care("eval", store, "--out", store / "eval", *EVAL_FLAGS)
+    assert_fault(code, err, r"is the input .* or inside it", clean=(store,), intact=before)
 
 
 @pytest.mark.slow
-def test_eval_out_is_a_store(care, fx, copy_good, good: Path) -> None:
+def test_eval_out_is_a_store(care, copy_good, good: Path) -> None:
     store = copy_good("store")
-    before = fx.snapshot(store)
-    code, _, err = care("eval", good / "store", "--out", store, *fx.EVAL_FLAGS)
-    fx.assert_fault(
-        code, err, r"is a care store directory, not a eval", clean=(store,), intact=before
-    )
+    before = snapshot(store)
+    code, _, err = care("eval", good / "store", "--out", store, *EVAL_FLAGS)
+    assert_fault(code, err, r"is a care store directory, not a eval", clean=(store,), intact=before)
 
 
 @pytest.mark.slow
@@ -406,64 +411,62 @@ def test_eval_out_is_a_store(care, fx, copy_good, good: Path) -> None:
     ],
 )
 def test_eval_bad_option(
-    care, fx, good: Path, tmp_path: Path, flags, pattern: str, exit_code: int
+    care, good: Path, tmp_path: Path, flags, pattern: str, exit_code: int
 ) -> None:
-    code, _, err = care("eval", good / "store", "--out", tmp_path / "eval", *fx.EVAL_FLAGS, *flags)
-    fx.assert_fault(code, err, pattern, clean=(tmp_path,), exit_code=exit_code)
+    code, _, err = care("eval", good / "store", "--out", tmp_path / "eval", *EVAL_FLAGS, *flags)
+    assert_fault(code, err, pattern, clean=(tmp_path,), exit_code=exit_code)
     assert not (tmp_path / "eval").exists()
 
 
-def test_eval_bad_index_json(care, fx, world: Path, tmp_path: Path) -> None:
+def test_eval_bad_index_json(care, world: Path, tmp_path: Path) -> None:
     import shutil
 
     ds = tmp_path / "ds"
     shutil.copytree(world, ds)
     (ds / "index.json").write_text('{"scenes": [')
-    code, _, err = care("eval", ds, "--out", tmp_path / "eval", *fx.EVAL_FLAGS)
-    fx.assert_fault(code, err, r"index\.json", clean=(tmp_path,))
+    code, _, err = care("eval", ds, "--out", tmp_path / "eval", *EVAL_FLAGS)
+    assert_fault(code, err, r"index\.json", clean=(tmp_path,))
 
 
 @pytest.mark.slow
-def test_eval_disk_full_keeps_previous_results(care, fx, copy_good, good: Path) -> None:
+def test_eval_disk_full_keeps_previous_results(care, copy_good, good: Path) -> None:
     out = copy_good("eval")
-    before = fx.snapshot(out)
-    r = fx.care_process(
-        "eval", good / "store", "--out", out, *fx.EVAL_FLAGS, "--seeds", "3", fsize=3_000
-    )
-    fx.assert_fault(r.returncode, r.stderr, r"file-size limit reached", clean=(out.parent,))
+    before = snapshot(out)
+    r = care_process("eval", good / "store", "--out", out, *EVAL_FLAGS, "--seeds", "3", fsize=3_000)
+    assert_fault(r.returncode, r.stderr, r"file-size limit reached", clean=(out.parent,))
     # the tables of the earlier evaluation are whole (each is replaced atomically or not at all)
     for name in ("attempts.parquet", "summary.parquet"):
         assert pq.read_table(out / name).num_rows > 0
-    assert fx.snapshot(out / "results.md") == {
+    assert snapshot(out / "results.md") == {
         str(out / "results.md"): before[str(out / "results.md")]
     }
-    code, _, err = care("eval", good / "store", "--out", out, *fx.EVAL_FLAGS, "--seeds", "3")
+    code, _, err = care("eval", good / "store", "--out", out, *EVAL_FLAGS, "--seeds", "3")
     assert code == 0, err
 
 
 @pytest.mark.slow
-def test_eval_twice_same_bytes(care, fx, good: Path, tmp_path: Path) -> None:
+def test_eval_twice_same_bytes(care, good: Path, tmp_path: Path) -> None:
     """Determinism: the same evaluation twice (and a re-run into its own output) gives
     byte-identical tables."""
     out = tmp_path / "eval"
-    assert care("eval", good / "store", "--out", out, *fx.EVAL_FLAGS)[0] == 0
-    first = fx.tables(out)
-    assert first == fx.tables(good / "eval")
-    assert care("eval", good / "store", "--out", out, *fx.EVAL_FLAGS)[0] == 0
-    assert fx.tables(out) == first
+    assert care("eval", good / "store", "--out", out, *EVAL_FLAGS)[0] == 0
+    first = tables(out)
+    assert first == tables(good / "eval")
+    assert care("eval", good / "store", "--out", out, *EVAL_FLAGS)[0] == 0
+    assert tables(out) == first
 
 
 # -- check and the unexpected -------------------------------------------------------------
 
 
-def test_check_a_path_that_is_no_store(care, fx, tmp_path: Path) -> None:
+def test_check_a_path_that_is_no_store(care, tmp_path: Path) -> None:
     code, _, err = care("check", tmp_path)
-    fx.assert_fault(code, err, r"not a complete feature store")
+    assert_fault(code, err, r"not a complete feature store")
 
 
 @pytest.mark.slow
 def test_unexpected_error_is_one_line_and_a_traceback_file(
-    care, fx, good: Path, monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+    care, good: Path, monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:
     from care_maps.query.openvocab import QueryTarget
 
@@ -473,7 +476,7 @@ def test_unexpected_error_is_one_line_and_a_traceback_file(
     monkeypatch.setattr(QueryTarget, "confidence", broken)
     monkeypatch.setenv("CARE_TRACEBACK_DIR", str(tmp_path))
     code, _, err = care("query", good / "store", "chair")
-    line = fx.assert_fault(
+    line = assert_fault(
         code,
         err,
         r"internal error ZeroDivisionError: a bug; full traceback in .* \(re-run with --debug",

@@ -11,6 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.support.faults import assert_fault, snapshot
+from tests.support.recordings import grey_bag
+
 pytestmark = pytest.mark.slow
 
 
@@ -38,10 +41,10 @@ def _good_jpeg() -> bytes:
     return out.getvalue()
 
 
-def test_empty_colour_frame_is_said_to_be_empty(care, fx, tmp_path: Path) -> None:
-    bag = fx.write_bag(tmp_path / "bag", colour=_empty_raw)
+def test_empty_colour_frame_is_said_to_be_empty(care, tmp_path: Path) -> None:
+    bag = grey_bag(tmp_path / "bag", colour=_empty_raw)
     code, _, err = care("ingest", bag, "--out", tmp_path / "store")
-    line = fx.assert_fault(code, err, r"/camera/color/image_raw: a colour image is 0x0, empty")
+    line = assert_fault(code, err, r"/camera/color/image_raw: a colour image is 0x0, empty")
     assert "depth images" not in line  # not a size mismatch with the depth stream
     assert not (tmp_path / "store").exists()
 
@@ -51,37 +54,35 @@ def test_empty_colour_frame_is_said_to_be_empty(care, fx, tmp_path: Path) -> Non
     [b"this is not an image at all" * 4, _good_jpeg()[:60]],
     ids=["garbage", "truncated-jpeg"],
 )
-def test_undecodable_jpeg_gives_the_same_line_every_run(
-    care, fx, tmp_path: Path, data: bytes
-) -> None:
-    bag = fx.write_bag(tmp_path / "bag", colour=_jpeg(data))
+def test_undecodable_jpeg_gives_the_same_line_every_run(care, tmp_path: Path, data: bytes) -> None:
+    bag = grey_bag(tmp_path / "bag", colour=_jpeg(data))
     lines = []
     for run in range(2):
         code, _, err = care("ingest", bag, "--out", tmp_path / f"store{run}")
         lines.append(
-            fx.assert_fault(code, err, r"/camera/color/image_raw: cannot decode", clean=(tmp_path,))
+            assert_fault(code, err, r"/camera/color/image_raw: cannot decode", clean=(tmp_path,))
         )
     assert " at 0x" not in lines[0]
     assert lines[0].replace("store0", "") == lines[1].replace("store1", "")
-    good = fx.write_bag(tmp_path / "good", colour=_jpeg(_good_jpeg()))
+    good = grey_bag(tmp_path / "good", colour=_jpeg(_good_jpeg()))
     assert care("ingest", good, "--out", tmp_path / "store")[0] == 0
 
 
-def test_meta_json_emptied_is_damaged(care, fx, copy_good) -> None:
+def test_meta_json_emptied_is_damaged(care, copy_good) -> None:
     store = copy_good("store")
     (store / "meta.json").write_text("{}")
     for args in (("check", store), ("fuse", "grid", store), ("query", store, "chair")):
         code, _, err = care(*args)
-        line = fx.assert_fault(code, err, r"meta\.json: damaged")
+        line = assert_fault(code, err, r"meta\.json: damaged")
         assert "schema version None" not in line
         assert "care ingest" in line  # the command that rebuilds it
 
 
-def test_unknown_gt_format_is_a_usage_error(care, fx, good: Path, tmp_path: Path) -> None:
+def test_unknown_gt_format_is_a_usage_error(care, good: Path, tmp_path: Path) -> None:
     code, _, err = care("eval", good / "store", "--out", tmp_path / "ev", "--gt-format", "obj")
-    fx.assert_fault(code, err, r"'--gt-format'.*'obj' is not one of", exit_code=2)
+    assert_fault(code, err, r"'--gt-format'.*'obj' is not one of", exit_code=2)
     code, _, err = care("run", "--out", tmp_path / "ev", "--gt-format", "obj")
-    fx.assert_fault(code, err, r"'--gt-format'.*'obj' is not one of", exit_code=2)
+    assert_fault(code, err, r"'--gt-format'.*'obj' is not one of", exit_code=2)
     assert not (tmp_path / "ev").exists()
 
 
@@ -116,7 +117,7 @@ class _FullDisk(io.RawIOBase):
 
 
 def test_full_disk_in_the_query_sidecar_leaves_no_temporary(
-    care, fx, copy_good, monkeypatch: pytest.MonkeyPatch
+    care, copy_good, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """The sidecar's buffered files fail again when closed after the failed write; the
     staged folder goes all the same, and the line's "nothing half-written" is true."""
@@ -134,8 +135,8 @@ def test_full_disk_in_the_query_sidecar_leaves_no_temporary(
 
     monkeypatch.setattr(care_maps.fuse.sidecar, "_npy", npy)
     store = copy_good("store")
-    before = fx.snapshot(store)
+    before = snapshot(store)
     code, _, err = care("fuse", "grid", store, "--overwrite")
-    fx.assert_fault(code, err, r"no space left on device", clean=(store.parent,), intact=before)
+    assert_fault(code, err, r"no space left on device", clean=(store.parent,), intact=before)
     monkeypatch.setattr(care_maps.fuse.sidecar, "_npy", real)
     assert care("fuse", "grid", store, "--overwrite")[0] == 0

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.support.faults import assert_fault
+
 BAD_FRAME_IDS = ("", "/map", "camera link")
 """Empty and leading-slash ids (tf2's ``validateFrameId`` refuses both), whitespace."""
 
@@ -48,10 +50,10 @@ def test_every_frame_id_option_is_found() -> None:
     ("path", "flag"), FRAME_OPTIONS, ids=[" ".join(p) + f" {f}" for p, f in FRAME_OPTIONS]
 )
 def test_frame_ids_tf2_rejects_are_refused(
-    care, fx, tmp_path: Path, path: tuple[str, ...], flag: str, value: str
+    care, tmp_path: Path, path: tuple[str, ...], flag: str, value: str
 ) -> None:
     code, out, err = care(*path, tmp_path / "x", f"{flag}={value}")
-    fx.assert_fault(code, err, rf"'{flag}'.* is not a TF frame id", exit_code=2)
+    assert_fault(code, err, rf"'{flag}'.* is not a TF frame id", exit_code=2)
     assert out == ""  # no command printed for tf2 to reject
     assert list(tmp_path.iterdir()) == []
 
@@ -66,10 +68,10 @@ def test_frame_ids_tf2_rejects_are_refused(
     ],
 )
 def test_option_errors_name_the_option(
-    care, fx, good: Path, args: tuple[str, ...], flag: str, exit_code: int
+    care, good: Path, args: tuple[str, ...], flag: str, exit_code: int
 ) -> None:
     code, _, err = care(*(a.format(s=good / "store") for a in args))
-    fx.assert_fault(code, err, flag, exit_code=exit_code)
+    assert_fault(code, err, flag, exit_code=exit_code)
 
 
 def test_the_library_refuses_them_too() -> None:

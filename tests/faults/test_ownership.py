@@ -8,6 +8,9 @@ from pathlib import Path
 
 import pytest
 
+from tests.support.faults import assert_fault, snapshot
+from tests.support.recordings import grey_bag
+
 pytestmark = pytest.mark.slow
 
 COMMANDS = {
@@ -41,45 +44,43 @@ TARGETS = {"user-directory": _user_directory, "regular-file": _regular_file}
 @pytest.mark.parametrize("target_kind", list(TARGETS))
 @pytest.mark.parametrize("command", list(COMMANDS))
 def test_never_replaces_what_it_did_not_create(
-    care, fx, good: Path, recording: Path, tmp_path: Path, command: str, target_kind: str
+    care, good: Path, recording: Path, tmp_path: Path, command: str, target_kind: str
 ) -> None:
     if command.endswith("--rrd") and target_kind == "user-directory":
         pytest.skip("an --rrd is a file; a directory there is refused (test_rrd_is_a_directory)")
     target = TARGETS[target_kind](tmp_path, recording)
-    before = fx.snapshot(target)
+    before = snapshot(target)
     names = sorted(p.name for p in tmp_path.iterdir())
     code, _, err = care(*COMMANDS[command](recording, good / "store", target))
-    fx.assert_fault(
+    assert_fault(
         code,
         err,
         r"not replaced|not overwritten|not a file care wrote",
         clean=(tmp_path,),
         intact=before,
     )
-    assert fx.snapshot(target) == before
+    assert snapshot(target) == before
     assert sorted(p.name for p in tmp_path.iterdir()) == names  # nothing made beside it
 
 
 @pytest.mark.parametrize("where", ["itself", "inside", "ancestor"])
-def test_the_input_rosbag2_directory_is_never_an_output(
-    care, fx, tmp_path: Path, where: str
-) -> None:
-    bag = fx.write_bag(tmp_path / "rec" / "bag")
-    before = fx.snapshot(tmp_path / "rec")
+def test_the_input_rosbag2_directory_is_never_an_output(care, tmp_path: Path, where: str) -> None:
+    bag = grey_bag(tmp_path / "rec" / "bag")
+    before = snapshot(tmp_path / "rec")
     out = {"itself": bag, "inside": bag / "store", "ancestor": tmp_path / "rec"}[where]
     for args in (
         ("ingest", bag, "--out", out),
         ("ingest", bag, "--out", tmp_path / "s", "--rrd", bag / "x.rrd"),
     ):
         code, _, err = care(*args)
-        fx.assert_fault(code, err, r"input", clean=(tmp_path,), intact=before)
-    assert fx.snapshot(tmp_path / "rec") == before
+        assert_fault(code, err, r"input", clean=(tmp_path,), intact=before)
+    assert snapshot(tmp_path / "rec") == before
     assert not (tmp_path / "s").exists()
     code, _, err = care("ingest", bag, "--out", tmp_path / "store")  # and it is still readable
     assert code == 0, err
 
 
-def test_sweeping_spares_the_users_files(care, fx, recording: Path, tmp_path: Path) -> None:
+def test_sweeping_spares_the_users_files(care, recording: Path, tmp_path: Path) -> None:
     """Stale temporaries are swept only for the output at hand: a user's file of a similar
     name beside it, from a 'process' long gone, stays."""
     mine = tmp_path / ".notes.old-999999"

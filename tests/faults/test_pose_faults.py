@@ -16,6 +16,8 @@ import pytest
 
 from care_maps.core.errors import IngestError
 from care_maps.ingest.source import ReadOptions
+from tests.support.faults import assert_fault, read_meta, snapshot
+from tests.support.recordings import grey_bag
 
 T0 = 10**9
 DT = 100_000_000
@@ -38,10 +40,10 @@ def ingest(care, bag: Path, out: Path, *flags: str) -> tuple[int, str, str]:
 
 
 @pytest.mark.slow
-def test_twelve_colour_images_at_one_stamp_are_refused(care, fx, tmp_path: Path) -> None:
-    bag = fx.write_bag(tmp_path / "bag", stamps=[T0] * 12)
+def test_twelve_colour_images_at_one_stamp_are_refused(care, tmp_path: Path) -> None:
+    bag = grey_bag(tmp_path / "bag", stamps=[T0] * 12)
     code, _, err = ingest(care, bag, tmp_path / "store")
-    fx.assert_fault(
+    assert_fault(
         code,
         err,
         rf"colour topic {RGB} has different images at one stamp, {T0} ns; .*re-stamp",
@@ -51,12 +53,12 @@ def test_twelve_colour_images_at_one_stamp_are_refused(care, fx, tmp_path: Path)
 
 
 @pytest.mark.slow
-def test_twelve_colour_images_with_twelve_poses_at_one_stamp(care, fx, tmp_path: Path) -> None:
+def test_twelve_colour_images_with_twelve_poses_at_one_stamp(care, tmp_path: Path) -> None:
     """The images of frame 0 with the pose of frame 11 must never make a view."""
     poses = tuple((T0, "map", CAM, (0.1 * i, 0.0, 1.0), IDENTITY) for i in range(12))
-    bag = fx.write_bag(tmp_path / "bag", stamps=[T0] * 12, tf_edges=(), dynamic=poses)
+    bag = grey_bag(tmp_path / "bag", stamps=[T0] * 12, tf_edges=(), dynamic=poses)
     code, _, err = ingest(care, bag, tmp_path / "store")
-    fx.assert_fault(
+    assert_fault(
         code,
         err,
         rf"TF transform 'map' -> '{CAM}' at stamp {T0} ns on /tf: two different transforms",
@@ -66,12 +68,12 @@ def test_twelve_colour_images_with_twelve_poses_at_one_stamp(care, fx, tmp_path:
 
 
 @pytest.mark.slow
-def test_the_same_colour_image_again_is_dropped_and_counted(care, fx, tmp_path: Path) -> None:
-    bag = fx.write_bag(tmp_path / "bag", stamps=[T0] * 12, shades=[7] * 12)
+def test_the_same_colour_image_again_is_dropped_and_counted(care, tmp_path: Path) -> None:
+    bag = grey_bag(tmp_path / "bag", stamps=[T0] * 12, shades=[7] * 12)
     code, out, err = ingest(care, bag, tmp_path / "store")
     assert code == 0, err
     assert "1 views from 12 colour images" in out
-    assert fx.meta(tmp_path / "store")["counts"]["dropped"] == {"duplicate_stamp": 11}
+    assert read_meta(tmp_path / "store")["counts"]["dropped"] == {"duplicate_stamp": 11}
 
 
 @pytest.mark.slow
@@ -94,19 +96,19 @@ def test_the_same_colour_image_again_is_dropped_and_counted(care, fx, tmp_path: 
     ids=["tf", "tf_static"],
 )  # fmt: skip
 def test_two_transforms_at_one_stamp_are_refused(
-    care, fx, tmp_path: Path, kwargs: dict, pattern: str
+    care, tmp_path: Path, kwargs: dict, pattern: str
 ) -> None:
-    bag = fx.write_bag(tmp_path / "bag", **kwargs)
+    bag = grey_bag(tmp_path / "bag", **kwargs)
     code, _, err = ingest(care, bag, tmp_path / "store")
-    fx.assert_fault(code, err, pattern + r".*fix the recording's transforms", clean=(tmp_path,))
+    assert_fault(code, err, pattern + r".*fix the recording's transforms", clean=(tmp_path,))
     assert not (tmp_path / "store").exists()
 
 
 @pytest.mark.slow
-def test_the_same_transform_again_is_accepted(care, fx, tmp_path: Path) -> None:
+def test_the_same_transform_again_is_accepted(care, tmp_path: Path) -> None:
     """/tf_static republished and a /tf message recorded twice: nothing new, no word."""
     poses = track([0, 0.5, 1.0], parent="odom")
-    bag = fx.write_bag(
+    bag = grey_bag(
         tmp_path / "bag",
         tf_edges=(("map", "odom"), ("map", "odom")),
         xyz=(0.0, 0.0, 0.0),
@@ -128,10 +130,10 @@ def test_the_same_transform_again_is_accepted(care, fx, tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
-def test_a_camera_a_million_kilometres_out_is_refused(care, fx, tmp_path: Path) -> None:
-    bag = fx.write_bag(tmp_path / "bag", tf_edges=(), dynamic=track([0.0, 1e9, 0.2]))
+def test_a_camera_a_million_kilometres_out_is_refused(care, tmp_path: Path) -> None:
+    bag = grey_bag(tmp_path / "bag", tf_edges=(), dynamic=track([0.0, 1e9, 0.2]))
     code, _, err = ingest(care, bag, tmp_path / "store")
-    fx.assert_fault(
+    assert_fault(
         code,
         err,
         rf"view 1 at stamp {T0 + DT} ns: camera frame '{CAM}' in world frame 'map' lies 1e\+09 m "
@@ -148,10 +150,10 @@ def test_a_camera_a_million_kilometres_out_is_refused(care, fx, tmp_path: Path) 
 
 
 @pytest.mark.slow
-def test_a_jump_of_50_m_in_a_tenth_of_a_second_is_refused(care, fx, tmp_path: Path) -> None:
-    bag = fx.write_bag(tmp_path / "bag", n=4, tf_edges=(), dynamic=track([0.0, 1.0, 51.0, 52.0]))
+def test_a_jump_of_50_m_in_a_tenth_of_a_second_is_refused(care, tmp_path: Path) -> None:
+    bag = grey_bag(tmp_path / "bag", n=4, tf_edges=(), dynamic=track([0.0, 1.0, 51.0, 52.0]))
     code, _, err = ingest(care, bag, tmp_path / "store")
-    fx.assert_fault(
+    assert_fault(
         code,
         err,
         rf"view 2 at stamp {T0 + 2 * DT} ns: camera frame '{CAM}' in world frame 'map' moved "
@@ -166,19 +168,19 @@ def test_a_jump_of_50_m_in_a_tenth_of_a_second_is_refused(care, fx, tmp_path: Pa
 
 
 @pytest.mark.slow
-def test_limits_are_not_part_of_the_store(care, fx, tmp_path: Path) -> None:
+def test_limits_are_not_part_of_the_store(care, tmp_path: Path) -> None:
     """Limits only refuse: a store they let through is current whatever their values (so
     stores made before they existed stay current), and its meta.json does not record them."""
-    bag = fx.write_bag(tmp_path / "bag", tf_edges=(), dynamic=track([0.0, 1.0, 2.0]))
+    bag = grey_bag(tmp_path / "bag", tf_edges=(), dynamic=track([0.0, 1.0, 2.0]))
     store = tmp_path / "store"
     assert ingest(care, bag, store)[0] == 0
-    before = fx.snapshot(store)
-    meta = fx.meta(store)
+    before = snapshot(store)
+    meta = read_meta(store)
     assert "max_speed" not in meta["config"]["read"]
     assert "max_translation" not in meta["config"]["read"]
     code, _, err = ingest(care, bag, store, "--max-speed", "20", "--max-translation", "5e3")
     assert code == 0, err
-    assert fx.snapshot(store) == before
+    assert snapshot(store) == before
 
 
 # -- the options -----------------------------------------------------------------------------
@@ -201,10 +203,10 @@ def test_limits_are_ingest_options(care) -> None:
     ],
     ids=["speed-zero", "translation-negative"],
 )
-def test_limits_must_be_positive(care, fx, tmp_path: Path, flags: tuple, pattern: str) -> None:
-    bag = fx.write_bag(tmp_path / "bag")
+def test_limits_must_be_positive(care, tmp_path: Path, flags: tuple, pattern: str) -> None:
+    bag = grey_bag(tmp_path / "bag")
     code, _, err = ingest(care, bag, tmp_path / "store", *flags)
-    fx.assert_fault(code, err, pattern, clean=(tmp_path,))
+    assert_fault(code, err, pattern, clean=(tmp_path,))
     assert not (tmp_path / "store").exists()
 
 

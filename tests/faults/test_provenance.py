@@ -18,6 +18,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
+from tests.support.faults import assert_fault
+
 GRID_FILES = ("cells.parquet", "cell_views.parquet", "grid_rgb.png", "grid_obstacles.png",
               "map.pgm", "map.yaml")  # fmt: skip
 
@@ -98,12 +100,12 @@ def test_fingerprint_follows_links_without_looping(tmp_path: Path) -> None:
 # -- files of another store -----------------------------------------------------------------
 
 
-def test_map_frame_of_another_store_is_refused(care, fx, stores: Path, copy_store) -> None:
+def test_map_frame_of_another_store_is_refused(care, stores: Path, copy_store) -> None:
     store = copy_store("a")
     shutil.copy(stores / "b" / "map_frame.json", store / "map_frame.json")
     for args in (("check", store), ("query", store, "chair", "--map", "grid")):
         code, _, err = care(*args)
-        line = fx.assert_fault(code, err, r"map_frame\.json: a map frame found for another store")
+        line = assert_fault(code, err, r"map_frame\.json: a map frame found for another store")
         assert f"care fuse grid {store}" in line
     assert care("fuse", "grid", store, "--cell-size", "0.1")[0] == 0  # found again
     assert care("check", store)[0] == 0
@@ -111,7 +113,7 @@ def test_map_frame_of_another_store_is_refused(care, fx, stores: Path, copy_stor
 
 @pytest.mark.parametrize("with_marker", [False, True], ids=["grid", "grid-and-marker"])
 def test_whole_grid_of_another_store_is_refused(
-    care, fx, stores: Path, copy_store, with_marker: bool
+    care, stores: Path, copy_store, with_marker: bool
 ) -> None:
     """The copied tables are named as another store's (not as damaged, and no intact file
     is named); ``care query`` refuses in one line even when the checksums were copied too."""
@@ -130,12 +132,12 @@ def test_whole_grid_of_another_store_is_refused(
     assert named == {f"{store}/cells.parquet", f"{store}/cell_views.parquet"}, err
     assert all("a map table of another store" in line for line in _errors(err)), err
     code, _, err = care("query", store, "chair", "--map", "grid")
-    fx.assert_fault(code, err, r"cells\.parquet: a map table of another store.*care fuse grid")
+    assert_fault(code, err, r"cells\.parquet: a map table of another store.*care fuse grid")
     assert care("fuse", "grid", store, "--cell-size", "0.1")[0] == 0
     assert care("check", store)[0] == 0
 
 
-def test_query_cache_of_another_map_is_refused(care, fx, copy_store) -> None:
+def test_query_cache_of_another_map_is_refused(care, copy_store) -> None:
     """A sidecar that does not describe its table is refused, not silently skipped, and
     ``care fuse grid`` writes it again."""
     store = copy_store("a")
@@ -144,7 +146,7 @@ def test_query_cache_of_another_map_is_refused(care, fx, copy_store) -> None:
     index.write_text(json.dumps({**record, "fingerprint": "0" * 64}))
     for args in (("check", store), ("query", store, "chair", "--map", "grid")):
         code, _, err = care(*args)
-        fx.assert_fault(code, err, r"cells\.query: the query cache of another map")
+        assert_fault(code, err, r"cells\.query: the query cache of another map")
     assert care("fuse", "grid", store, "--cell-size", "0.1")[0] == 0
     assert care("query", store, "chair", "--map", "grid")[0] == 0
 
@@ -172,7 +174,7 @@ def _rewrite_views(store: Path, change: Callable[[pa.Table], pa.Table]) -> None:
     ids=["missing-column", "unknown-column"],
 )
 def test_views_table_of_another_layout_is_one_line(
-    care, fx, copy_store, recording: Path, change, pattern: str
+    care, copy_store, recording: Path, change, pattern: str
 ) -> None:
     store = copy_store("a")
     _rewrite_views(store, change)
@@ -182,7 +184,7 @@ def test_views_table_of_another_layout_is_one_line(
         ("query", store, "chair", "--map", "grid"),
     ):
         code, _, err = care(*args)
-        line = fx.assert_fault(code, err, rf"views\.parquet: not a views table .*{pattern}")
+        line = assert_fault(code, err, rf"views\.parquet: not a views table .*{pattern}")
         assert "care ingest" in line
         assert "--force" in line
     code, _, err = care("ingest", recording, "--out", store, "--encoder", "labels")
@@ -191,14 +193,14 @@ def test_views_table_of_another_layout_is_one_line(
 
 
 def test_unknown_meta_version_is_one_line_naming_meta_json(
-    care, fx, copy_store, recording: Path
+    care, copy_store, recording: Path
 ) -> None:
     store = copy_store("a")
     meta = json.loads((store / "meta.json").read_text())
     (store / "meta.json").write_text(json.dumps({**meta, "meta_version": 99}))
     for args in (("check", store), ("fuse", "grid", store), ("query", store, "chair")):
         code, _, err = care(*args)
-        line = fx.assert_fault(code, err, r"meta\.json: meta version 99, this program reads \d")
+        line = assert_fault(code, err, r"meta\.json: meta version 99, this program reads \d")
         assert "care ingest" in line
         assert "--force" in line
     assert care("ingest", recording, "--out", store, "--encoder", "labels")[0] == 0

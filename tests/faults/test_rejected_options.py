@@ -11,6 +11,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.support.faults import assert_fault, snapshot
+
 
 def _numeric_options() -> list[tuple[tuple[str, ...], str]]:
     """``(command path, --flag)`` of every option taking a float, from the CLI itself."""
@@ -46,12 +48,12 @@ def test_every_float_option_is_found() -> None:
 @pytest.mark.parametrize("value", ["nan", "inf", "-inf"])
 @pytest.mark.parametrize(("path", "flag"), NUMERIC, ids=[" ".join(p) + f" {f}" for p, f in NUMERIC])
 def test_non_finite_numbers_are_usage_errors(
-    care, fx, tmp_path: Path, path: tuple[str, ...], flag: str, value: str
+    care, tmp_path: Path, path: tuple[str, ...], flag: str, value: str
 ) -> None:
     """Refused while the command line is read: nothing is made, whatever the command."""
     positional = {"sample": (), "check": ()}.get(path[0], (tmp_path / "x",))
     code, _, err = care(*path, *positional, f"{flag}={value}")
-    fx.assert_fault(code, err, rf"'{flag}'.*{value} is not a finite number", exit_code=2)
+    assert_fault(code, err, rf"'{flag}'.*{value} is not a finite number", exit_code=2)
     assert list(tmp_path.iterdir()) == []
 
 
@@ -61,16 +63,16 @@ def test_non_finite_numbers_are_usage_errors(
     [("grid", "nan", 2), ("instances", "nan", 2), ("grid", "5", 1)],
 )
 def test_a_rejected_floor_leaves_the_store_as_it_was(
-    care, fx, copy_good, command: str, floor: str, expected: int
+    care, copy_good, command: str, floor: str, expected: int
 ) -> None:
     """``nan`` is refused on the command line; a finite floor far from the depth makes the
     build fail, and the map frame it wrote is put back: the store is byte for byte the same,
     and the next commands work."""
     store = copy_good("store")
-    before = fx.snapshot(store)
+    before = snapshot(store)
     code, _, err = care("fuse", command, store, "--overwrite", "--floor-z", floor)
-    fx.assert_fault(code, err, r"floor|finite", exit_code=expected, clean=(store.parent,))
-    assert fx.snapshot(store) == before
+    assert_fault(code, err, r"floor|finite", exit_code=expected, clean=(store.parent,))
+    assert snapshot(store) == before
     if expected == 2:  # refused before any work: nothing ran that could have changed it
         return
     assert care("fuse", "grid", store)[0] == 0
@@ -80,7 +82,7 @@ def test_a_rejected_floor_leaves_the_store_as_it_was(
 
 
 @pytest.mark.slow
-def test_a_damaged_map_frame_is_found_by_check(care, fx, copy_good) -> None:
+def test_a_damaged_map_frame_is_found_by_check(care, copy_good) -> None:
     store = copy_good("store")
     path = store / "map_frame.json"
     doc = json.loads(path.read_text())
@@ -88,6 +90,6 @@ def test_a_damaged_map_frame_is_found_by_check(care, fx, copy_good) -> None:
     doc["frame"]["map_from_world"][11] = math.nan
     path.write_text(json.dumps(doc))
     code, _, err = care("check", store)
-    fx.assert_fault(code, err, r"map_frame\.json: the map frame holds non-finite numbers")
+    assert_fault(code, err, r"map_frame\.json: the map frame holds non-finite numbers")
     code, _, err = care("query", store, "chair")
-    fx.assert_fault(code, err, r"map_frame\.json: the map frame holds non-finite numbers")
+    assert_fault(code, err, r"map_frame\.json: the map frame holds non-finite numbers")

@@ -28,52 +28,7 @@ from care_maps.fuse.recompute import recompute_grid
 from care_maps.fuse.schemas import CELL_VIEWS_FIELDS
 from care_maps.fuse.sidecar import read_sidecar
 from care_maps.runtime.execution import Execution
-
-H, W, D = 12, 16, 8
-K = np.array([[20.0, 0, 7.3], [0, 20.0, 5.7], [0, 0, 1]])
-NAMES = ("chair", "table", "sofa", "bed", "lamp")
-
-
-def _looking_down(x: float, y: float, height: float) -> np.ndarray:
-    """Optical frame looking straight down: x right = world x, y down = world -y."""
-    pose = np.eye(4)
-    pose[:3, :3] = np.diag([1.0, -1.0, -1.0])
-    pose[:3, 3] = [x, y, height]
-    return pose
-
-
-def _unit(x: np.ndarray) -> np.ndarray:
-    return x / np.linalg.norm(x, axis=-1, keepdims=True)
-
-
-def _frames(n: int, seed: int = 0) -> list[tuple[Frame, np.ndarray]]:
-    """A floor at z = 0 with a box top at 0.5 m, seen from above by n shifted cameras."""
-    rng = np.random.default_rng(seed)
-    out = []
-    for i in range(n):
-        height = 1.5 + 0.1 * i
-        depth = np.full((H, W), height, np.float32)
-        depth[2:6, 3:9] = height - 0.5
-        depth[0, :3] = 0.0  # invalid pixels
-        depth[11, 15] = height - 2.4  # above z_max: filtered out
-        pose = _looking_down(0.0123 + 0.07 * i, 0.0311 - 0.05 * i, height)
-        rgb = rng.integers(0, 255, (H, W, 3), dtype=np.uint8)
-        feats = _unit(rng.normal(size=(3, 4, D))).astype(np.float32)
-        out.append((Frame(10**9 + i * 10**8, rgb, depth, K, pose), feats))
-    return out
-
-
-def _text() -> np.ndarray:
-    return _unit(np.random.default_rng(99).normal(size=(len(NAMES), D))).astype(np.float32)
-
-
-def _store(path: Path, n: int = 4, seed: int = 0) -> Path:
-    with StoreWriter(path, EncoderInfo("test", "1", D, NAMES)) as writer:
-        for frame, feats in _frames(n, seed):
-            writer.add(frame, feats)
-        writer.set_text(NAMES, _text())
-        writer.commit({"source": "synthetic"})
-    return path
+from tests.support.stores import GRID_DIM, GRID_NAMES, grid_frames, grid_store, grid_text, unit
 
 
 def _reference(frames: list[tuple[Frame, np.ndarray]], cfg: GridConfig, text: np.ndarray) -> dict:
@@ -107,14 +62,14 @@ def _reference(frames: list[tuple[Frame, np.ndarray]], cfg: GridConfig, text: np
                 )
     per_cell: dict[tuple, list] = defaultdict(list)
     for (cell, _view), s in samples.items():
-        f = _unit(np.mean(s["f"], axis=0))
+        f = unit(np.mean(s["f"], axis=0))
         per_cell[cell].append((f, np.float32(s["w"])))
     out = {}
     for cell, items in per_cell.items():
         f = np.array([i[0] for i in items])
         w = np.array([i[1] for i in items], dtype=np.float64)
         m = len(items)
-        fused = _unit((w[:, None] * f).sum(0) / w.sum()).astype(np.float16).astype(np.float64)
+        fused = unit((w[:, None] * f).sum(0) / w.sum()).astype(np.float16).astype(np.float64)
         P_views = softmax(cfg.logit_scale * f @ text.T, axis=1)
         P = softmax(cfg.logit_scale * fused @ text.T)
         if m >= 2:
@@ -158,9 +113,9 @@ def _by_cell(table) -> dict:
     ],
 )
 def test_streaming_equals_per_pixel_reference(tmp_path: Path, cfg: GridConfig) -> None:
-    path = build_grid(_store(tmp_path / "s"), cfg)
+    path = build_grid(grid_store(tmp_path / "s"), cfg)
     table = read_table(path)
-    ref = _reference(_frames(4), cfg, _text().astype(np.float64))
+    ref = _reference(grid_frames(4), cfg, grid_text().astype(np.float64))
     rows = _by_cell(table)
     assert set(rows) == set(ref)
     assert table.column("candidate_id").to_pylist() == list(range(table.num_rows))
@@ -182,7 +137,7 @@ def test_streaming_equals_per_pixel_reference(tmp_path: Path, cfg: GridConfig) -
 
 
 def test_grid_layers_and_readers(tmp_path: Path) -> None:
-    store = _store(tmp_path / "s")
+    store = grid_store(tmp_path / "s")
     path = build_grid(store, GridConfig(cell_size=0.1))
     df = pl.read_parquet(path)
     assert {"x", "y", "z_max", "obstacle", "r", "g", "b"} <= set(df.columns)
@@ -209,7 +164,7 @@ def test_cell_views_read_as_numbers_by_polars_and_duckdb(tmp_path: Path) -> None
     """The (view, cell) samples, without feature copies: the declared columns, read as the
     same numbers by polars and duckdb (which no one here wrote) as by pyarrow, and adding
     up to the cells' weights and pixel counts."""
-    store = _store(tmp_path / "s")
+    store = grid_store(tmp_path / "s")
     cells = read_table(build_grid(store, GridConfig(cell_size=0.1)))
     path = store / "cell_views.parquet"
     table = pq.read_table(path)
@@ -238,10 +193,10 @@ def test_cell_views_row_groups_do_not_change_the_rows(
 ) -> None:
     """Row groups smaller than a view's samples (a view split across groups): the same
     rows as one group holds."""
-    whole = _store(tmp_path / "whole")
+    whole = grid_store(tmp_path / "whole")
     build_grid(whole, GridConfig(cell_size=0.1))
     monkeypatch.setattr(grid_module, "VIEWS_GROUP_ROWS", 7)
-    small = _store(tmp_path / "small")
+    small = grid_store(tmp_path / "small")
     build_grid(small, GridConfig(cell_size=0.1))
     one, many = (pq.ParquetFile(s / "cell_views.parquet") for s in (whole, small))
     assert one.num_row_groups == 1
@@ -252,12 +207,12 @@ def test_cell_views_row_groups_do_not_change_the_rows(
 def test_grid_of_an_older_layout_is_rebuilt(tmp_path: Path) -> None:
     """A grid whose cell_views still carries a feature copy (the older layout) is not
     current: `care fuse grid` rebuilds it without --overwrite, to the declared layout."""
-    store = _store(tmp_path / "s")
+    store = grid_store(tmp_path / "s")
     path = build_grid(store, GridConfig(cell_size=0.1))
     views = store / "cell_views.parquet"
     table = pq.read_table(views)
     feature = pa.FixedSizeListArray.from_arrays(
-        pa.array(np.zeros(table.num_rows * D, np.float16)), D
+        pa.array(np.zeros(table.num_rows * GRID_DIM, np.float16)), GRID_DIM
     )
     old = table.append_column("feature", feature).replace_schema_metadata(table.schema.metadata)
     pq.write_table(old, views)
@@ -274,9 +229,9 @@ def test_grid_of_an_older_layout_is_rebuilt(tmp_path: Path) -> None:
 def test_bounded_memory_passes_give_the_same_map(tmp_path: Path, cells_per_pass: int) -> None:
     """Fused a few cells per pass (views read again for each later pass), the map equals the
     one-pass map: same rows, same values up to float32 rounding, same cell_views bytes."""
-    whole = _store(tmp_path / "whole", n=5)
+    whole = grid_store(tmp_path / "whole", n=5)
     one = pq.read_table(build_grid(whole, GridConfig(cell_size=0.1, stride=1)))
-    part = _store(tmp_path / "part", n=5)
+    part = grid_store(tmp_path / "part", n=5)
     config = GridConfig(cell_size=0.1, stride=1)
     passes = pq.read_table(build_grid(part, config, run=Execution(cells_per_pass=cells_per_pass)))
     assert one.num_rows > 3 * cells_per_pass  # really several passes
@@ -303,7 +258,7 @@ def test_views_prepared_ahead_give_the_same_bytes(
 ) -> None:
     """Decoding and sampling views on background threads (the default) or all in one thread,
     in one pass or in several: the same cells and cell_views bytes."""
-    store = _store(tmp_path / "s", n=5)
+    store = grid_store(tmp_path / "s", n=5)
     built = {}
     for ahead in (0, 1, 2):
         run = Execution(cells_per_pass=cells_per_pass, read_ahead=ahead, overwrite=True)
@@ -314,7 +269,7 @@ def test_views_prepared_ahead_give_the_same_bytes(
 
 
 def test_memory_budget_too_small_is_one_clear_error(tmp_path: Path) -> None:
-    store = _store(tmp_path / "s")
+    store = grid_store(tmp_path / "s")
     with pytest.raises(FuseError, match="memory-budget"):
         build_grid(store, GridConfig(cell_size=0.1), run=Execution(memory_budget=1 << 20))
     assert not (store / "cells.parquet").exists()
@@ -326,7 +281,7 @@ def test_memory_budget_too_small_is_one_clear_error(tmp_path: Path) -> None:
 
 
 def test_rerun_is_skipped_and_overwrite_rebuilds(tmp_path: Path) -> None:
-    store = _store(tmp_path / "s")
+    store = grid_store(tmp_path / "s")
     path = build_grid(store, GridConfig(cell_size=0.1))
     stamp = path.stat().st_mtime_ns
     build_grid(store, GridConfig(cell_size=0.1))
@@ -340,7 +295,7 @@ def test_rerun_is_skipped_and_overwrite_rebuilds(tmp_path: Path) -> None:
 def test_interrupted_build_keeps_previous_grid(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    store = _store(tmp_path / "s")
+    store = grid_store(tmp_path / "s")
     path = build_grid(store, GridConfig(cell_size=0.1))
     before = path.read_bytes(), (store / "cell_views.parquet").read_bytes()
     real = grid_module.view_samples
@@ -365,14 +320,14 @@ def test_recompute_equals_fresh_build(tmp_path: Path, cells_per_pass: int | None
     the build's per-view code (in one pass, or several), so its columns are a fresh
     build's with those settings bit for bit."""
     config = GridConfig(cell_size=0.1, stride=1, distance_weighting=False, z_min=0.2)
-    store = _store(tmp_path / "s", n=5)
+    store = grid_store(tmp_path / "s", n=5)
     build_grid(store, config)
     views = (store / "cell_views.parquet").read_bytes()
     vocab = ("lamp", "chair", "bed")
     recomputed = read_table(
         recompute_grid(store, vocab, logit_scale=30.0, run=Execution(cells_per_pass=cells_per_pass))
     )
-    fresh_store = _store(tmp_path / "t", n=5)
+    fresh_store = grid_store(tmp_path / "t", n=5)
     fresh = read_table(build_grid(fresh_store, replace(config, vocabulary=vocab, logit_scale=30.0)))
     assert recomputed.num_rows > 3 * 7
     assert recomputed.schema.equals(fresh.schema)  # metadata aside
@@ -394,7 +349,7 @@ def test_recompute_equals_fresh_build(tmp_path: Path, cells_per_pass: int | None
     assert (store / "cell_views.parquet").read_bytes() == views  # the samples did not change
     # back to the store's vocabulary and scale: the first build's columns again
     first = read_table(build_grid(fresh_store, config))
-    again = read_table(recompute_grid(store, list(NAMES), logit_scale=config.logit_scale))
+    again = read_table(recompute_grid(store, list(GRID_NAMES), logit_scale=config.logit_scale))
     for name in first.column_names:
         assert again.column(name).equals(first.column(name)), name
 
@@ -408,7 +363,7 @@ def test_recompute_whose_sidecar_cannot_be_written_leaves_a_whole_map(
     from care_maps.fuse import sidecar as sidecar_module
     from care_maps.query.map import load_map
 
-    store = _store(tmp_path / "s", n=5)
+    store = grid_store(tmp_path / "s", n=5)
     build_grid(store, GridConfig(cell_size=0.1, stride=1))
     real = sidecar_module.SidecarWriter.write
 
@@ -431,9 +386,9 @@ def test_recompute_whose_sidecar_cannot_be_written_leaves_a_whole_map(
 def test_recompute_needs_the_store_it_was_built_from(tmp_path: Path) -> None:
     """The per-view features come from the store: a grid moved onto other views (or a
     store ingested again) is refused in one line, the map left as it was."""
-    store = _store(tmp_path / "s")
+    store = grid_store(tmp_path / "s")
     build_grid(store, GridConfig(cell_size=0.1))
-    other = _store(tmp_path / "t", seed=1)
+    other = grid_store(tmp_path / "t", seed=1)
     build_grid(other, GridConfig(cell_size=0.1))
     for name in ("cells.parquet", "cell_views.parquet"):
         (other / name).write_bytes((store / name).read_bytes())
@@ -450,10 +405,10 @@ def test_recompute_needs_the_store_it_was_built_from(tmp_path: Path) -> None:
 def test_views_without_feature_rows_are_one_clear_error(tmp_path: Path) -> None:
     """Four views but two feature maps: out of step, not a two-view map."""
     path = tmp_path / "s"
-    with StoreWriter(path, EncoderInfo("test", "1", D, NAMES)) as writer:
-        for i, (frame, feats) in enumerate(_frames(4)):
+    with StoreWriter(path, EncoderInfo("test", "1", GRID_DIM, GRID_NAMES)) as writer:
+        for i, (frame, feats) in enumerate(grid_frames(4)):
             writer.add(frame, feats if i < 2 else None)
-        writer.set_text(NAMES, _text())
+        writer.set_text(GRID_NAMES, grid_text())
         writer.commit({"source": "synthetic"})
     with pytest.raises(FuseError, match="out of step"):
         build_grid(path, GridConfig())
@@ -461,7 +416,7 @@ def test_views_without_feature_rows_are_one_clear_error(tmp_path: Path) -> None:
 
 
 def test_bad_inputs_raise_one_clear_error(tmp_path: Path) -> None:
-    store = _store(tmp_path / "s")
+    store = grid_store(tmp_path / "s")
     with pytest.raises(FuseError, match="no depth pixel"):
         build_grid(store, GridConfig(z_min=5.0, z_max=6.0))
     with pytest.raises(FuseError, match="invalid grid config"):
@@ -486,12 +441,12 @@ def test_rerun_layers_and_blueprint(tmp_path: Path) -> None:
         measure_layers,
     )
 
-    store = _store(tmp_path / "s")
+    store = grid_store(tmp_path / "s")
     rrd = tmp_path / "grid.rrd"
     cells = read_table(build_grid(store, GridConfig(cell_size=0.1)))
     log_grid(store, rrd)
     target = default_class(cells)
-    assert target in NAMES
+    assert target in GRID_NAMES
     counts = rrd_entity_counts(rrd)
     assert counts[("/grid/rgb/value", "Image:buffer")] == 1
     layers = [confidence_layer(target), *MEASURE_LAYERS[1:]]
@@ -525,7 +480,7 @@ def test_rerun_layers_and_blueprint(tmp_path: Path) -> None:
     for name in ("chair", "sofa"):
         assert counts[(f"/grid/{confidence_layer(name)}/value", "DepthImage:buffer")] == 1
     # the confidence layers of all classes sum to one on occupied cells, NaN elsewhere
-    total = sum(measure_layers(Store(store), cells, name)["confidence"] for name in NAMES)
+    total = sum(measure_layers(Store(store), cells, name)["confidence"] for name in GRID_NAMES)
     occupied = np.isfinite(total)
     assert occupied.sum() == cells.num_rows
     np.testing.assert_allclose(total[occupied], 1.0, rtol=1e-4)
@@ -539,7 +494,7 @@ def test_cli_grid_and_recompute(tmp_path: Path) -> None:
     from care_maps.cli.main import _register, app
 
     _register()
-    store = _store(tmp_path / "s")
+    store = grid_store(tmp_path / "s")
     runner = CliRunner()
     result = runner.invoke(app, ["fuse", "grid", str(store), "--cell-size", "0.1", "--stride", "2"])
     assert result.exit_code == 0, result.output

@@ -10,6 +10,9 @@ import numpy as np
 import pytest
 
 from care_maps.ingest.write import write_recording
+from tests.support.frames import smooth_rgb, synthetic_frames
+from tests.support.messages import image_msg, tf_msg
+from tests.support.recordings import rgbd_messages, write_bag
 
 pytestmark = pytest.mark.slow
 
@@ -37,8 +40,8 @@ def test_missing_file(run_cli, tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize(("fmt", "name"), [("ros1", "r.bag"), ("mcap", "r.mcap")])
-def test_truncated_recording(run_cli, tmp_path: Path, h, fmt: str, name: str) -> None:
-    path = write_recording(tmp_path / name, h.synthetic_frames(4), fmt=fmt)
+def test_truncated_recording(run_cli, tmp_path: Path, fmt: str, name: str) -> None:
+    path = write_recording(tmp_path / name, synthetic_frames(4), fmt=fmt)
     data = path.read_bytes()
     path.write_bytes(data[: len(data) * 2 // 3])
     _expect_failure(run_cli, tmp_path, path, rf"{name}: cannot open as .*truncated or corrupt")
@@ -75,18 +78,18 @@ def test_no_image_topic_lists_topics(run_cli, tmp_path: Path, shared_data: Path,
     assert "/rosout (rcl_interfaces/msg/Log, 10 msgs)" in line
 
 
-def _rgb(h, i, t):
-    return h.image_msg(t, h.smooth_rgb(i, H, W), "rgb8")
+def _rgb(i, t):
+    return image_msg(t, smooth_rgb(i, H, W), "rgb8")
 
 
-def _depth(h, i, t, value=1500):
-    return h.image_msg(t, np.full((H, W), value, np.uint16), "16UC1")
+def _depth(i, t, value=1500):
+    return image_msg(t, np.full((H, W), value, np.uint16), "16UC1")
 
 
-def test_no_camera_info(run_cli, tmp_path: Path, h) -> None:
-    bag = h.write_bag(
+def test_no_camera_info(run_cli, tmp_path: Path) -> None:
+    bag = write_bag(
         tmp_path / "bag",
-        h.rgbd_messages(lambda i, t: _rgb(h, i, t), lambda i, t: _depth(h, i, t), info=False),
+        rgbd_messages(lambda i, t: _rgb(i, t), lambda i, t: _depth(i, t), info=False),
     )
     _expect_failure(
         run_cli,
@@ -96,12 +99,10 @@ def test_no_camera_info(run_cli, tmp_path: Path, h) -> None:
     )
 
 
-def test_no_transform_camera_to_world(run_cli, tmp_path: Path, h) -> None:
-    msgs = h.rgbd_messages(lambda i, t: _rgb(h, i, t), lambda i, t: _depth(h, i, t), tf=False)
-    msgs.insert(
-        0, ("/tf", 10**9, h.tf_msg(10**9, "map", "base_link", (0.0, 0.0, 0.0), (0, 0, 0, 1)))
-    )
-    bag = h.write_bag(tmp_path / "bag", msgs)
+def test_no_transform_camera_to_world(run_cli, tmp_path: Path) -> None:
+    msgs = rgbd_messages(lambda i, t: _rgb(i, t), lambda i, t: _depth(i, t), tf=False)
+    msgs.insert(0, ("/tf", 10**9, tf_msg(10**9, "map", "base_link", (0.0, 0.0, 0.0), (0, 0, 0, 1))))
+    bag = write_bag(tmp_path / "bag", msgs)
     _expect_failure(
         run_cli,
         tmp_path,
@@ -110,12 +111,12 @@ def test_no_transform_camera_to_world(run_cli, tmp_path: Path, h) -> None:
     )
 
 
-def test_unsupported_encoding(run_cli, tmp_path: Path, h) -> None:
-    bag = h.write_bag(
+def test_unsupported_encoding(run_cli, tmp_path: Path) -> None:
+    bag = write_bag(
         tmp_path / "bag",
-        h.rgbd_messages(
-            lambda i, t: h.image_msg(t, np.zeros((H, W, 2), np.uint8), "yuv422"),
-            lambda i, t: _depth(h, i, t),
+        rgbd_messages(
+            lambda i, t: image_msg(t, np.zeros((H, W, 2), np.uint8), "yuv422"),
+            lambda i, t: _depth(i, t),
         ),
     )
     _expect_failure(
@@ -126,12 +127,12 @@ def test_unsupported_encoding(run_cli, tmp_path: Path, h) -> None:
     )
 
 
-def test_image_depth_size_mismatch(run_cli, tmp_path: Path, h) -> None:
-    bag = h.write_bag(
+def test_image_depth_size_mismatch(run_cli, tmp_path: Path) -> None:
+    bag = write_bag(
         tmp_path / "bag",
-        h.rgbd_messages(
-            lambda i, t: _rgb(h, i, t),
-            lambda i, t: h.image_msg(t, np.full((12, 16), 900, np.uint16), "16UC1"),
+        rgbd_messages(
+            lambda i, t: _rgb(i, t),
+            lambda i, t: image_msg(t, np.full((12, 16), 900, np.uint16), "16UC1"),
         ),
     )
     _expect_failure(
@@ -143,13 +144,13 @@ def test_image_depth_size_mismatch(run_cli, tmp_path: Path, h) -> None:
 
 
 @pytest.mark.parametrize("encoding", ["16UC1", "32FC1"])
-def test_depth_invalid_everywhere(run_cli, tmp_path: Path, h, encoding: str) -> None:
+def test_depth_invalid_everywhere(run_cli, tmp_path: Path, encoding: str) -> None:
     def depth(i, t):
         if encoding == "32FC1":
-            return h.image_msg(t, np.full((H, W), np.nan, np.float32), "32FC1")
-        return _depth(h, i, t, value=0)
+            return image_msg(t, np.full((H, W), np.nan, np.float32), "32FC1")
+        return _depth(i, t, value=0)
 
-    bag = h.write_bag(tmp_path / "bag", h.rgbd_messages(lambda i, t: _rgb(h, i, t), depth))
+    bag = write_bag(tmp_path / "bag", rgbd_messages(lambda i, t: _rgb(i, t), depth))
     _expect_failure(
         run_cli,
         tmp_path,

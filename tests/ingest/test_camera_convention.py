@@ -23,6 +23,10 @@ from care_maps.ingest.conventions import BODY_FROM_OPTICAL, CameraConvention, fi
 from care_maps.ingest.pipeline import IngestConfig, run_ingest
 from care_maps.ingest.source import ReadOptions, RecordingFrames
 from care_maps.runtime.execution import Execution
+from tests.support.encoders import TinyEncoder
+from tests.support.frames import load_livingroom
+from tests.support.messages import camera_info_msg, image_msg, tf_msg
+from tests.support.recordings import write_bag
 
 OPTICAL = "camera_color_optical_frame"
 LINK = "camera_link"
@@ -60,11 +64,11 @@ def _quarter(frame):
 
 
 @pytest.fixture(scope="module")
-def frames(livingroom_root: Path, h) -> list:
-    return [_quarter(f) for f in h.load_livingroom(livingroom_root, 60)[::4]]
+def frames(livingroom_root: Path) -> list:
+    return [_quarter(f) for f in load_livingroom(livingroom_root, 60)[::4]]
 
 
-def _bag(path: Path, h, frames, camera: str, world: str = "map", poses=None) -> Path:
+def _bag(path: Path, frames, camera: str, world: str = "map", poses=None) -> Path:
     """A robot bag: TF ``world -> camera`` at each image, camera info and images stamped
     with ``camera``; ``poses``: the TF poses (default the frames' optical ones)."""
     msgs = []
@@ -72,16 +76,16 @@ def _bag(path: Path, h, frames, camera: str, world: str = "map", poses=None) -> 
         t = f.stamp_ns
         pose = f.cam_to_world if poses is None else poses[k]
         q = Rotation.from_matrix(pose[:3, :3]).as_quat()
-        info = h.camera_info_msg(t, f.K, f.width, f.height)
+        info = camera_info_msg(t, f.K, f.width, f.height)
         info.header.frame_id = camera
         depth_mm = np.round(f.depth_m * 1000).astype(np.uint16)
         msgs += [
-            ("/tf", t, h.tf_msg(t, world, camera, tuple(pose[:3, 3]), tuple(q))),
+            ("/tf", t, tf_msg(t, world, camera, tuple(pose[:3, 3]), tuple(q))),
             ("/camera/color/camera_info", t, info),
-            ("/camera/color/image_raw", t, h.image_msg(t, f.rgb, "rgb8", camera)),
-            ("/camera/depth/image_raw", t, h.image_msg(t, depth_mm, "16UC1", camera)),
+            ("/camera/color/image_raw", t, image_msg(t, f.rgb, "rgb8", camera)),
+            ("/camera/depth/image_raw", t, image_msg(t, depth_mm, "16UC1", camera)),
         ]
-    return h.write_bag(path, msgs)
+    return write_bag(path, msgs)
 
 
 def _link_poses(frames) -> list[np.ndarray]:
@@ -91,11 +95,11 @@ def _link_poses(frames) -> list[np.ndarray]:
 
 
 @pytest.fixture(scope="module")
-def bags(frames, tmp_path_factory, h) -> dict[str, Path]:
+def bags(frames, tmp_path_factory) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("convention")
     return {
-        "optical": _bag(root / "optical", h, frames, OPTICAL),
-        "body": _bag(root / "body", h, frames, LINK, poses=_link_poses(frames)),
+        "optical": _bag(root / "optical", frames, OPTICAL),
+        "body": _bag(root / "body", frames, LINK, poses=_link_poses(frames)),
     }
 
 
@@ -156,11 +160,11 @@ def _cells(store: Path) -> set[tuple[int, int]]:
 
 
 @pytest.mark.slow
-def test_the_body_bag_gives_the_reference_grid(bags, tmp_path: Path, h) -> None:
+def test_the_body_bag_gives_the_reference_grid(bags, tmp_path: Path) -> None:
     cells = {}
     for name, bag in bags.items():
         config = IngestConfig(vocabulary="red,green,blue")
-        store = run_ingest(bag, tmp_path / name, config, run=QUIET, encoder=h.TinyEncoder())
+        store = run_ingest(bag, tmp_path / name, config, run=QUIET, encoder=TinyEncoder())
         build_grid(store, GridConfig(cell_size=CELL, stride=2))
         cells[name] = _cells(store)
     ref, body = cells["optical"], cells["body"]
@@ -169,13 +173,13 @@ def test_the_body_bag_gives_the_reference_grid(bags, tmp_path: Path, h) -> None:
 
 
 def test_a_body_name_with_unclear_axes_is_refused_in_one_line(
-    run_cli, tmp_path: Path, h, frames
+    run_cli, tmp_path: Path, frames
 ) -> None:
     """The link's poses in the living room's own y-down world: neither +z up nor +y down
     along that world's z, and the name is a body's; the model is never loaded."""
     ydown = np.linalg.inv(ZUP_FROM_YDOWN)
     poses = [ydown @ p for p in _link_poses(frames)]
-    bag = _bag(tmp_path / "ydown_body", h, frames, LINK, poses=poses)
+    bag = _bag(tmp_path / "ydown_body", frames, LINK, poses=poses)
     empty = tmp_path / "weights"
     empty.mkdir()  # no model in it: loading would fail
     code, _, err = run_cli(
@@ -195,10 +199,10 @@ def test_a_body_name_with_unclear_axes_is_refused_in_one_line(
         np.testing.assert_allclose(g.cam_to_world, ydown @ f.cam_to_world, atol=1e-6)
 
 
-def test_an_optical_camera_under_another_name_stays_optical(tmp_path: Path, h, frames) -> None:
+def test_an_optical_camera_under_another_name_stays_optical(tmp_path: Path, frames) -> None:
     """A camera frame named neither optical nor like a body, posed as optical in the z-up
     world: the geometry says optical, nothing is converted."""
-    bag = _bag(tmp_path / "camera", h, frames, "camera")
+    bag = _bag(tmp_path / "camera", frames, "camera")
     got, rf = _read(bag)
     assert rf.convention.convention is CameraConvention.OPTICAL
     for g, f in zip(got, frames, strict=True):

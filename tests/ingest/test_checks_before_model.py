@@ -7,14 +7,18 @@ from pathlib import Path
 
 import numpy as np
 
+from tests.support.frames import smooth_rgb
+from tests.support.messages import image_msg
+from tests.support.recordings import rgbd_messages, write_bag
 
-def test_a_recording_fault_is_named_before_the_model_loads(run_cli, tmp_path: Path, h) -> None:
-    msgs = h.rgbd_messages(
-        lambda i, t: h.image_msg(t, h.smooth_rgb(i), "rgb8"),
-        lambda i, t: h.image_msg(t, np.full((24, 32), 2000, np.uint16), "16UC1"),
+
+def test_a_recording_fault_is_named_before_the_model_loads(run_cli, tmp_path: Path) -> None:
+    msgs = rgbd_messages(
+        lambda i, t: image_msg(t, smooth_rgb(i), "rgb8"),
+        lambda i, t: image_msg(t, np.full((24, 32), 2000, np.uint16), "16UC1"),
         tf=False,
     )
-    bag = h.write_bag(tmp_path / "no_pose", msgs)
+    bag = write_bag(tmp_path / "no_pose", msgs)
     empty = tmp_path / "weights"
     empty.mkdir()  # no model in it: loading would fail
     code, _, err = run_cli(

@@ -11,12 +11,13 @@ from care_maps.core.store import Store
 from care_maps.core.viz import rrd_entity_counts
 from care_maps.ingest import viz
 from care_maps.ingest.write import write_recording
+from tests.support.frames import load_livingroom, synthetic_frames
 
 pytestmark = pytest.mark.slow
 
 
-def test_ingest_logs_rerun_entities(run_cli, tmp_path: Path, h) -> None:
-    rec = write_recording(tmp_path / "r.mcap", h.synthetic_frames(7), fmt="mcap")
+def test_ingest_logs_rerun_entities(run_cli, tmp_path: Path) -> None:
+    rec = write_recording(tmp_path / "r.mcap", synthetic_frames(7), fmt="mcap")
     rrd = tmp_path / "ingest.rrd"
     code, out, err = run_cli(
         "ingest", rec, "--out", tmp_path / "store", "--rrd", rrd, "--rrd-every", "3"
@@ -46,10 +47,10 @@ def test_ingest_logs_rerun_entities(run_cli, tmp_path: Path, h) -> None:
     assert clouds == {e(f"{viz.MAP_ENTITY}/{i}") for i in range(7)}
 
 
-def test_topics_lists_and_shows_choice(run_cli, tmp_path: Path, h) -> None:
+def test_topics_lists_and_shows_choice(run_cli, tmp_path: Path) -> None:
     rec = write_recording(
         tmp_path / "r.bag",
-        h.synthetic_frames(2, extras=True),
+        synthetic_frames(2, extras=True),
         fmt="ros1",
         label_names=["void", "x"],
     )
@@ -71,7 +72,7 @@ def test_topics_on_talker_bag(run_cli, shared_data: Path) -> None:
 
 
 def test_rrd_of_an_up_to_date_store_is_written_from_it(
-    run_cli, tmp_path: Path, h, livingroom_root: Path, save_tiny_clip
+    run_cli, tmp_path: Path, livingroom_root: Path, save_tiny_clip
 ) -> None:
     """``--rrd`` on a store that is up to date writes the file from the store's views: the
     store is not ingested again and the maps built in it stay, byte for byte. The file
@@ -83,7 +84,7 @@ def test_rrd_of_an_up_to_date_store_is_written_from_it(
     from care_maps.core.frames import Frame
 
     frames = []  # third-party frames at a quarter of their size
-    for f in h.load_livingroom(livingroom_root, 12)[::2]:
+    for f in load_livingroom(livingroom_root, 12)[::2]:
         K = f.K.copy()
         K[:2] /= 4
         K[:2, 2] = (f.K[:2, 2] - 1.5) / 4

@@ -22,14 +22,16 @@ from care_maps.ingest.pipeline import IngestConfig, run_ingest
 from care_maps.ingest.source import ReadOptions
 from care_maps.ingest.write import write_recording
 from care_maps.runtime.execution import Execution
+from tests.support.encoders import TinyEncoder
+from tests.support.frames import load_livingroom
 
 CELL = 0.05
 QUIET = Execution(progress=False)
 
 
 @pytest.fixture(scope="module")
-def frames(h, livingroom_root) -> list:
-    return h.load_livingroom(livingroom_root, 120)[::3]
+def frames(livingroom_root) -> list:
+    return load_livingroom(livingroom_root, 120)[::3]
 
 
 def _cells(store: Path) -> set[tuple[int, int]]:
@@ -37,12 +39,12 @@ def _cells(store: Path) -> set[tuple[int, int]]:
     return set(zip(table.column("ix").to_pylist(), table.column("iy").to_pylist(), strict=True))
 
 
-def _ingest_and_grid(h, source: Path, out: Path, **read: object) -> str | None:
+def _ingest_and_grid(source: Path, out: Path, **read: object) -> str | None:
     """The store and its grid from ``source`` read with ``read`` options; the one-line error
     instead where ingest refuses (and then nothing is written at ``out``)."""
     config = IngestConfig(read=ReadOptions(**read), vocabulary="red,green,blue")
     try:
-        run_ingest(source, out, config, run=QUIET, encoder=h.TinyEncoder())
+        run_ingest(source, out, config, run=QUIET, encoder=TinyEncoder())
     except IngestError as err:
         assert not out.exists()  # nothing half-written
         return str(err)
@@ -51,11 +53,11 @@ def _ingest_and_grid(h, source: Path, out: Path, **read: object) -> str | None:
 
 
 @pytest.fixture(scope="module")
-def reference(tmp_path_factory, frames, h) -> tuple[Path, set]:
+def reference(tmp_path_factory, frames) -> tuple[Path, set]:
     """The right recording's store and grid (built once)."""
     root = tmp_path_factory.mktemp("reference")
     bag = write_recording(root / "right.mcap", frames, fmt="mcap")
-    assert _ingest_and_grid(h, bag, root / "store") is None
+    assert _ingest_and_grid(bag, root / "store") is None
     return root / "store", _cells(root / "store")
 
 
@@ -75,7 +77,7 @@ def test_a_right_recording_passes_and_records_its_figures(reference) -> None:
 
 @pytest.mark.slow
 def test_another_cameras_focal_length_is_refused_and_intrinsics_fix_it(
-    tmp_path, frames, reference, h
+    tmp_path, frames, reference
 ) -> None:
     wrong = []
     for f in frames:
@@ -84,7 +86,7 @@ def test_another_cameras_focal_length_is_refused_and_intrinsics_fix_it(
         K[1, 1] *= 2.0
         wrong.append(replace(f, K=K))
     bag = write_recording(tmp_path / "focal.mcap", wrong, fmt="mcap")
-    line = _ingest_and_grid(h, bag, tmp_path / "bad")
+    line = _ingest_and_grid(bag, tmp_path / "bad")
     assert line is not None
     assert "\n" not in line
     assert "focal length" in line
@@ -93,38 +95,38 @@ def test_another_cameras_focal_length_is_refused_and_intrinsics_fix_it(
     assert fx == pytest.approx(525.0, rel=0.03)  # within the search's resolution
     assert (cx, cy) == (319.5, 239.5)
     # the camera as it really is gives the right map
-    assert _ingest_and_grid(h, bag, tmp_path / "fixed", intrinsics="525,525,319.5,239.5") is None
+    assert _ingest_and_grid(bag, tmp_path / "fixed", intrinsics="525,525,319.5,239.5") is None
     _same_map(tmp_path / "fixed", reference[1])
 
 
 @pytest.mark.slow
 def test_a_body_frame_named_as_optical_is_refused_and_camera_convention_fixes_it(
-    tmp_path, frames, reference, h
+    tmp_path, frames, reference
 ) -> None:
     # the camera frame's poses are a body's (x forward, y left, z up) under an optical name
     body = [
         replace(f, cam_to_world=f.cam_to_world @ np.linalg.inv(BODY_FROM_OPTICAL)) for f in frames
     ]
     bag = write_recording(tmp_path / "body.mcap", body, fmt="mcap")
-    line = _ingest_and_grid(h, bag, tmp_path / "bad")
+    line = _ingest_and_grid(bag, tmp_path / "bad")
     assert line is not None
     assert "--camera-convention body" in line
-    assert _ingest_and_grid(h, bag, tmp_path / "fixed", camera_convention="body") is None
+    assert _ingest_and_grid(bag, tmp_path / "fixed", camera_convention="body") is None
     _same_map(tmp_path / "fixed", reference[1])
 
 
 @pytest.mark.slow
 def test_depth_in_other_units_is_refused_as_such_not_as_a_floor_problem(
-    tmp_path, frames, reference, h
+    tmp_path, frames, reference
 ) -> None:
     # 16-bit depth at TUM's 5000 per metre, read as the ROS millimetres: five times too far
     tum_units = [replace(f, depth_m=f.depth_m * 5.0) for f in frames]
     bag = write_recording(tmp_path / "depth.mcap", tum_units, fmt="mcap")
-    line = _ingest_and_grid(h, bag, tmp_path / "bad")
+    line = _ingest_and_grid(bag, tmp_path / "bad")
     assert line is not None
     assert "depth reads 5 times too large" in line
     assert "--depth-scale with the depth value of one metre (5000 for 16-bit images" in line
-    assert _ingest_and_grid(h, bag, tmp_path / "fixed", depth_scale=5000.0) is None
+    assert _ingest_and_grid(bag, tmp_path / "fixed", depth_scale=5000.0) is None
     _same_map(tmp_path / "fixed", reference[1])
 
 

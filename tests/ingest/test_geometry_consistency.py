@@ -25,6 +25,7 @@ from care_maps.geometry.consistency import (
     subsample,
 )
 from care_maps.geometry.transforms import BODY_FROM_OPTICAL
+from tests.support.frames import load_livingroom, load_slambook
 
 K = np.array([[50.0, 0.0, 39.5], [0.0, 50.0, 29.5], [0.0, 0.0, 1.0]])
 """An 80x60 camera (no subsampling needed)."""
@@ -103,8 +104,8 @@ def test_depth_scale_candidates_are_the_datasets_ratios_and_powers_of_ten() -> N
     assert 1.0 not in scales
 
 
-def _load(h, root: Path, every: int) -> list[DepthSample]:
-    frames = h.load_livingroom(root, 211)[::every]
+def _load(root: Path, every: int) -> list[DepthSample]:
+    frames = load_livingroom(root, 211)[::every]
     return [subsample(f.depth_m, f.K, f.cam_to_world, f.stamp_ns) for f in frames]
 
 
@@ -141,17 +142,17 @@ ALL = list(Mistake)
 
 
 @pytest.fixture(scope="module")
-def every5(h, livingroom_root) -> list[DepthSample]:
-    return _load(h, livingroom_root, 5)
+def every5(livingroom_root) -> list[DepthSample]:
+    return _load(livingroom_root, 5)
 
 
 @pytest.fixture(scope="module")
-def slambook(h, slambook_root) -> list[DepthSample]:
-    return [subsample(f.depth_m, f.K, f.cam_to_world) for f in h.load_slambook(slambook_root)]
+def slambook(slambook_root) -> list[DepthSample]:
+    return [subsample(f.depth_m, f.K, f.cam_to_world) for f in load_slambook(slambook_root)]
 
 
-def test_right_recordings_agree(every5, slambook, h, livingroom_root) -> None:
-    for samples in (every5, _load(h, livingroom_root, 1)[:60], slambook):
+def test_right_recordings_agree(every5, slambook, livingroom_root) -> None:
+    for samples in (every5, _load(livingroom_root, 1)[:60], slambook):
         verdict = judge(samples, ALL)
         assert verdict.status is Status.AGREE, verdict.as_json()
 

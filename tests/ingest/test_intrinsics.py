@@ -17,6 +17,9 @@ from scipy.spatial.transform import Rotation
 from care_maps.core.errors import IngestError
 from care_maps.ingest.intrinsics import CameraIntrinsics
 from care_maps.ingest.source import ReadOptions, RecordingFrames
+from tests.support.frames import K_SMALL, load_livingroom, smooth_rgb
+from tests.support.messages import camera_info_msg, image_msg, tf_msg
+from tests.support.recordings import rgbd_messages, write_bag
 
 OPTICAL = "camera_color_optical_frame"
 NUMBERS = "525,525,319.5,239.5"
@@ -50,37 +53,35 @@ projection_matrix:
 
 
 @pytest.fixture(scope="module")
-def frames(livingroom_root: Path, h) -> list:
-    return h.load_livingroom(livingroom_root, 12)[::4]
+def frames(livingroom_root: Path) -> list:
+    return load_livingroom(livingroom_root, 12)[::4]
 
 
-def _bag(path: Path, h, frames, *, info: bool, d=None) -> Path:
+def _bag(path: Path, frames, *, info: bool, d=None) -> Path:
     msgs = []
     for f in frames:
         t = f.stamp_ns
         q = Rotation.from_matrix(f.cam_to_world[:3, :3]).as_quat()
         depth_mm = np.round(f.depth_m * 1000).astype(np.uint16)
         msgs += [
-            ("/tf", t, h.tf_msg(t, "map", OPTICAL, tuple(f.cam_to_world[:3, 3]), tuple(q))),
-            ("/camera/color/image_raw", t, h.image_msg(t, f.rgb, "rgb8", OPTICAL)),
-            ("/camera/depth/image_raw", t, h.image_msg(t, depth_mm, "16UC1", OPTICAL)),
+            ("/tf", t, tf_msg(t, "map", OPTICAL, tuple(f.cam_to_world[:3, 3]), tuple(q))),
+            ("/camera/color/image_raw", t, image_msg(t, f.rgb, "rgb8", OPTICAL)),
+            ("/camera/depth/image_raw", t, image_msg(t, depth_mm, "16UC1", OPTICAL)),
         ]
         if info:
-            msg = h.camera_info_msg(t, f.K, f.width, f.height)
+            msg = camera_info_msg(t, f.K, f.width, f.height, d=d)
             msg.header.frame_id = OPTICAL
-            if d is not None:
-                msg.d = np.asarray(d, np.float64)
             msgs.append(("/camera/color/camera_info", t, msg))
-    return h.write_bag(path, msgs)
+    return write_bag(path, msgs)
 
 
 @pytest.fixture(scope="module")
-def bags(frames, tmp_path_factory, h) -> dict[str, Path]:
+def bags(frames, tmp_path_factory) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("intrinsics")
     return {
-        "info": _bag(root / "info", h, frames, info=True),
-        "info_d": _bag(root / "info_d", h, frames, info=True, d=D),
-        "none": _bag(root / "none", h, frames, info=False),
+        "info": _bag(root / "info", frames, info=True),
+        "info_d": _bag(root / "info_d", frames, info=True, d=D),
+        "none": _bag(root / "none", frames, info=False),
     }
 
 
@@ -128,11 +129,11 @@ def test_the_datasets_own_intrinsics_json(bags, livingroom_root: Path) -> None:
     _same(_read(bags["none"], ReadOptions(intrinsics=given)), _read(bags["info"]))
 
 
-def test_intrinsics_replace_a_wrong_camera_info(bags, h, frames, tmp_path: Path) -> None:
+def test_intrinsics_replace_a_wrong_camera_info(bags, frames, tmp_path: Path) -> None:
     """A camera info with another K is not read when --intrinsics is given."""
     wrong = [type(f)(f.stamp_ns, f.rgb, f.depth_m, f.K * [[2], [2], [1]], f.cam_to_world)
              for f in frames]  # fmt: skip
-    bag = _bag(tmp_path / "wrong", h, wrong, info=True)
+    bag = _bag(tmp_path / "wrong", wrong, info=True)
     assert _read(bag)[0].K[0, 0] == 1050.0
     _same(_read(bag, ReadOptions(intrinsics=NUMBERS)), _read(bags["info"]))
 
@@ -182,19 +183,19 @@ def test_both_sources_are_refused() -> None:
         ReadOptions(camera_info="/camera/color/camera_info", intrinsics=NUMBERS)
 
 
-def test_intrinsics_and_static_pose_need_no_small_topic(tmp_path: Path, h) -> None:
+def test_intrinsics_and_static_pose_need_no_small_topic(tmp_path: Path) -> None:
     """Neither TF nor camera info: only the images are read, each with the given K."""
-    msgs = h.rgbd_messages(
-        lambda i, t: h.image_msg(t, h.smooth_rgb(i), "rgb8"),
-        lambda i, t: h.image_msg(t, np.full((24, 32), 2000, np.uint16), "16UC1"),
+    msgs = rgbd_messages(
+        lambda i, t: image_msg(t, smooth_rgb(i), "rgb8"),
+        lambda i, t: image_msg(t, np.full((24, 32), 2000, np.uint16), "16UC1"),
         info=False,
         tf=False,
     )
-    bag = h.write_bag(tmp_path / "images_only", msgs)
+    bag = write_bag(tmp_path / "images_only", msgs)
     options = ReadOptions(static_pose=True, intrinsics="40,40,16,12")
     with RecordingFrames(bag, options) as rf:
         got = list(rf)
     assert len(got) == 3
     for frame in got:
-        np.testing.assert_array_equal(frame.K, h.K_SMALL)
+        np.testing.assert_array_equal(frame.K, K_SMALL)
         np.testing.assert_array_equal(frame.cam_to_world, np.eye(4))

@@ -27,6 +27,8 @@ from care_maps.geometry.mapframe import FloorNotFoundError, estimate_map_frame
 from care_maps.ingest.pipeline import IngestConfig, run_ingest
 from care_maps.ingest.write import write_recording
 from care_maps.runtime.execution import Execution
+from tests.support.encoders import TinyEncoder
+from tests.support.frames import load_livingroom, synthetic_frames
 
 QUIET = Execution(progress=False)
 
@@ -49,12 +51,12 @@ def _half(frame: Frame, pose: np.ndarray) -> Frame:
 
 
 @pytest.fixture(scope="module")
-def frames(livingroom_root: Path, h) -> list[Frame]:
-    return [_half(f, f.cam_to_world) for f in h.load_livingroom(livingroom_root, 200)[::5]]
+def frames(livingroom_root: Path) -> list[Frame]:
+    return [_half(f, f.cam_to_world) for f in load_livingroom(livingroom_root, 200)[::5]]
 
 
 @pytest.fixture(scope="module")
-def stores(frames, tmp_path_factory, h) -> dict[str, Path]:
+def stores(frames, tmp_path_factory) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("frames")
     zup = [_half(f, ZUP_FROM_YDOWN @ f.cam_to_world) for f in frames]
     cases = {
@@ -67,7 +69,7 @@ def stores(frames, tmp_path_factory, h) -> dict[str, Path]:
     for name, (fr, fmt, file) in cases.items():
         rec = write_recording(root / file, fr, fmt=fmt, ros2_storage="mcap")
         config = IngestConfig(vocabulary="red,green,blue")
-        out[name] = run_ingest(rec, root / name, config, run=QUIET, encoder=h.TinyEncoder())
+        out[name] = run_ingest(rec, root / name, config, run=QUIET, encoder=TinyEncoder())
         build_grid(out[name], GridConfig(cell_size=CELL, stride=2))
     return out
 
@@ -159,15 +161,15 @@ def test_cli_up_axis_option_replaces_the_frame(stores) -> None:
 
 
 @pytest.mark.slow
-def test_cli_no_floor_is_one_line_and_no_map(tmp_path: Path, h) -> None:
+def test_cli_no_floor_is_one_line_and_no_map(tmp_path: Path) -> None:
     """A camera looking at a wall (the synthetic tilted plane, no floor in view): one line
     naming --up-axis, exit 1, no map; with the axis given the grid is built."""
     import subprocess
     import sys
 
-    rec = write_recording(tmp_path / "wall.mcap", h.synthetic_frames(6), fmt="mcap")
+    rec = write_recording(tmp_path / "wall.mcap", synthetic_frames(6), fmt="mcap")
     store = run_ingest(
-        rec, tmp_path / "store", IngestConfig(vocabulary="a,b"), run=QUIET, encoder=h.TinyEncoder()
+        rec, tmp_path / "store", IngestConfig(vocabulary="a,b"), run=QUIET, encoder=TinyEncoder()
     )
     care = [sys.executable, "-m", "care_maps.cli.main", "fuse", "grid", str(store)]
     done = subprocess.run(care, capture_output=True, text=True)

@@ -27,6 +27,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.support.frames import load_livingroom
+
 DIGESTS = Path(__file__).parents[1] / "data" / "outputs.json"
 OFFLINE = {**os.environ, "HF_HUB_OFFLINE": "1", "TRANSFORMERS_OFFLINE": "1"}
 PATH_KEYS = frozenset({"path", "source", "weights", "precomputed", "text_file"})
@@ -163,13 +165,13 @@ def test_sample_run_outputs_unchanged(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_own_recording_outputs_unchanged(
-    tmp_path: Path, livingroom_root: Path, h, save_tiny_clip
+    tmp_path: Path, livingroom_root: Path, save_tiny_clip
 ) -> None:
     from care_maps.core.frames import Frame
     from care_maps.ingest.write import write_recording
 
     frames = []
-    for f in h.load_livingroom(livingroom_root, 40)[::5]:
+    for f in load_livingroom(livingroom_root, 40)[::5]:
         K = f.K.copy()
         K[:2] /= 4
         K[:2, 2] = (f.K[:2, 2] - 1.5) / 4

@@ -12,6 +12,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from care_maps.ingest.source import RecordingFrames
+from tests.support.frames import load_livingroom
+from tests.support.messages import camera_info_msg, image_msg, odometry_msg, tf_msg
+from tests.support.recordings import write_bag
 
 OPTICAL = "camera_color_optical_frame"
 # camera_link (x forward, z up) -> optical (z forward, x right, y down), REP 103
@@ -28,34 +31,34 @@ def _matrix(xyz, xyzw) -> np.ndarray:
 
 
 def test_odometry_and_a_static_chain_give_every_view_its_pose(
-    tmp_path: Path, h, livingroom_root: Path
+    tmp_path: Path, livingroom_root: Path
 ) -> None:
-    frames = h.load_livingroom(livingroom_root, 24)[::4]
+    frames = load_livingroom(livingroom_root, 24)[::4]
     base_to_optical = _matrix(BASE_TO_LINK_XYZ, BASE_TO_LINK_XYZW) @ _matrix(
         (0.0, 0.0, 0.0), LINK_TO_OPTICAL_XYZW
     )
     t0 = frames[0].stamp_ns
     msgs = [
-        ("/tf_static", t0, h.tf_msg(t0, "base_link", "camera_link", BASE_TO_LINK_XYZ,
-                                    BASE_TO_LINK_XYZW)),
-        ("/tf_static", t0, h.tf_msg(t0, "camera_link", OPTICAL, (0.0, 0.0, 0.0),
-                                    LINK_TO_OPTICAL_XYZW)),
+        ("/tf_static", t0, tf_msg(t0, "base_link", "camera_link", BASE_TO_LINK_XYZ,
+                                  BASE_TO_LINK_XYZW)),
+        ("/tf_static", t0, tf_msg(t0, "camera_link", OPTICAL, (0.0, 0.0, 0.0),
+                                  LINK_TO_OPTICAL_XYZW)),
     ]  # fmt: skip
     for f in frames:
         t = f.stamp_ns
         # the body's pose that puts the camera where the trajectory has it
         T_odom_base = f.cam_to_world @ np.linalg.inv(base_to_optical)
-        info = h.camera_info_msg(t, f.K, f.width, f.height)
+        info = camera_info_msg(t, f.K, f.width, f.height)
         info.header.frame_id = OPTICAL
         depth_mm = np.round(f.depth_m * 1000).astype(np.uint16)
         msgs += [
-            ("/odom", t, h.odometry_msg(t, T_odom_base, "odom", "base_link")),
+            ("/odom", t, odometry_msg(t, T_odom_base, "odom", "base_link")),
             ("/camera/color/camera_info", t, info),
-            ("/camera/color/image_raw", t, h.image_msg(t, f.rgb, "rgb8", OPTICAL)),
-            ("/camera/depth/image_raw", t, h.image_msg(t, depth_mm, "16UC1", OPTICAL)),
+            ("/camera/color/image_raw", t, image_msg(t, f.rgb, "rgb8", OPTICAL)),
+            ("/camera/depth/image_raw", t, image_msg(t, depth_mm, "16UC1", OPTICAL)),
         ]
     msgs.sort(key=lambda m: m[1])
-    bag = h.write_bag(tmp_path / "robot_bag", msgs)
+    bag = write_bag(tmp_path / "robot_bag", msgs)
     with RecordingFrames(bag) as rf:
         got = list(rf)
         assert rf.selection.pose_source == "/odom"

@@ -12,31 +12,25 @@ recording whose views mostly have none is refused in one line naming the fix.
 
 from __future__ import annotations
 
-import dataclasses
 from enum import StrEnum
 from pathlib import Path
 
 import numpy as np
 import pytest
-from rosbags.rosbag1 import Writer as Ros1Writer
-from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from scipy.spatial.transform import Rotation
 
 from care_maps.core.errors import IngestError
 from care_maps.ingest.decode import StampedTransform
 from care_maps.ingest.source import PoseFrom, ReadOptions, RecordingFrames
 from care_maps.ingest.tf import TFBuffer, Uncovered
+from tests.support.frames import load_livingroom
+from tests.support.messages import camera_info_msg, image_msg, odometry_msg, tf_msg
+from tests.support.recordings import Container, write_bag
 
 OPTICAL = "camera_color_optical_frame"
 LINK_TO_OPTICAL_XYZW = (-0.5, 0.5, -0.5, 0.5)  # REP 103: camera_link -> optical
 BASE_TO_LINK_XYZ = (0.12, -0.03, 0.45)
 BASE_TO_LINK_XYZW = tuple(Rotation.from_euler("y", 8, degrees=True).as_quat())
-
-
-class Container(StrEnum):
-    ROS1 = "ros1"
-    ROS2 = "ros2"
-    MCAP = "mcap"
 
 
 class ChainAt(StrEnum):
@@ -61,79 +55,24 @@ BASE_TO_OPTICAL = _matrix(BASE_TO_LINK_XYZ, BASE_TO_LINK_XYZW) @ _matrix(
 
 # -- writers -----------------------------------------------------------------------------
 
-
-def _ros1_store():
-    store = get_typestore(Stores.ROS1_NOETIC)
-    if "tf2_msgs/msg/TFMessage" not in store.fielddefs:  # Noetic's store has tf's only
-        store.register(
-            get_types_from_msg(
-                "geometry_msgs/TransformStamped[] transforms\n", "tf2_msgs/msg/TFMessage"
-            )
-        )
-    return store
+SUFFIX = {Container.ROS1: ".bag", Container.MCAP: ".mcap"}
 
 
-def _as_ros1(msg, store):
-    """The ROS 1 message with ``msg``'s (ROS 2) values: fields by name (CameraInfo's ``K``
-    is ROS 2's ``k``), a header with a sequence number."""
-    cls = store.types[msg.__msgtype__]
-    values = {}
-    for f in dataclasses.fields(cls):
-        if f.name == "seq":
-            values[f.name] = 0
-            continue
-        value = getattr(msg, f.name) if hasattr(msg, f.name) else getattr(msg, f.name.lower())
-        if hasattr(value, "__msgtype__"):
-            value = _as_ros1(value, store)
-        elif isinstance(value, list):
-            value = [_as_ros1(v, store) if hasattr(v, "__msgtype__") else v for v in value]
-        values[f.name] = value
-    return cls(**values)
-
-
-def _write(container: Container, path: Path, h, msgs: list) -> Path:
-    """``(topic, t_ns, message)`` into a recording of ``container`` through its real writer."""
-    if container is Container.ROS2:
-        return h.write_bag(path, msgs)
-    if container is Container.ROS1:
-        path = path.with_suffix(".bag")
-        store = _ros1_store()
-        conns = {}
-        with Ros1Writer(path) as writer:
-            for topic, t, msg in msgs:
-                ros1 = _as_ros1(msg, store)
-                if topic not in conns:
-                    conns[topic] = writer.add_connection(topic, msg.__msgtype__, typestore=store)
-                writer.write(conns[topic], t, bytes(store.serialize_ros1(ros1, msg.__msgtype__)))
-        return path
-    from mcap.writer import Writer
-
-    path = path.with_suffix(".mcap")
-    with path.open("wb") as f:
-        writer = Writer(f)
-        writer.start(profile="ros2", library="care-maps tests")
-        schemas: dict[str, int] = {}
-        channels: dict[str, int] = {}
-        for topic, t, msg in msgs:
-            kind = msg.__msgtype__
-            if kind not in schemas:
-                msgdef, _ = h.TS.generate_msgdef(kind, ros_version=2)
-                schemas[kind] = writer.register_schema(kind, "ros2msg", msgdef.encode())
-            if topic not in channels:
-                channels[topic] = writer.register_channel(topic, "cdr", schemas[kind])
-            data = bytes(h.TS.serialize_cdr(msg, kind))
-            writer.add_message(channels[topic], log_time=t, data=data, publish_time=t)
-        writer.finish()
-    return path
+def _write(container: Container, path: Path, msgs: list) -> Path:
+    """``(topic, t_ns, message)`` into a recording of ``container`` through its real writer
+    (a ROS 1 bag named ``.bag``, a rosbag2 directory, an MCAP file named ``.mcap``)."""
+    if container is not Container.ROS2:
+        path = path.with_suffix(SUFFIX[container])
+    return write_bag(path, msgs, container)
 
 
 # -- recordings --------------------------------------------------------------------------
 
 
-def _chain(h, t: int, topic: str = "/tf") -> list:
+def _chain(t: int, topic: str = "/tf") -> list:
     return [
-        (topic, t, h.tf_msg(t, "base_link", "camera_link", BASE_TO_LINK_XYZ, BASE_TO_LINK_XYZW)),
-        (topic, t, h.tf_msg(t, "camera_link", OPTICAL, (0.0, 0.0, 0.0), LINK_TO_OPTICAL_XYZW)),
+        (topic, t, tf_msg(t, "base_link", "camera_link", BASE_TO_LINK_XYZ, BASE_TO_LINK_XYZW)),
+        (topic, t, tf_msg(t, "camera_link", OPTICAL, (0.0, 0.0, 0.0), LINK_TO_OPTICAL_XYZW)),
     ]
 
 
@@ -142,25 +81,24 @@ def _body(f) -> np.ndarray:
     return f.cam_to_world @ np.linalg.inv(BASE_TO_OPTICAL)
 
 
-def _tf_pose(h, t: int, T: np.ndarray, parent: str, child: str):
+def _tf_pose(t: int, T: np.ndarray, parent: str, child: str):
     q = Rotation.from_matrix(T[:3, :3]).as_quat()
-    return h.tf_msg(t, parent, child, tuple(T[:3, 3]), tuple(q))
+    return tf_msg(t, parent, child, tuple(T[:3, 3]), tuple(q))
 
 
-def _camera(h, f, depth_per_metre: float = 1000.0) -> list:
+def _camera(f, depth_per_metre: float = 1000.0) -> list:
     t = f.stamp_ns
-    info = h.camera_info_msg(t, f.K, f.width, f.height)
+    info = camera_info_msg(t, f.K, f.width, f.height)
     info.header.frame_id = OPTICAL
     depth = np.round(f.depth_m * depth_per_metre).astype(np.uint16)
     return [
         ("/camera/color/camera_info", t, info),
-        ("/camera/color/image_raw", t, h.image_msg(t, f.rgb, "rgb8", OPTICAL)),
-        ("/camera/depth/image_raw", t, h.image_msg(t, depth, "16UC1", OPTICAL)),
+        ("/camera/color/image_raw", t, image_msg(t, f.rgb, "rgb8", OPTICAL)),
+        ("/camera/depth/image_raw", t, image_msg(t, depth, "16UC1", OPTICAL)),
     ]
 
 
 def _robot(
-    h,
     frames,
     chain_at: ChainAt = ChainAt.START,
     chain_topic: str = "/tf",
@@ -171,22 +109,22 @@ def _robot(
     stamps = [f.stamp_ns for f in frames]
     msgs = []
     if chain_at is ChainAt.START:
-        msgs += _chain(h, stamps[0], chain_topic)
+        msgs += _chain(stamps[0], chain_topic)
     elif chain_at is ChainAt.END:
-        msgs += _chain(h, stamps[-1], chain_topic)
+        msgs += _chain(stamps[-1], chain_topic)
     for f in frames:
         t = f.stamp_ns
         if chain_at is ChainAt.EVERY_FRAME:
-            msgs += _chain(h, t, chain_topic)
-        msgs.append(("/odom", t, h.odometry_msg(t, _body(f), "odom", "base_link")))
-        msgs += _camera(h, f, depth_per_metre)
+            msgs += _chain(t, chain_topic)
+        msgs.append(("/odom", t, odometry_msg(t, _body(f), "odom", "base_link")))
+        msgs += _camera(f, depth_per_metre)
     return sorted(msgs, key=lambda m: m[1])
 
 
 @pytest.fixture(scope="module")
-def frames(h, livingroom_root: Path) -> list:
+def frames(livingroom_root: Path) -> list:
     """Eight living-room frames a tenth of a second apart, with their trajectory poses."""
-    return h.load_livingroom(livingroom_root, 24)[::3]
+    return load_livingroom(livingroom_root, 24)[::3]
 
 
 def _read(bag: Path, options: ReadOptions | None = None) -> tuple[list, RecordingFrames]:
@@ -207,9 +145,9 @@ def _assert_trajectory(got, frames) -> None:
 @pytest.mark.parametrize("container", list(Container))
 @pytest.mark.parametrize("chain_at", [ChainAt.START, ChainAt.END])
 def test_a_chain_once_on_tf_with_odometry_poses_every_view(
-    tmp_path: Path, h, frames, container: Container, chain_at: ChainAt
+    tmp_path: Path, frames, container: Container, chain_at: ChainAt
 ) -> None:
-    bag = _write(container, tmp_path / "robot", h, _robot(h, frames, chain_at))
+    bag = _write(container, tmp_path / "robot", _robot(frames, chain_at))
     got, rf = _read(bag)
     assert rf.selection.pose_source == "/odom"
     assert rf.world_frame == "odom"
@@ -219,8 +157,8 @@ def test_a_chain_once_on_tf_with_odometry_poses_every_view(
     _assert_trajectory(got, frames)
 
 
-def test_a_chain_repeated_on_tf_with_every_frame_is_static_too(tmp_path: Path, h, frames) -> None:
-    bag = _write(Container.ROS2, tmp_path / "robot", h, _robot(h, frames, ChainAt.EVERY_FRAME))
+def test_a_chain_repeated_on_tf_with_every_frame_is_static_too(tmp_path: Path, frames) -> None:
+    bag = _write(Container.ROS2, tmp_path / "robot", _robot(frames, ChainAt.EVERY_FRAME))
     got, rf = _read(bag)
     assert (rf.selection.pose_source, rf.world_frame) == ("/odom", "odom")
     _assert_trajectory(got, frames)
@@ -234,10 +172,10 @@ def test_a_chain_repeated_on_tf_with_every_frame_is_static_too(tmp_path: Path, h
     [(Container.ROS2, "/tf"), (Container.ROS1, "/tf"), (Container.MCAP, "/tf_static")],
 )
 def test_a_given_pose_source_composes_with_the_chain_wherever_published(
-    tmp_path: Path, h, frames, container: Container, chain_topic: str
+    tmp_path: Path, frames, container: Container, chain_topic: str
 ) -> None:
-    msgs = _robot(h, frames, ChainAt.START, chain_topic)
-    bag = _write(container, tmp_path / "robot", h, msgs)
+    msgs = _robot(frames, ChainAt.START, chain_topic)
+    bag = _write(container, tmp_path / "robot", msgs)
     got, rf = _read(bag, ReadOptions(pose_source="/odom"))
     pose = rf.describe()["pose"]
     assert pose["from"] == PoseFrom.GIVEN
@@ -246,16 +184,16 @@ def test_a_given_pose_source_composes_with_the_chain_wherever_published(
     _assert_trajectory(got, frames)
 
 
-def test_a_given_pose_source_wins_over_tf_motion(tmp_path: Path, h, frames) -> None:
+def test_a_given_pose_source_wins_over_tf_motion(tmp_path: Path, frames) -> None:
     # TF moves base_link too (a drifting wheel odometry, 0.3 m off); /odom is the right one
     drift = np.eye(4)
     drift[0, 3] = 0.3
-    msgs = _robot(h, frames, ChainAt.START)
+    msgs = _robot(frames, ChainAt.START)
     msgs += [
-        ("/tf", f.stamp_ns, _tf_pose(h, f.stamp_ns, drift @ _body(f), "odom", "base_link"))
+        ("/tf", f.stamp_ns, _tf_pose(f.stamp_ns, drift @ _body(f), "odom", "base_link"))
         for f in frames
     ]
-    bag = _write(Container.ROS2, tmp_path / "robot", h, sorted(msgs, key=lambda m: m[1]))
+    bag = _write(Container.ROS2, tmp_path / "robot", sorted(msgs, key=lambda m: m[1]))
     # without the flag TF's own motion holds (it moves the camera, no topic is guessed)
     got, rf = _read(bag)
     assert rf.selection.pose_source is None
@@ -270,8 +208,8 @@ def test_a_given_pose_source_wins_over_tf_motion(tmp_path: Path, h, frames) -> N
     _assert_trajectory(got, frames)
 
 
-def test_care_topics_says_which_pose_source_wins(tmp_path: Path, h, frames) -> None:
-    bag = _write(Container.ROS2, tmp_path / "robot", h, _robot(h, frames, ChainAt.END))
+def test_care_topics_says_which_pose_source_wins(tmp_path: Path, frames) -> None:
+    bag = _write(Container.ROS2, tmp_path / "robot", _robot(frames, ChainAt.END))
     with RecordingFrames(bag) as rf:
         described = rf.describe()
     assert described["topics"]["pose_source"] == "/odom"
@@ -282,23 +220,23 @@ def test_care_topics_says_which_pose_source_wins(tmp_path: Path, h, frames) -> N
 # -- views without a pose: why, and a refusal naming the fix -------------------------------
 
 
-def _moving_tf_only(h, frames, posed: range, *, odom: bool) -> list:
+def _moving_tf_only(frames, posed: range, *, odom: bool) -> list:
     """The chain on /tf_static, the body on /tf for the frames in ``posed`` only; /odom
     (the whole trajectory) beside it when ``odom``."""
-    msgs = _chain(h, frames[0].stamp_ns, "/tf_static")
+    msgs = _chain(frames[0].stamp_ns, "/tf_static")
     for k, f in enumerate(frames):
         t = f.stamp_ns
         if k in posed:
-            msgs.append(("/tf", t, _tf_pose(h, t, _body(f), "odom", "base_link")))
+            msgs.append(("/tf", t, _tf_pose(t, _body(f), "odom", "base_link")))
         if odom:
-            msgs.append(("/odom", t, h.odometry_msg(t, _body(f), "odom", "base_link")))
-        msgs += _camera(h, f)
+            msgs.append(("/odom", t, odometry_msg(t, _body(f), "odom", "base_link")))
+        msgs += _camera(f)
     return sorted(msgs, key=lambda m: m[1])
 
 
-def test_views_outside_tf_are_counted_by_why(tmp_path: Path, h, frames) -> None:
-    msgs = _moving_tf_only(h, frames, range(2, 7), odom=False)
-    got, rf = _read(_write(Container.ROS2, tmp_path / "robot", h, msgs))
+def test_views_outside_tf_are_counted_by_why(tmp_path: Path, frames) -> None:
+    msgs = _moving_tf_only(frames, range(2, 7), odom=False)
+    got, rf = _read(_write(Container.ROS2, tmp_path / "robot", msgs))
     assert dict(rf.stats.dropped) == {
         Uncovered.BEFORE_FIRST.value: 2,
         Uncovered.AFTER_LAST.value: 1,
@@ -308,11 +246,9 @@ def test_views_outside_tf_are_counted_by_why(tmp_path: Path, h, frames) -> None:
 
 @pytest.mark.parametrize("odom", [True, False])
 def test_a_recording_mostly_without_poses_is_refused_naming_the_fix(
-    tmp_path: Path, h, frames, odom: bool
+    tmp_path: Path, frames, odom: bool
 ) -> None:
-    bag = _write(
-        Container.ROS2, tmp_path / "robot", h, _moving_tf_only(h, frames, range(3), odom=odom)
-    )
+    bag = _write(Container.ROS2, tmp_path / "robot", _moving_tf_only(frames, range(3), odom=odom))
     with pytest.raises(IngestError) as err, RecordingFrames(bag) as rf:
         list(rf)
     line = str(err.value)
@@ -332,15 +268,15 @@ def test_a_recording_mostly_without_poses_is_refused_naming_the_fix(
 
 
 def test_a_lone_world_transform_on_tf_is_not_stretched_over_the_recording(
-    tmp_path: Path, h, frames
+    tmp_path: Path, frames
 ) -> None:
     # map -> camera once on /tf and nothing else: more likely a moving camera's only sample
     # than a mount: it poses the views near its stamp only, and the recording is refused as
     # soon as most views surely have no pose
     t0 = frames[0].stamp_ns
-    msgs = [("/tf", t0, _tf_pose(h, t0, frames[0].cam_to_world, "map", OPTICAL))]
-    msgs += [m for f in frames for m in _camera(h, f)]
-    bag = _write(Container.ROS2, tmp_path / "lone", h, sorted(msgs, key=lambda m: m[1]))
+    msgs = [("/tf", t0, _tf_pose(t0, frames[0].cam_to_world, "map", OPTICAL))]
+    msgs += [m for f in frames for m in _camera(f)]
+    bag = _write(Container.ROS2, tmp_path / "lone", sorted(msgs, key=lambda m: m[1]))
     with pytest.raises(IngestError, match=r"^[^\n]*: 5 of 8 colour images .* have no pose") as err:
         _read(bag)
     line = str(err.value)
@@ -385,11 +321,9 @@ def test_only_transforms_that_never_change_are_static() -> None:
 # -- --depth-scale for recordings -----------------------------------------------------------
 
 
-def test_depth_in_tenths_of_a_millimetre_reads_with_depth_scale(tmp_path: Path, h, frames) -> None:
-    mm = _write(Container.ROS2, tmp_path / "mm", h, _robot(h, frames))
-    tenths = _write(
-        Container.ROS1, tmp_path / "tenths", h, _robot(h, frames, depth_per_metre=10_000)
-    )
+def test_depth_in_tenths_of_a_millimetre_reads_with_depth_scale(tmp_path: Path, frames) -> None:
+    mm = _write(Container.ROS2, tmp_path / "mm", _robot(frames))
+    tenths = _write(Container.ROS1, tmp_path / "tenths", _robot(frames, depth_per_metre=10_000))
     reference, _ = _read(mm)
     got, _ = _read(tenths, ReadOptions(depth_scale=10_000))
     _assert_trajectory(got, frames)

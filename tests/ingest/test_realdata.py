@@ -13,6 +13,7 @@ from care_maps.geometry.transforms import backproject, transform_points
 from care_maps.ingest.pipeline import run_ingest
 from care_maps.ingest.write import write_recording
 from care_maps.runtime.execution import Execution
+from tests.support.frames import load_livingroom, load_slambook
 
 FORMATS = [
     ("mcap", "rec.mcap", "sqlite3"),
@@ -24,8 +25,8 @@ LIVINGROOM_FRAMES = 20
 
 
 @pytest.fixture(scope="module")
-def livingroom(livingroom_root: Path, h) -> list:
-    return h.load_livingroom(livingroom_root, LIVINGROOM_FRAMES)
+def livingroom(livingroom_root: Path) -> list:
+    return load_livingroom(livingroom_root, LIVINGROOM_FRAMES)
 
 
 def _ingest(tmp_path: Path, frames: list, fmt: str, name: str, storage: str) -> Store:
@@ -73,9 +74,9 @@ def test_livingroom_depth_lands_on_the_same_surface(tmp_path: Path, livingroom: 
 
 @pytest.mark.parametrize(("fmt", "name", "storage"), FORMATS)
 def test_slambook_round_trip(
-    tmp_path: Path, slambook_root: Path, h, fmt: str, name: str, storage: str
+    tmp_path: Path, slambook_root: Path, fmt: str, name: str, storage: str
 ) -> None:
-    frames = h.load_slambook(slambook_root)
+    frames = load_slambook(slambook_root)
     store = _ingest(tmp_path, frames, fmt, name, storage)
     assert store.num_views == 5
     np.testing.assert_allclose(store.poses(), np.stack([f.cam_to_world for f in frames]), atol=1e-6)

@@ -9,27 +9,30 @@ import numpy as np
 import pytest
 
 from care_maps.core.store import Store
+from tests.support.frames import load_livingroom
+from tests.support.messages import camera_info_msg, image_msg
+from tests.support.recordings import write_bag
 
 pytestmark = pytest.mark.slow
 
 
 def test_run_takes_the_option_its_error_names(
-    run_cli, tmp_path: Path, h, livingroom_root: Path, save_tiny_clip
+    run_cli, tmp_path: Path, livingroom_root: Path, save_tiny_clip
 ) -> None:
     # third-party frames at a quarter of their size, no TF and no pose topic
     msgs = []
-    for f in h.load_livingroom(livingroom_root, 9)[::3]:
+    for f in load_livingroom(livingroom_root, 9)[::3]:
         t, K = f.stamp_ns, f.K.copy()
         K[:2] /= 4
         K[:2, 2] = (f.K[:2, 2] - 1.5) / 4
         rgb, depth = f.rgb[::4, ::4].copy(), f.depth_m[::4, ::4]
         msgs += [
-            ("/camera/color/camera_info", t, h.camera_info_msg(t, K, 160, 120)),
-            ("/camera/color/image_raw", t, h.image_msg(t, rgb, "rgb8")),
+            ("/camera/color/camera_info", t, camera_info_msg(t, K, 160, 120)),
+            ("/camera/color/image_raw", t, image_msg(t, rgb, "rgb8")),
             ("/camera/depth/image_raw", t,
-             h.image_msg(t, np.round(depth * 1000).astype(np.uint16), "16UC1")),
+             image_msg(t, np.round(depth * 1000).astype(np.uint16), "16UC1")),
         ]  # fmt: skip
-    bag = h.write_bag(tmp_path / "no_pose", msgs)
+    bag = write_bag(tmp_path / "no_pose", msgs)
     weights = save_tiny_clip(tmp_path / "weights", layers=2)
     args = ("run", bag, "--out", tmp_path / "out", "--encoder", "clip", "--weights", weights,
             "--vocabulary", "chair,sofa,table")  # fmt: skip

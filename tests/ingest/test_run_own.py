@@ -13,16 +13,17 @@ import pytest
 
 from care_maps.core.frames import Frame
 from care_maps.ingest.write import write_recording
+from tests.support.frames import load_livingroom
 
 pytestmark = pytest.mark.slow
 
 OFFLINE = {**os.environ, "HF_HUB_OFFLINE": "1", "TRANSFORMERS_OFFLINE": "1"}
 
 
-def _frames(livingroom_root: Path, h, start: int) -> list[Frame]:
+def _frames(livingroom_root: Path, start: int) -> list[Frame]:
     """Eight living-room frames at a quarter resolution (160 x 120)."""
     out = []
-    for f in h.load_livingroom(livingroom_root, start + 40)[start::5]:
+    for f in load_livingroom(livingroom_root, start + 40)[start::5]:
         K = f.K.copy()
         K[:2] /= 4
         K[:2, 2] = (f.K[:2, 2] - 1.5) / 4
@@ -39,14 +40,14 @@ def _care(*args) -> subprocess.CompletedProcess:
 
 @pytest.mark.slow
 def test_run_on_own_recordings_without_ground_truth(
-    tmp_path: Path, livingroom_root: Path, h, save_tiny_clip
+    tmp_path: Path, livingroom_root: Path, save_tiny_clip
 ) -> None:
     weights = save_tiny_clip(tmp_path / "weights" / "tiny-clip", layers=2)
     folder = tmp_path / "recordings"
     folder.mkdir()
-    write_recording(folder / "kitchen.mcap", _frames(livingroom_root, h, 0), fmt="mcap")
-    write_recording(folder / "hall.bag", _frames(livingroom_root, h, 40), fmt="ros1")
-    write_recording(folder / "lab", _frames(livingroom_root, h, 80), fmt="ros2")
+    write_recording(folder / "kitchen.mcap", _frames(livingroom_root, 0), fmt="mcap")
+    write_recording(folder / "hall.bag", _frames(livingroom_root, 40), fmt="ros1")
+    write_recording(folder / "lab", _frames(livingroom_root, 80), fmt="ros2")
     clip = ["--encoder", "clip", "--weights", weights, "--vocabulary", "chair,sofa,table"]
 
     one = _care("run", folder / "kitchen.mcap", "--out", tmp_path / "one", *clip)

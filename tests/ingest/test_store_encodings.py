@@ -23,6 +23,7 @@ from PIL import Image
 
 from care_maps.core.codecs import StoreEncoding
 from care_maps.fuse.keys import STORE_KEY
+from tests.support.frames import load_livingroom
 
 STORE_OWN = frozenset({"views.parquet", "features.parquet", "text.parquet"})
 COLOURS = ("r", "g", "b")
@@ -84,11 +85,11 @@ def _assert_close_colours(old: Path, new: Path) -> None:
     assert np.abs(a - b).max() <= 40
 
 
-def _livingroom(h, root: Path) -> list:
+def _livingroom(root: Path) -> list:
     from care_maps.core.frames import Frame
 
     frames = []
-    for f in h.load_livingroom(root, 40)[::5]:
+    for f in load_livingroom(root, 40)[::5]:
         K = f.K.copy()
         K[:2] /= 2
         K[:2, 2] = (f.K[:2, 2] - 0.5) / 2
@@ -100,7 +101,7 @@ def _livingroom(h, root: Path) -> list:
 @pytest.mark.slow
 @pytest.mark.parametrize("jpeg", [False, True], ids=["raw-rgb8", "jpeg"])
 def test_livingroom_maps_equal(
-    tmp_path: Path, run_cli, h, livingroom_root: Path, save_tiny_clip, jpeg: bool
+    tmp_path: Path, run_cli, livingroom_root: Path, save_tiny_clip, jpeg: bool
 ) -> None:
     """Third-party frames through the real MCAP writer, features from a CLIP checkpoint."""
     from mcap.reader import make_reader
@@ -109,7 +110,7 @@ def test_livingroom_maps_equal(
     from care_maps.ingest.write import TOPICS, write_recording
 
     recording = write_recording(
-        tmp_path / "living.mcap", _livingroom(h, livingroom_root), fmt="mcap", compressed_rgb=jpeg
+        tmp_path / "living.mcap", _livingroom(livingroom_root), fmt="mcap", compressed_rgb=jpeg
     )
     weights = save_tiny_clip(tmp_path / "weights", layers=2)
     stores = {e: tmp_path / e.value for e in StoreEncoding}

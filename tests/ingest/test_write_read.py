@@ -16,6 +16,10 @@ from care_maps.ingest.readers import open_reader
 from care_maps.ingest.source import ReadOptions, RecordingFrames
 from care_maps.ingest.write import BASE_FRAME, CAMERA_FRAME, TOPICS, WORLD_FRAME, write_recording
 from care_maps.runtime.execution import Execution
+from tests.support.encoders import TinyEncoder
+from tests.support.frames import K_SMALL, smooth_rgb, synthetic_frames
+from tests.support.messages import image_msg, odometry_msg
+from tests.support.recordings import rgbd_messages, write_bag
 
 QUIET = Execution(progress=False)
 
@@ -28,8 +32,8 @@ FORMATS = [
 
 
 @pytest.mark.parametrize(("fmt", "name", "storage"), FORMATS)
-def test_round_trip_every_format(tmp_path: Path, h, fmt: str, name: str, storage: str) -> None:
-    frames = h.synthetic_frames(5, extras=True)
+def test_round_trip_every_format(tmp_path: Path, fmt: str, name: str, storage: str) -> None:
+    frames = synthetic_frames(5, extras=True)
     path = write_recording(
         tmp_path / name,
         iter(frames),
@@ -54,9 +58,9 @@ def test_round_trip_every_format(tmp_path: Path, h, fmt: str, name: str, storage
         np.testing.assert_array_equal(b.extras["instance"], a.extras["instance"])
 
 
-def test_mcap_is_readable_by_mcap_ros2(tmp_path: Path, h) -> None:
+def test_mcap_is_readable_by_mcap_ros2(tmp_path: Path) -> None:
     """An independent decoder (mcap-ros2-support) sees the ROS layout the contract promises."""
-    frames = h.synthetic_frames(2)
+    frames = synthetic_frames(2)
     path = write_recording(tmp_path / "r.mcap", frames, fmt="mcap")
     seen: dict[str, list] = {}
     for m in read_ros2_messages(str(path)):
@@ -75,11 +79,11 @@ def test_mcap_is_readable_by_mcap_ros2(tmp_path: Path, h) -> None:
     assert (static.header.frame_id, static.child_frame_id) == (BASE_FRAME, CAMERA_FRAME)
     dyn = seen[TOPICS["tf"]][0].transforms[0]
     assert (dyn.header.frame_id, dyn.child_frame_id) == (WORLD_FRAME, BASE_FRAME)
-    np.testing.assert_allclose(np.reshape(seen[TOPICS["camera_info"]][0].k, (3, 3)), h.K_SMALL)
+    np.testing.assert_allclose(np.reshape(seen[TOPICS["camera_info"]][0].k, (3, 3)), K_SMALL)
 
 
-def test_ros1_camera_info_uses_upper_case_fields(tmp_path: Path, h) -> None:
-    path = write_recording(tmp_path / "r.bag", h.synthetic_frames(2), fmt="ros1")
+def test_ros1_camera_info_uses_upper_case_fields(tmp_path: Path) -> None:
+    path = write_recording(tmp_path / "r.bag", synthetic_frames(2), fmt="ros1")
     with open_reader(path) as reader:
         infos = [m for _, _, m in reader.messages([TOPICS["camera_info"]])]
         latched = [c for c in reader._reader.connections if c.topic == TOPICS["tf_static"]]
@@ -88,8 +92,8 @@ def test_ros1_camera_info_uses_upper_case_fields(tmp_path: Path, h) -> None:
     assert latched[0].ext.latching == 1
 
 
-def test_compressed_rgb(tmp_path: Path, h) -> None:
-    frames = h.synthetic_frames(3)
+def test_compressed_rgb(tmp_path: Path) -> None:
+    frames = synthetic_frames(3)
     path = write_recording(tmp_path / "r.mcap", frames, fmt="mcap", compressed_rgb=True)
     with RecordingFrames(path) as rf:
         assert rf.selection.rgb == TOPICS["rgb_compressed"]
@@ -98,8 +102,8 @@ def test_compressed_rgb(tmp_path: Path, h) -> None:
         assert np.abs(b.rgb.astype(int) - a.rgb).mean() < 3  # JPEG
 
 
-def test_depth_offset_within_and_beyond_max_dt(tmp_path: Path, h) -> None:
-    frames = h.synthetic_frames(6)
+def test_depth_offset_within_and_beyond_max_dt(tmp_path: Path) -> None:
+    frames = synthetic_frames(6)
     path = write_recording(tmp_path / "r.mcap", frames, fmt="mcap", depth_offset_ns=15_000_000)
     with RecordingFrames(path) as rf:
         assert len(list(rf)) == 6
@@ -113,10 +117,10 @@ def test_depth_offset_within_and_beyond_max_dt(tmp_path: Path, h) -> None:
     assert rf.stats.dropped["no_depth"] == 6
 
 
-def test_pipeline_store_meta_and_idempotence(tmp_path: Path, h) -> None:
-    frames = h.synthetic_frames(4, extras=True)
+def test_pipeline_store_meta_and_idempotence(tmp_path: Path) -> None:
+    frames = synthetic_frames(4, extras=True)
     rec = write_recording(tmp_path / "r.bag", frames, fmt="ros1", label_names=["void", "a", "b"])
-    enc = h.TinyEncoder()
+    enc = TinyEncoder()
     out = run_ingest(rec, tmp_path / "store", run=QUIET, encoder=enc)
     store = Store(out)
     assert enc.prepared_with == ("void", "a", "b")
@@ -142,21 +146,21 @@ def test_pipeline_store_meta_and_idempotence(tmp_path: Path, h) -> None:
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
 
-def test_pose_source_odometry(tmp_path: Path, h) -> None:
+def test_pose_source_odometry(tmp_path: Path) -> None:
     """A recording without TF whose pose comes from nav_msgs/Odometry of the camera frame."""
-    msgs = h.rgbd_messages(
-        lambda i, t: h.image_msg(t, h.smooth_rgb(i), "rgb8"),
-        lambda i, t: h.image_msg(t, np.full((24, 32), 2000, np.uint16), "16UC1"),
+    msgs = rgbd_messages(
+        lambda i, t: image_msg(t, smooth_rgb(i), "rgb8"),
+        lambda i, t: image_msg(t, np.full((24, 32), 2000, np.uint16), "16UC1"),
         tf=False,
     )
     for i in range(3):
         t = 10**9 + i * 100_000_000
         place = np.eye(4)
         place[:3, 3] = (float(i), 0.0, 0.5)
-        odom = h.odometry_msg(t, place, "odom", "camera_optical_frame")
+        odom = odometry_msg(t, place, "odom", "camera_optical_frame")
         msgs.append(("/odom", t, odom))
     msgs.sort(key=lambda m: m[1])
-    path = h.write_bag(tmp_path / "odom_bag", msgs)
+    path = write_bag(tmp_path / "odom_bag", msgs)
     with RecordingFrames(path) as rf:
         got = list(rf)
         assert rf.selection.pose_source == "/odom"
@@ -164,11 +168,11 @@ def test_pose_source_odometry(tmp_path: Path, h) -> None:
     np.testing.assert_allclose([f.cam_to_world[0, 3] for f in got], [0.0, 1.0, 2.0])
 
 
-def test_vocabulary_file_text_embeddings_cached(tmp_path: Path, h) -> None:
-    rec = write_recording(tmp_path / "r.mcap", h.synthetic_frames(2), fmt="mcap")
+def test_vocabulary_file_text_embeddings_cached(tmp_path: Path) -> None:
+    rec = write_recording(tmp_path / "r.mcap", synthetic_frames(2), fmt="mcap")
     vocab = tmp_path / "vocab.txt"
     vocab.write_text("# classes\nchair\nsofa table\n\nchair\n")
-    enc = h.TinyEncoder()
+    enc = TinyEncoder()
     out = run_ingest(
         rec, tmp_path / "store", IngestConfig(vocabulary=str(vocab)), run=QUIET, encoder=enc
     )

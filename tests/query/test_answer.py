@@ -13,7 +13,6 @@ on the third-party living room:
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
 import subprocess
@@ -68,14 +67,11 @@ def livingroom(shared_data: Path, tmp_path_factory: pytest.TempPathFactory) -> P
     from care_maps.ingest.pipeline import IngestConfig, run_ingest
     from care_maps.ingest.write import write_recording
     from care_maps.runtime.execution import Execution
+    from tests.support.encoders import TinyEncoder
+    from tests.support.frames import load_livingroom
 
-    spec = importlib.util.spec_from_file_location(
-        "ingest_helpers", ROOT / "tests/ingest/conftest.py"
-    )
-    helpers = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(helpers)
     frames = []
-    for f in helpers.load_livingroom(shared_data / "rgbd/livingroom1_clean_micro", 200)[::5]:
+    for f in load_livingroom(shared_data / "rgbd/livingroom1_clean_micro", 200)[::5]:
         k = f.K.copy()
         k[:2] /= 2
         k[:2, 2] = (f.K[:2, 2] - 0.5) / 2
@@ -85,7 +81,7 @@ def livingroom(shared_data: Path, tmp_path_factory: pytest.TempPathFactory) -> P
     rec = write_recording(root / "rec.mcap", frames, fmt="mcap")
     config = IngestConfig(vocabulary="tv,sofa,table,lamp")
     store = run_ingest(
-        rec, root / "store", config, run=Execution(progress=False), encoder=helpers.TinyEncoder()
+        rec, root / "store", config, run=Execution(progress=False), encoder=TinyEncoder()
     )
     build_grid(store, GridConfig(cell_size=0.05, stride=2))
     return store

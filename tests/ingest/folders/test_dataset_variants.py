@@ -14,6 +14,7 @@ from care_maps.ingest.folders.eth3d import Eth3dLayout
 from care_maps.ingest.folders.frames import FolderFrames
 from care_maps.ingest.folders.sevenscenes import SevenScenesLayout
 from care_maps.ingest.source import ReadOptions
+from tests.support import layouts
 
 
 @pytest.fixture
@@ -25,8 +26,8 @@ def _matching(folder) -> set[DatasetLayout]:
     return {kind for kind, cls in LAYOUTS.items() if cls.detect(folder)}
 
 
-def test_eth3d_reads_its_calibration_and_associations(tmp_path, frames, lay) -> None:
-    folder = lay.eth3d(tmp_path / "sofa_1", frames)
+def test_eth3d_reads_its_calibration_and_associations(tmp_path, frames) -> None:
+    folder = layouts.eth3d(tmp_path / "sofa_1", frames)
     assert _matching(folder) == {DatasetLayout.ETH3D}
     # depth.txt's stamps half a second off: only associated.txt pairs the images
     lines = (folder / "depth.txt").read_text().splitlines()
@@ -49,10 +50,8 @@ def test_eth3d_reads_its_calibration_and_associations(tmp_path, frames, lay) -> 
     assert detect_layout(folder) == DatasetLayout.TUM
 
 
-def test_bonn_uses_its_camera_and_turns_the_marker_poses_into_the_camera(
-    tmp_path, frames, lay
-) -> None:
-    folder = lay.bonn(tmp_path / "rgbd_bonn_livingroom", frames)
+def test_bonn_uses_its_camera_and_turns_the_marker_poses_into_the_camera(tmp_path, frames) -> None:
+    folder = layouts.bonn(tmp_path / "rgbd_bonn_livingroom", frames)
     assert _matching(folder) == {DatasetLayout.BONN}
     with FolderFrames(folder) as opened:
         described = opened.describe()["topics"]
@@ -72,14 +71,16 @@ def test_bonn_uses_its_camera_and_turns_the_marker_poses_into_the_camera(
     for view, frame in zip(views, frames, strict=True):
         np.testing.assert_allclose(view.cam_to_world, frame.cam_to_world, atol=1e-3)
     # the marker poses as written are not the camera's: read as TUM they are far off
-    tum = lay.tum(tmp_path / "rgbd_dataset_freiburg3_livingroom", frames, lay.bonn_marker_pose)
+    tum = layouts.tum(
+        tmp_path / "rgbd_dataset_freiburg3_livingroom", frames, layouts.bonn_marker_pose
+    )
     with FolderFrames(tum) as opened:
         first = next(iter(opened))
     assert np.abs(first.cam_to_world[:3, :3] - frames[0].cam_to_world[:3, :3]).max() > 0.1
 
 
-def test_seven_scenes_reads_its_frames(tmp_path, frames, lay) -> None:
-    folder = lay.seven_scenes(tmp_path / "chess" / "seq-01", frames)
+def test_seven_scenes_reads_its_frames(tmp_path, frames) -> None:
+    folder = layouts.seven_scenes(tmp_path / "chess" / "seq-01", frames)
     assert _matching(folder) == {DatasetLayout.SEVEN_SCENES}
     assert detect_layout(tmp_path / "chess") is None
     (folder / "frame-000004.pose.txt").write_text("inf inf inf inf\n" * 4)  # tracking lost

@@ -19,6 +19,7 @@ from care_maps.ingest.folders.generic import read_intrinsics_json
 from care_maps.ingest.readers import is_recording, recordings_in
 from care_maps.ingest.source import ReadOptions
 from care_maps.ingest.write import write_recording
+from tests.support import layouts
 
 
 @pytest.fixture
@@ -36,8 +37,8 @@ def _one_line_error(run_cli, *args) -> str:
     return lines[0]
 
 
-def test_a_missing_poses_file_is_named(tmp_path, frames, lay, run_cli) -> None:
-    folder = lay.tum(tmp_path / "rgbd_dataset_livingroom", frames)
+def test_a_missing_poses_file_is_named(tmp_path, frames, run_cli) -> None:
+    folder = layouts.tum(tmp_path / "rgbd_dataset_livingroom", frames)
     (folder / "groundtruth.txt").unlink()
     out = tmp_path / "store"
     line = _one_line_error(run_cli, "ingest", folder, "--out", out, "--intrinsics", "primesense")
@@ -45,10 +46,10 @@ def test_a_missing_poses_file_is_named(tmp_path, frames, lay, run_cli) -> None:
     assert not (tmp_path / "store").exists()
 
 
-def test_a_tum_folder_without_a_camera_is_refused(tmp_path, frames, lay, run_cli) -> None:
+def test_a_tum_folder_without_a_camera_is_refused(tmp_path, frames, run_cli) -> None:
     """No sensor in the name, no intrinsics.json, no --intrinsics: no default camera is
     guessed; care topics and care ingest both say what to give."""
-    folder = lay.tum(tmp_path / "rgbd_dataset_livingroom", frames)
+    folder = layouts.tum(tmp_path / "rgbd_dataset_livingroom", frames)
     for command in (("topics", folder), ("ingest", folder, "--out", tmp_path / "store")):
         line = _one_line_error(run_cli, *command)
         assert f"{folder}: the folder's name names no TUM sensor" in line
@@ -60,20 +61,20 @@ def test_a_tum_folder_without_a_camera_is_refused(tmp_path, frames, lay, run_cli
     assert "'source': '--intrinsics'" in out
 
 
-def test_a_pose_count_that_differs_from_the_images_is_named(tmp_path, frames, lay, run_cli):
-    scene = lay.replica(tmp_path / "Replica", frames)
+def test_a_pose_count_that_differs_from_the_images_is_named(tmp_path, frames, run_cli):
+    scene = layouts.replica(tmp_path / "Replica", frames)
     lines = (scene / "traj.txt").read_text().splitlines()
     (scene / "traj.txt").write_text("\n".join(lines[:-1]) + "\n")
     line = _one_line_error(run_cli, "topics", scene)
     assert "traj.txt: 3 poses for 4 colour images" in line
-    folder = lay.redwood(tmp_path / "redwood", frames)
+    folder = layouts.redwood(tmp_path / "redwood", frames)
     (folder / "depth" / "00003.png").unlink()
     line = _one_line_error(run_cli, "ingest", folder, "--out", tmp_path / "store")
     assert "4 colour images, 3 depth images, 4 poses" in line
 
 
-def test_an_unreadable_image_is_named(tmp_path, frames, lay, run_cli) -> None:
-    folder = lay.redwood(tmp_path / "redwood", frames)
+def test_an_unreadable_image_is_named(tmp_path, frames, run_cli) -> None:
+    folder = layouts.redwood(tmp_path / "redwood", frames)
     image = folder / "image" / "00002.jpg"
     image.write_bytes(image.read_bytes()[:200])  # truncated
     line = _one_line_error(run_cli, "ingest", folder, "--out", tmp_path / "store")
@@ -81,8 +82,8 @@ def test_an_unreadable_image_is_named(tmp_path, frames, lay, run_cli) -> None:
     assert not (tmp_path / "store").exists()
 
 
-def test_a_malformed_line_is_named_with_its_number(tmp_path, frames, lay) -> None:
-    folder = lay.generic(tmp_path / "generic", frames)
+def test_a_malformed_line_is_named_with_its_number(tmp_path, frames) -> None:
+    folder = layouts.generic(tmp_path / "generic", frames)
     lines = (folder / "poses.txt").read_text().splitlines()
     lines[2] = lines[2] + " 1.0"
     (folder / "poses.txt").write_text("\n".join(lines) + "\n")
@@ -90,9 +91,9 @@ def test_a_malformed_line_is_named_with_its_number(tmp_path, frames, lay) -> Non
         FolderFrames(folder).__enter__()
 
 
-def test_a_folder_of_two_layouts_names_both_and_the_option(tmp_path, frames, lay, run_cli):
-    folder = lay.generic(tmp_path / "both", frames)
-    redwood = lay.redwood(tmp_path / "redwood", frames)
+def test_a_folder_of_two_layouts_names_both_and_the_option(tmp_path, frames, run_cli):
+    folder = layouts.generic(tmp_path / "both", frames)
+    redwood = layouts.redwood(tmp_path / "redwood", frames)
     (folder / "trajectory.log").write_bytes((redwood / "trajectory.log").read_bytes())
     line = _one_line_error(run_cli, "topics", folder)
     assert "more than one dataset layout (redwood, generic)" in line
@@ -103,8 +104,8 @@ def test_a_folder_of_two_layouts_names_both_and_the_option(tmp_path, frames, lay
     assert is_recording(folder)  # one recording: ingest says which layout to pick
 
 
-def test_a_lost_pose_is_skipped_and_counted(tmp_path, frames, lay) -> None:
-    scene = lay.replica(tmp_path / "Replica", frames)
+def test_a_lost_pose_is_skipped_and_counted(tmp_path, frames) -> None:
+    scene = layouts.replica(tmp_path / "Replica", frames)
     lines = (scene / "traj.txt").read_text().splitlines()
     lines[1] = " ".join(["-inf"] * 16)  # tracking lost, as ScanNet writes it
     (scene / "traj.txt").write_text("\n".join(lines) + "\n")
@@ -116,8 +117,8 @@ def test_a_lost_pose_is_skipped_and_counted(tmp_path, frames, lay) -> None:
     assert stats.rgb_messages == 4
 
 
-def test_a_pose_that_is_not_rigid_or_jumps_is_refused(tmp_path, frames, lay) -> None:
-    scene = lay.replica(tmp_path / "Replica", frames)
+def test_a_pose_that_is_not_rigid_or_jumps_is_refused(tmp_path, frames) -> None:
+    scene = layouts.replica(tmp_path / "Replica", frames)
     lines = (scene / "traj.txt").read_text().splitlines()
     values = [float(v) for v in lines[2].split()]
     (scene / "traj.txt").write_text(
@@ -133,8 +134,8 @@ def test_a_pose_that_is_not_rigid_or_jumps_is_refused(tmp_path, frames, lay) -> 
         list(FolderFrames(scene).__enter__())
 
 
-def test_options_of_recordings_are_refused_for_a_folder(tmp_path, frames, lay, run_cli):
-    folder = lay.redwood(tmp_path / "redwood", frames)
+def test_options_of_recordings_are_refused_for_a_folder(tmp_path, frames, run_cli):
+    folder = layouts.redwood(tmp_path / "redwood", frames)
     line = _one_line_error(run_cli, "topics", folder, "--rgb", "/camera/rgb", "--static-pose")
     assert "--rgb, --static-pose only apply to recordings" in line
     bag = write_recording(tmp_path / "rec.mcap", frames, fmt="mcap")
@@ -144,17 +145,17 @@ def test_options_of_recordings_are_refused_for_a_folder(tmp_path, frames, lay, r
         FolderFrames(tmp_path, ReadOptions(format=None)).__enter__()
 
 
-def test_a_forced_layout_says_what_the_folder_lacks(tmp_path, frames, lay, run_cli) -> None:
-    folder = lay.redwood(tmp_path / "redwood", frames)
+def test_a_forced_layout_says_what_the_folder_lacks(tmp_path, frames, run_cli) -> None:
+    folder = layouts.redwood(tmp_path / "redwood", frames)
     line = _one_line_error(run_cli, "topics", folder, "--format", "generic")
     assert "intrinsics.json: missing" in line
 
 
-def test_scene_folders_are_recordings_for_care_run(tmp_path, frames, lay) -> None:
+def test_scene_folders_are_recordings_for_care_run(tmp_path, frames) -> None:
     release = tmp_path / "Replica"
-    lay.replica(release, frames, "room0")
-    lay.replica(release, frames, "room1")
-    lay.tum(release / "rgbd_dataset_livingroom", frames)
+    layouts.replica(release, frames, "room0")
+    layouts.replica(release, frames, "room1")
+    layouts.tum(release / "rgbd_dataset_livingroom", frames)
     write_recording(release / "hall.mcap", frames, fmt="mcap")
     assert detect_layout(release / "room0") == DatasetLayout.REPLICA
     assert not is_recording(release)
@@ -167,8 +168,8 @@ def test_scene_folders_are_recordings_for_care_run(tmp_path, frames, lay) -> Non
     ]  # fmt: skip
 
 
-def test_a_replica_render_of_another_size_needs_its_camera(tmp_path, frames, lay, run_cli):
-    scene = lay.replica(tmp_path / "Replica", frames)
+def test_a_replica_render_of_another_size_needs_its_camera(tmp_path, frames, run_cli):
+    scene = layouts.replica(tmp_path / "Replica", frames)
     (tmp_path / "Replica" / "cam_params.json").unlink()  # NICE-SLAM's 1200x680 camera
     line = _one_line_error(run_cli, "ingest", scene, "--out", tmp_path / "store")
     assert "640x480 image, but the intrinsics (NICE-SLAM replica.yaml) are for 1200x680" in line
@@ -192,8 +193,8 @@ def _rewrite_json(folder, **fields) -> None:
     path.write_text(json.dumps(data))
 
 
-def test_stamps_in_nanoseconds_are_refused_at_read(tmp_path, frames, lay, run_cli) -> None:
-    folder = lay.generic(tmp_path / "generic", frames)
+def test_stamps_in_nanoseconds_are_refused_at_read(tmp_path, frames, run_cli) -> None:
+    folder = layouts.generic(tmp_path / "generic", frames)
     lines = (folder / "poses.txt").read_text().splitlines()
     ns = [f"{f.stamp_ns + 1_700_000_000 * 10**9} {line.split(maxsplit=1)[1]}"
           for f, line in zip(frames, lines, strict=True)]  # fmt: skip
@@ -205,10 +206,10 @@ def test_stamps_in_nanoseconds_are_refused_at_read(tmp_path, frames, lay, run_cl
     assert "internal error" not in line
 
 
-def test_a_16_bit_grey_colour_image_is_scaled_to_8_bit(tmp_path, frames, lay) -> None:
+def test_a_16_bit_grey_colour_image_is_scaled_to_8_bit(tmp_path, frames) -> None:
     """A 16-bit grey PNG (Pillow's I;16) is read as its values scaled by 255/65535, the same
     grey in three channels, not clipped at 255 (all white)."""
-    folder = lay.generic(tmp_path / "generic", frames[:1])
+    folder = layouts.generic(tmp_path / "generic", frames[:1])
     grey16 = (np.arange(480 * 640, dtype=np.int64).reshape(480, 640) * 211) % 65536
     Image.fromarray(grey16.astype(np.uint16)).save(folder / "rgb" / "000000.png")
     with FolderFrames(folder) as opened:
@@ -221,9 +222,9 @@ def test_a_16_bit_grey_colour_image_is_scaled_to_8_bit(tmp_path, frames, lay) ->
 
 
 def test_a_view_of_another_size_is_refused_without_width_and_height(
-    tmp_path, frames, lay, run_cli
+    tmp_path, frames, run_cli
 ) -> None:
-    folder = lay.generic(tmp_path / "generic", frames)
+    folder = layouts.generic(tmp_path / "generic", frames)
     _rewrite_json(folder, width=None, height=None)
     image = folder / "rgb" / "000002.png"
     Image.fromarray(frames[2].rgb[:240, :320]).save(image)
@@ -234,8 +235,8 @@ def test_a_view_of_another_size_is_refused_without_width_and_height(
 
 
 @pytest.mark.parametrize("value", ["Infinity", "NaN", "0", "-5", '"mm"'])
-def test_a_bad_depth_scale_is_named(tmp_path, frames, lay, run_cli, value: str) -> None:
-    folder = lay.generic(tmp_path / "generic", frames)
+def test_a_bad_depth_scale_is_named(tmp_path, frames, run_cli, value: str) -> None:
+    folder = layouts.generic(tmp_path / "generic", frames)
     path = folder / "intrinsics.json"
     text = path.read_text().replace('"depth_scale": 1000.0', f'"depth_scale": {value}')
     path.write_text(text)
@@ -246,8 +247,8 @@ def test_a_bad_depth_scale_is_named(tmp_path, frames, lay, run_cli, value: str) 
 
 
 @pytest.mark.parametrize(("field", "value"), [("fx", "Infinity"), ("cy", "NaN"), ("fy", "0")])
-def test_a_camera_that_is_not_one_is_named(tmp_path, frames, lay, field: str, value: str):
-    folder = lay.generic(tmp_path / "generic", frames)
+def test_a_camera_that_is_not_one_is_named(tmp_path, frames, field: str, value: str):
+    folder = layouts.generic(tmp_path / "generic", frames)
     path = folder / "intrinsics.json"
     data = json.loads(path.read_text())
     text = path.read_text().replace(f'"{field}": {data[field]}', f'"{field}": {value}')

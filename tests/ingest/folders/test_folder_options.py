@@ -1,8 +1,9 @@
 """What a user states about a dataset folder (``--intrinsics``, ``--depth-scale``,
 ``--pose-convention``, ``--quaternion-order``, ``--camera-convention``) is taken by every
 layout, recorded in what the store is read as, and refused in one line where a layout has
-nothing it could mean. The folders are the living-room frames written by conftest's writers,
-their poses rewritten here in the stated convention from the frames' own poses."""
+nothing it could mean. The folders are the living-room frames written by the writers of
+``tests/support/layouts.py``, their poses rewritten here in the stated convention from the
+frames' own poses."""
 
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from care_maps.core.errors import IngestError
 from care_maps.ingest.folders.frames import FOLDER_OPTIONS, FolderFrames, folder_identity
 from care_maps.ingest.intrinsics import CameraIntrinsics
 from care_maps.ingest.source import ReadOptions
+from tests.support import layouts
 
 OPTICAL_IN_BODY = np.array(
     [[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
@@ -58,8 +60,8 @@ def _poses(got) -> np.ndarray:
     return np.stack([f.cam_to_world for f in got])
 
 
-def test_world_to_camera_wxyz_poses_from_the_file_or_the_options(tmp_path, frames, lay):
-    folder = lay.generic(tmp_path / "generic", frames)
+def test_world_to_camera_wxyz_poses_from_the_file_or_the_options(tmp_path, frames):
+    folder = layouts.generic(tmp_path / "generic", frames)
     truth = np.stack([f.cam_to_world for f in frames])
     default = folder_identity(folder, ReadOptions())
     _write_poses(folder, frames, lambda f: np.linalg.inv(f.cam_to_world), order="wxyz")
@@ -84,28 +86,28 @@ def test_world_to_camera_wxyz_poses_from_the_file_or_the_options(tmp_path, frame
         _read(folder)
 
 
-def test_body_frame_poses_are_turned_into_the_optical_frame(tmp_path, frames, lay) -> None:
-    folder = lay.generic(tmp_path / "generic", frames)
+def test_body_frame_poses_are_turned_into_the_optical_frame(tmp_path, frames) -> None:
+    folder = layouts.generic(tmp_path / "generic", frames)
     _write_poses(folder, frames, lambda f: f.cam_to_world @ np.linalg.inv(OPTICAL_IN_BODY))
     got, described = _read(folder, camera_convention="body")
     np.testing.assert_allclose(_poses(got), [f.cam_to_world for f in frames], atol=1e-6)
     assert described["camera_convention"] == "body"
 
 
-def test_depth_scale_overrides_the_layouts(tmp_path, frames, lay) -> None:
-    folder = lay.generic(tmp_path / "generic", frames)  # millimetres
+def test_depth_scale_overrides_the_layouts(tmp_path, frames) -> None:
+    folder = layouts.generic(tmp_path / "generic", frames)  # millimetres
     _set_json(folder, depth_scale=5000.0)  # and a file that says otherwise
     got, described = _read(folder, depth_scale=1000.0)
     np.testing.assert_allclose(got[0].depth_m, frames[0].depth_m, atol=5e-4)
     assert described["depth_scale"] == 1000.0
-    redwood = lay.redwood(tmp_path / "redwood", frames)
+    redwood = layouts.redwood(tmp_path / "redwood", frames)
     got, described = _read(redwood, depth_scale=500.0)
     np.testing.assert_allclose(got[0].depth_m, 2 * frames[0].depth_m, atol=1e-3)
     assert described["depth_scale"] == 500.0
 
 
-def test_intrinsics_replace_the_layouts_camera(tmp_path, frames, lay) -> None:
-    redwood = lay.redwood(tmp_path / "redwood", frames)
+def test_intrinsics_replace_the_layouts_camera(tmp_path, frames) -> None:
+    redwood = layouts.redwood(tmp_path / "redwood", frames)
     default = folder_identity(redwood, ReadOptions())
     got, described = _read(redwood, intrinsics="500,501,320,240")
     assert (got[0].K[0, 0], got[0].K[1, 1], got[0].K[0, 2], got[0].K[1, 2]) == (500, 501, 320, 240)
@@ -121,7 +123,7 @@ def test_intrinsics_replace_the_layouts_camera(tmp_path, frames, lay) -> None:
     plain, _ = _read(redwood, intrinsics="517.3,516.5,318.6,255.3")
     assert np.abs(got[0].rgb.astype(int) - plain[0].rgb.astype(int)).mean() > 1.0
     # a generic folder needs no intrinsics.json when the camera is given (millimetres)
-    generic = lay.generic(tmp_path / "generic", frames)
+    generic = layouts.generic(tmp_path / "generic", frames)
     (generic / "intrinsics.json").unlink()
     got, described = _read(generic, intrinsics="primesense")
     assert described["depth_scale"] == 1000.0
@@ -142,19 +144,19 @@ def test_named_cameras() -> None:
         CameraIntrinsics.from_text("kinect")
 
 
-def test_tum_sensor_by_its_short_name(tmp_path, frames, lay) -> None:
-    folder = lay.tum(tmp_path / "fr3_livingroom", frames)
+def test_tum_sensor_by_its_short_name(tmp_path, frames) -> None:
+    folder = layouts.tum(tmp_path / "fr3_livingroom", frames)
     got, described = _read(folder)
     assert (got[0].K[0, 0], got[0].K[1, 1]) == (535.4, 539.2)
     assert described["intrinsics"]["source"] == "TUM freiburg3"
     for name in ("rgbd_dataset_livingroom", "frame3_room", "fr33_room"):
-        folder = lay.tum(tmp_path / name, frames[:2])
+        folder = layouts.tum(tmp_path / name, frames[:2])
         with pytest.raises(IngestError, match=r"names no TUM sensor.*--intrinsics"):
             _read(folder)
 
 
-def test_options_a_layout_cannot_take_are_refused(tmp_path, frames, lay, run_cli) -> None:
-    redwood = lay.redwood(tmp_path / "redwood", frames)
+def test_options_a_layout_cannot_take_are_refused(tmp_path, frames, run_cli) -> None:
+    redwood = layouts.redwood(tmp_path / "redwood", frames)
     with pytest.raises(IngestError, match=r"--quaternion-order speaks of pose lines.*redwood"):
         _read(redwood, quaternion_order="wxyz")
     code, _, err = run_cli("topics", redwood, "--quaternion-order", "wxyz")

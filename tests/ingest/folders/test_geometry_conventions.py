@@ -22,6 +22,8 @@ from care_maps.ingest.pipeline import IngestConfig, run_ingest
 from care_maps.ingest.source import ReadOptions
 from care_maps.ingest.write import write_recording
 from care_maps.runtime.execution import Execution
+from tests.support import layouts
+from tests.support.encoders import TinyEncoder
 
 QUIET = Execution(progress=False)
 CELL = 0.05
@@ -32,10 +34,10 @@ def _cells(store: Path) -> set[tuple[int, int]]:
     return set(zip(table.column("ix").to_pylist(), table.column("iy").to_pylist(), strict=True))
 
 
-def _build(h, source: Path, out: Path, **read: object) -> str | None:
+def _build(source: Path, out: Path, **read: object) -> str | None:
     config = IngestConfig(read=ReadOptions(**read), vocabulary="red,green,blue")
     try:
-        run_ingest(source, out, config, run=QUIET, encoder=h.TinyEncoder())
+        run_ingest(source, out, config, run=QUIET, encoder=TinyEncoder())
     except IngestError as err:
         assert not out.exists()
         return str(err)
@@ -44,10 +46,10 @@ def _build(h, source: Path, out: Path, **read: object) -> str | None:
 
 
 @pytest.fixture(scope="module")
-def reference(tmp_path_factory, livingroom40, h) -> set:
+def reference(tmp_path_factory, livingroom40) -> set:
     root = tmp_path_factory.mktemp("ref")
     bag = write_recording(root / "rec.mcap", livingroom40, fmt="mcap")
-    assert _build(h, bag, root / "store") is None
+    assert _build(bag, root / "store") is None
     return _cells(root / "store")
 
 
@@ -108,32 +110,32 @@ CASES = {
 @pytest.mark.slow
 @pytest.mark.parametrize("case", list(CASES))
 def test_a_generic_folder_in_another_convention_is_refused_and_the_named_option_fixes_it(
-    tmp_path, livingroom40, lay, h, reference, case: str
+    tmp_path, livingroom40, reference, case: str
 ) -> None:
     make, named, fix = CASES[case]
-    folder = lay.generic(tmp_path / "generic", livingroom40)
+    folder = layouts.generic(tmp_path / "generic", livingroom40)
     make(folder)
-    line = _build(h, folder, tmp_path / "bad")
+    line = _build(folder, tmp_path / "bad")
     assert line is not None
     assert "\n" not in line
     assert line.startswith(str(folder))
     assert named in line, line
-    assert _build(h, folder, tmp_path / "fixed", **fix) is None
+    assert _build(folder, tmp_path / "fixed", **fix) is None
     cells = _cells(tmp_path / "fixed")
     assert len(cells ^ reference) <= 0.01 * len(reference)
 
 
 @pytest.mark.slow
 def test_tum_depth_under_a_millimetre_camera_file_is_a_depth_scale_mistake(
-    tmp_path, livingroom40, lay, h, reference
+    tmp_path, livingroom40, reference
 ) -> None:
-    folder = lay.tum(tmp_path / "rgbd_dataset_fr3_livingroom", livingroom40)
+    folder = layouts.tum(tmp_path / "rgbd_dataset_fr3_livingroom", livingroom40)
     K = livingroom40[0].K
     camera = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "depth_scale": 1000}
     (folder / "intrinsics.json").write_text(json.dumps(camera))
-    line = _build(h, folder, tmp_path / "bad")
+    line = _build(folder, tmp_path / "bad")
     assert line is not None
     assert "depth reads 5 times too large" in line
     assert "--depth-scale 5000" in line
-    assert _build(h, folder, tmp_path / "fixed", depth_scale=5000.0) is None
+    assert _build(folder, tmp_path / "fixed", depth_scale=5000.0) is None
     assert len(_cells(tmp_path / "fixed") ^ reference) <= 0.01 * len(reference)

@@ -1,10 +1,11 @@
 """Dataset folders as downloaded give the map their frames give as a recording: the same 40
 living-room frames laid out as Redwood, TUM RGB-D, ETH3D SLAM, Bonn RGB-D Dynamic, 7-Scenes,
-Replica (NICE-SLAM) and our generic layout, each in its dataset's own conventions (conftest),
-and written as an MCAP bag by the real writer. Every store has the bag's views and poses, and
-the same grid, cell for cell within 1%. Where the dataset's own camera is not the living
-room's (TUM without a sensor in the folder's name, Bonn, 7-Scenes) the living room's is
-given with --intrinsics, as a user of such frames would."""
+Replica (NICE-SLAM) and our generic layout, each in its dataset's own conventions
+(``tests/support/layouts.py``), and written as an MCAP bag by the real writer. Every store
+has the bag's views and poses, and the same grid, cell for cell within 1%. Where the
+dataset's own camera is not the living room's (TUM without a sensor in the folder's name,
+Bonn, 7-Scenes) the living room's is given with --intrinsics, as a user of such frames
+would."""
 
 from __future__ import annotations
 
@@ -25,6 +26,8 @@ from care_maps.ingest.pipeline import IngestConfig, run_ingest
 from care_maps.ingest.source import ReadOptions
 from care_maps.ingest.write import write_recording
 from care_maps.runtime.execution import Execution
+from tests.support import layouts
+from tests.support.encoders import TinyEncoder
 
 QUIET = Execution(progress=False)
 PRIMESENSE = FolderOptions.of(ReadOptions(intrinsics="primesense"))
@@ -39,7 +42,7 @@ FOLDERS = {
     "replica": ("replica", "Replica"),
     "generic": ("generic", "generic"),
 }
-"""Writer (conftest) and folder name of each layout."""
+"""Writer (``tests/support/layouts.py``) and folder name of each layout."""
 LIVING_ROOM_CAMERA = {
     "tum": "primesense",
     "bonn": "primesense",
@@ -48,10 +51,10 @@ LIVING_ROOM_CAMERA = {
 """``--intrinsics`` of the layouts whose own camera is not the living room's."""
 
 
-def write_layout(lay, layout: str, root: Path, frames) -> Path:
+def write_layout(layout: str, root: Path, frames) -> Path:
     """``frames`` in ``layout`` under ``root`` (Replica: the scene inside its release)."""
     writer, name = FOLDERS[layout]
-    return getattr(lay, writer)(root / name, frames)
+    return getattr(layouts, writer)(root / name, frames)
 
 
 def read_options(layout: str) -> ReadOptions:
@@ -59,19 +62,19 @@ def read_options(layout: str) -> ReadOptions:
 
 
 @pytest.fixture(scope="module")
-def sources(tmp_path_factory, livingroom40, lay) -> dict[str, Path]:
+def sources(tmp_path_factory, livingroom40) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("layouts")
-    written = {name: write_layout(lay, name, root, livingroom40) for name in LAYOUTS}
+    written = {name: write_layout(name, root, livingroom40) for name in LAYOUTS}
     return {"bag": write_recording(root / "rec.mcap", livingroom40, fmt="mcap"), **written}
 
 
 @pytest.fixture(scope="module")
-def stores(sources, tmp_path_factory, h) -> dict[str, Path]:
+def stores(sources, tmp_path_factory) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("stores")
     out = {}
     for name, source in sources.items():
         config = IngestConfig(vocabulary="red,green,blue", read=read_options(name))
-        out[name] = run_ingest(source, root / name, config, run=QUIET, encoder=h.TinyEncoder())
+        out[name] = run_ingest(source, root / name, config, run=QUIET, encoder=TinyEncoder())
         build_grid(out[name], GridConfig(cell_size=CELL, stride=2), run=QUIET)
     return out
 
@@ -87,10 +90,10 @@ def _cells(store: Path) -> set[tuple[int, int]]:
     return set(zip(table.column("ix").to_pylist(), table.column("iy").to_pylist(), strict=True))
 
 
-def test_each_layout_is_detected_by_its_names(tmp_path, livingroom40, lay) -> None:
+def test_each_layout_is_detected_by_its_names(tmp_path, livingroom40) -> None:
     frames = livingroom40[:2]
     for name in LAYOUTS:
-        folder = write_layout(lay, name, tmp_path, frames)
+        folder = write_layout(name, tmp_path, frames)
         found = [kind for kind, cls in ALL_LAYOUTS.items() if cls.detect(folder)]
         assert found == [DatasetLayout(name)], (name, found)  # one layout per folder
         assert detect_layout(folder) == DatasetLayout(name)
@@ -118,18 +121,16 @@ def test_a_dataset_folder_gives_the_bags_views_and_grid(stores, layout: str) -> 
     assert len(ours ^ bag) <= 0.01 * len(bag), (len(ours), len(bag), len(ours ^ bag))
 
 
-def test_tum_associates_depth_and_interpolates_the_ground_truth(
-    tmp_path, livingroom40, lay
-) -> None:
+def test_tum_associates_depth_and_interpolates_the_ground_truth(tmp_path, livingroom40) -> None:
     frames = livingroom40[:16]
-    folder = lay.tum(tmp_path / "rgbd_dataset_livingroom", frames)
+    folder = layouts.tum(tmp_path / "rgbd_dataset_livingroom", frames)
     layout = TumLayout(folder, max_dt=0.02, options=PRIMESENSE)
     views = layout.views()
     assert len(views) == 16
     assert not layout.dropped
     first = frames[0]
     for view, frame in zip(views, frames, strict=True):
-        seconds = lay.tum_seconds(frame, first)
+        seconds = layouts.tum_seconds(frame, first)
         assert view.colour.name == f"{seconds:.6f}.png"
         assert view.depth.name == f"{seconds + 0.007:.6f}.png"  # the depth 7 ms later
         assert view.stamp_ns == round(seconds * 1e6) * 1000  # microseconds, exactly
@@ -138,8 +139,8 @@ def test_tum_associates_depth_and_interpolates_the_ground_truth(
     assert not TumLayout(folder, max_dt=0.005, options=PRIMESENSE).views()
 
 
-def test_tum_drops_colour_without_depth_or_ground_truth(tmp_path, livingroom40, lay) -> None:
-    folder = lay.tum(tmp_path / "rgbd_dataset_livingroom", livingroom40[:12])
+def test_tum_drops_colour_without_depth_or_ground_truth(tmp_path, livingroom40) -> None:
+    folder = layouts.tum(tmp_path / "rgbd_dataset_livingroom", livingroom40[:12])
     depth = (folder / "depth.txt").read_text().splitlines()
     (folder / "depth.txt").write_text("\n".join(depth[:3] + depth[4:]) + "\n")  # image 0's
     gt = (folder / "groundtruth.txt").read_text().splitlines()
@@ -156,9 +157,9 @@ def test_tum_drops_colour_without_depth_or_ground_truth(tmp_path, livingroom40, 
     assert stats.frames == len(got)
 
 
-def test_tum_camera_from_the_folder_name_or_intrinsics_json(tmp_path, livingroom40, lay) -> None:
+def test_tum_camera_from_the_folder_name_or_intrinsics_json(tmp_path, livingroom40) -> None:
     frames = livingroom40[:3]
-    fr1 = lay.tum(tmp_path / "rgbd_dataset_freiburg1_xyz", frames)
+    fr1 = layouts.tum(tmp_path / "rgbd_dataset_freiburg1_xyz", frames)
     with open_frames(fr1) as opened:
         assert isinstance(opened, FolderFrames)
         K = next(iter(opened)).K
@@ -176,12 +177,12 @@ def test_tum_camera_from_the_folder_name_or_intrinsics_json(tmp_path, livingroom
 
 
 @pytest.mark.slow
-def test_a_forced_layout_equal_to_the_detected_one_keeps_the_store(stores, sources, h) -> None:
+def test_a_forced_layout_equal_to_the_detected_one_keeps_the_store(stores, sources) -> None:
     before = (stores["redwood"] / "meta.json").read_bytes()
     config = IngestConfig(
         vocabulary="red,green,blue", read=ReadOptions(format=DatasetLayout.REDWOOD)
     )
-    run_ingest(sources["redwood"], stores["redwood"], config, run=QUIET, encoder=h.TinyEncoder())
+    run_ingest(sources["redwood"], stores["redwood"], config, run=QUIET, encoder=TinyEncoder())
     assert (stores["redwood"] / "meta.json").read_bytes() == before
 
 
@@ -208,7 +209,7 @@ def test_care_ingest_and_topics_read_the_living_room_folder_as_it_is(
 @pytest.mark.slow
 @pytest.mark.parametrize("layout", ["replica", "redwood", "tum", "generic"])
 def test_care_run_maps_a_dataset_folder(
-    tmp_path: Path, livingroom40, lay, run_cli, save_tiny_clip, layout: str
+    tmp_path: Path, livingroom40, run_cli, save_tiny_clip, layout: str
 ) -> None:
     """`care run` on a scene folder of each layout: one recording, mapped, not evaluated
     (no ground truth beside it). ScanNet and Matterport3D folders, with their ground truth:
@@ -225,9 +226,9 @@ def test_care_run_maps_a_dataset_folder(
         rgb, depth = f.rgb[::4, ::4].copy(), f.depth_m[::4, ::4].copy()
         small.append(Frame(f.stamp_ns, rgb, depth, K, f.cam_to_world))
     if layout == "replica":
-        scene = lay.replica(tmp_path / "Replica", small, "room0")
+        scene = layouts.replica(tmp_path / "Replica", small, "room0")
     else:
-        scene = getattr(lay, layout)(tmp_path / "room0", small)
+        scene = getattr(layouts, layout)(tmp_path / "room0", small)
     if layout == "tum":  # frames of another size than the benchmark's Kinects: their camera
         K = small[0].K
         camera = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2]}

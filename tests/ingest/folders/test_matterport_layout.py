@@ -35,6 +35,8 @@ from care_maps.runtime.execution import Execution
 from care_maps.truth.formats.common import from_labelled_points
 from care_maps.truth.formats.matterport import write_matterport
 from care_maps.truth.load import GtFormat
+from tests.support.encoders import TinyEncoder
+from tests.support.frames import load_livingroom
 
 HOUSE = "17DRP5sb8fy"
 COLOUR, DEPTH, CAMERAS = (
@@ -118,8 +120,8 @@ def write_house(root: Path, frames: list[Frame], unzip: Unzip = Unzip.FLAT) -> P
 
 
 @pytest.fixture(scope="module")
-def living(livingroom_root: Path, h) -> list[Frame]:
-    return h.load_livingroom(livingroom_root, 2 * N)[::2]
+def living(livingroom_root: Path) -> list[Frame]:
+    return load_livingroom(livingroom_root, 2 * N)[::2]
 
 
 @pytest.fixture(scope="module")
@@ -251,16 +253,14 @@ def _cells(store: Path) -> set[tuple[int, int]]:
 
 
 @pytest.mark.slow
-def test_the_house_gives_the_bags_grid(house: Path, living: list[Frame], tmp_path: Path, h) -> None:
+def test_the_house_gives_the_bags_grid(house: Path, living: list[Frame], tmp_path: Path) -> None:
     """Ingested as a folder, the house has the views and poses of its cropped frames written
     as an MCAP bag, and the same grid within 1% of its cells."""
     bag = write_recording(tmp_path / "rec.mcap", _as_cropped(living), fmt="mcap")
     stores = {}
     for name, source in (("bag", bag), ("matterport", house)):
         config = IngestConfig(vocabulary="red,green,blue")
-        stores[name] = run_ingest(
-            source, tmp_path / name, config, run=QUIET, encoder=h.TinyEncoder()
-        )
+        stores[name] = run_ingest(source, tmp_path / name, config, run=QUIET, encoder=TinyEncoder())
         build_grid(stores[name], GridConfig(cell_size=0.05, stride=2), run=QUIET)
     assert Store(stores["matterport"]).meta.topics["layout"] == "matterport"
     poses = {

@@ -33,6 +33,8 @@ from care_maps.ingest.pipeline import IngestConfig, run_ingest
 from care_maps.ingest.write import write_recording
 from care_maps.runtime.execution import Execution
 from care_maps.truth.load import GtFormat
+from tests.support.encoders import TinyEncoder
+from tests.support.frames import load_livingroom
 
 SCENE = "scene0000_00"
 COLOUR_SIZE = (1296, 968)
@@ -87,8 +89,8 @@ def write_export(folder: Path, frames: list[Frame]) -> Path:
 
 
 @pytest.fixture(scope="module")
-def living(livingroom_root: Path, h) -> list[Frame]:
-    return h.load_livingroom(livingroom_root, 3 * N)[::3]
+def living(livingroom_root: Path) -> list[Frame]:
+    return load_livingroom(livingroom_root, 3 * N)[::3]
 
 
 @pytest.fixture(scope="module")
@@ -241,7 +243,7 @@ def _cells(store: Path) -> set[tuple[int, int]]:
 
 @pytest.mark.slow
 def test_the_scene_folder_gives_the_bags_grid(
-    scene: Path, living: list[Frame], tmp_path: Path, h
+    scene: Path, living: list[Frame], tmp_path: Path
 ) -> None:
     """Ingested as a folder, the scene has the views and poses of the same frames written as
     an MCAP bag (the lost one left out), and the same grid within 1% of its cells."""
@@ -250,9 +252,7 @@ def test_the_scene_folder_gives_the_bags_grid(
     stores = {}
     for name, source in sources.items():
         config = IngestConfig(vocabulary="red,green,blue")
-        stores[name] = run_ingest(
-            source, tmp_path / name, config, run=QUIET, encoder=h.TinyEncoder()
-        )
+        stores[name] = run_ingest(source, tmp_path / name, config, run=QUIET, encoder=TinyEncoder())
         build_grid(stores[name], GridConfig(cell_size=0.05, stride=2), run=QUIET)
     store = Store(stores["scannet"])
     assert store.meta.topics["layout"] == "scannet"
