@@ -10,9 +10,11 @@ how the simulated model reads them), at least 20 scenes each.
    generator's statistics and its CLIP-likeness table (measured against published targets).
 2. The full evaluation of each world (every strategy, criterion and k, both instance
    protocols, both grid protocols: radius 0 and 1 m), with the pre-registered tables.
-3. The necessary condition: each measure's AUROC at equal confidence
-   (:mod:`care_maps.research.discrimination`).
-4. The coverage of the paired intervals in a null simulation (:mod:`care_maps.research.coverage`).
+3. What each measure adds to confidence inside its set: its AUROC over right and wrong
+   candidates matched on confidence, with confidence's own AUROC in the same pairs and
+   scene-level intervals (:mod:`care_maps.research.discrimination`).
+4. The coverage of the paired intervals in a null simulation, and the sign-flip test's level and
+   coverage where it can fail (:mod:`care_maps.research.coverage`).
 5. The sweep of perception settings (:mod:`care_maps.research.sweep`) on :data:`SWEEP_SEED`, with
    as many scenes a point as Holm over all its comparisons needs to be able to reject
    (:data:`SWEEP_SCENES`).
@@ -103,9 +105,10 @@ def evaluate(dataset: Path) -> Path:
 
 
 def discriminate(dataset: Path) -> Path:
-    """Each measure's AUROC over the dataset (``dataset/eval/discrimination.parquet``)."""
+    """Each measure's AUROC over the dataset (``dataset/eval/discrimination.parquet``); a
+    table written before the matched pairs (no ``auroc_matched`` column) is made again."""
     path = dataset / "eval" / "discrimination.parquet"
-    if not path.is_file():
+    if not path.is_file() or "auroc_matched" not in pq.read_schema(path).names:
         write_table_atomic(discrimination_table(scenes_of(dataset)), path)
     return path
 
@@ -296,7 +299,7 @@ def section(datasets: dict[str, Path], coverage: str, sweep_png: Path | None) ->
             "#### Headline: the paper's settings against max confidence\n",
             headline_markdown(ev),
             preregistered_markdown(*tables).replace("## Pre-registered", "#### Pre-registered"),
-            "#### The necessary condition: AUROC of each measure at equal confidence\n",
+            "#### What each measure adds to confidence: AUROC in pairs matched on confidence\n",
             discrimination_markdown(pq.read_table(ev / "discrimination.parquet"), PAPER_SETTINGS),
         ]
     if sweep_png is not None:
@@ -339,9 +342,17 @@ def main() -> None:
         timed(f"{world}: evaluate", evaluate, ds)
         timed(f"{world}: AUROC", discriminate, ds)
         datasets[world] = ds
-    from care_maps.research.coverage import coverage_markdown, coverage_table
+    from care_maps.research.coverage import (
+        coverage_markdown,
+        coverage_table,
+        scenario_markdown,
+        scenario_table,
+    )
 
-    coverage = timed("coverage simulation", lambda: coverage_markdown(coverage_table()))
+    coverage = timed(
+        "coverage simulation",
+        lambda: coverage_markdown(coverage_table()) + "\n\n" + scenario_markdown(scenario_table()),
+    )
     png = None
     if not args.no_sweep:
         sweep_ds = out / f"sweep-{SWEEP_WORLD}-{SWEEP_SEED}"
