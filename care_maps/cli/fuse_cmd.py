@@ -52,7 +52,9 @@ InstancesRecomputeOpt = Annotated[
 
 
 fuse_app = typer.Typer(
-    help="Build maps (grid, instances) from a feature store.", no_args_is_help=True
+    help="Build maps (grid, instances) from a feature store.",
+    no_args_is_help=True,
+    rich_markup_mode=None,
 )
 
 

@@ -111,28 +111,55 @@ app = typer.Typer(
     no_args_is_help=True,
     pretty_exceptions_enable=False,
     add_completion=False,
+    rich_markup_mode=None,
 )
 
 
-def _register() -> None:
-    from care_maps.cli import (
-        check_cmd,
-        eval_cmd,
-        explore_cmd,
-        frame_cmd,
-        fuse_cmd,
-        ingest_cmd,
-        query_cmd,
-        run_cmd,
-        sample_cmd,
-    )
+@app.callback()
+def _group() -> None:
+    # a callback keeps `care` a group of commands when a run registers one command alone
+    # (typer runs a lone command as the program itself, without its name)
+    pass
 
-    for module in (
-        ingest_cmd, sample_cmd, fuse_cmd, query_cmd, eval_cmd, run_cmd, explore_cmd, frame_cmd,
-        check_cmd,
-    ):  # fmt: skip
-        module.register(app)
+
+COMMAND_MODULES: dict[str, str] = {
+    "ingest": "ingest_cmd",
+    "topics": "ingest_cmd",
+    "sample": "sample_cmd",
+    "fuse": "fuse_cmd",
+    "query": "query_cmd",
+    "replan": "query_cmd",
+    "eval": "eval_cmd",
+    "run": "run_cmd",
+    "explore": "explore_cmd",
+    "frame": "frame_cmd",
+    "check": "check_cmd",
+}
+"""Which module of :mod:`care_maps.cli` registers each command, in ``care --help``'s order:
+a run of one command imports that module alone (the others' stages cost start-up it does
+not need). ``tests/care_cli/test_registration.py`` checks it against what each module
+registers."""
+_registered: set[str] = set()
+
+
+def _register(command: str | None = None) -> None:
+    """Register the module of ``command`` on :data:`app`, or every module (``None`` or a name
+    no module registers: ``--help`` and the usage error list them all). Registering twice
+    is a no-op."""
+    import importlib
+
+    wanted = COMMAND_MODULES.get(command or "")
+    for name in dict.fromkeys(COMMAND_MODULES.values()):
+        if name in _registered or (wanted is not None and name != wanted):
+            continue
+        importlib.import_module(f"care_maps.cli.{name}").register(app)
+        _registered.add(name)
     _plain_help(app)
+
+
+def _command(argv: list[str]) -> str | None:
+    """The command named on a command line (its first word that is not an option)."""
+    return next((arg for arg in argv if not arg.startswith("-")), None)
 
 
 def _plain_help(typer_app: typer.Typer) -> None:
@@ -321,13 +348,16 @@ def _main() -> None:
         use_threads(
             Work.DEFAULT
         )  # thread pools sized by kind of work (see care_maps.runtime.threads)
-        _register()
+        _register(_command(sys.argv[1:]))
         command = typer.main.get_command(app)
         finite_numbers(command)  # NaN and infinities are usage errors, for every option
         code = command(standalone_mode=False)
         if code == _INTERRUPTED:  # typer turns Ctrl-C into exit code 130, silently
             raise KeyboardInterrupt
         sys.exit(code if isinstance(code, int) else 0)
+    except click_errors.NoArgsIsHelpError as err:  # `care`, `care fuse`: the help, exit 2
+        typer.echo(err.format_message())
+        sys.exit(err.exit_code)
     except click_errors.ClickException as err:  # usage: a bad option value, a missing argument
         if not err.format_message().strip():  # no arguments: the help was shown
             sys.exit(err.exit_code)

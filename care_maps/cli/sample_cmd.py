@@ -24,6 +24,7 @@ sample_app = typer.Typer(
     name="sample",
     help="Procedural sample world: scenes with ground truth, rendered into real recordings.",
     no_args_is_help=True,
+    rich_markup_mode=None,
 )
 
 

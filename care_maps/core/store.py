@@ -423,6 +423,34 @@ def _readable(path: Path) -> Path:
     return path
 
 
+def as_numpy(column: pa.Array | pa.ChunkedArray) -> np.ndarray:
+    """A numeric or boolean Arrow column as a NumPy array, read from its buffers.
+
+    ``to_numpy`` converts through pyarrow's pandas path, which imports pandas on its first
+    call (0.2 s): a query would pay that at every start. Numbers and booleans without nulls
+    (every column a query reads) are viewed from their data buffer instead, read-only like
+    ``to_numpy``'s zero-copy view; anything else goes through ``to_numpy``.
+    """
+    if isinstance(column, pa.ChunkedArray):
+        column = column.combine_chunks()
+    kind = column.type
+    if column.null_count or not (
+        pa.types.is_integer(kind) or pa.types.is_floating(kind) or pa.types.is_boolean(kind)
+    ):
+        return column.to_numpy(zero_copy_only=False)
+    if pa.types.is_boolean(kind):  # bit-packed, least significant bit first
+        if len(column) == 0:
+            return np.zeros(0, dtype=bool)
+        bits = np.unpackbits(np.frombuffer(column.buffers()[1], np.uint8), bitorder="little")
+        return bits[column.offset : column.offset + len(column)].astype(bool)
+    dtype = np.dtype(kind.to_pandas_dtype())
+    if len(column) == 0:
+        return np.zeros(0, dtype=dtype)
+    return np.frombuffer(
+        column.buffers()[1], dtype=dtype, count=len(column), offset=column.offset * dtype.itemsize
+    )
+
+
 def read_table(path: Path, columns: Sequence[str] | None = None) -> pa.Table:
     """Read a Parquet table of this project, refusing missing files and other schema versions.
 
@@ -993,7 +1021,7 @@ class Store:
         """(V, 4, 4) camera poses in view order: camera-to-map (``in_map``), or camera-to-world
         as recorded."""
         col = self.views(["cam_to_world"]).column("cam_to_world").combine_chunks()
-        poses = col.values.to_numpy().reshape(-1, 4, 4)
+        poses = as_numpy(col.values).reshape(-1, 4, 4)
         frame = self.map_frame if in_map else None
         return poses if frame is None or frame.is_identity else frame.map_from_world @ poses
 
@@ -1008,7 +1036,7 @@ class Store:
     def intrinsics(self) -> np.ndarray:
         """(V, 3, 3) intrinsics in view order."""
         col = self.views(["K"]).column("K").combine_chunks()
-        return col.values.to_numpy().reshape(-1, 3, 3)
+        return as_numpy(col.values).reshape(-1, 3, 3)
 
     def iter_frames(
         self,
@@ -1129,7 +1157,7 @@ class Store:
         path = self.table_path("text")
         table = read_table(path)
         names = table.column("name").to_pylist()
-        emb = table.column("embedding").combine_chunks().values.to_numpy()
+        emb = as_numpy(table.column("embedding").combine_chunks().values)
         emb = emb.reshape(len(names), -1).astype(np.float32)
         dim = None if self.meta.encoder is None else self.meta.encoder.dim
         if dim is not None and names and emb.shape[1] != dim:

@@ -35,6 +35,7 @@ from care_maps.core.fingerprint import fingerprint as content_fingerprint
 from care_maps.core.keys import LOGIT_SCALE_KEY, VOCABULARY_KEY
 from care_maps.core.maps import MapKind
 from care_maps.core.outputs import rebuild_hint, temporary
+from care_maps.core.store import as_numpy
 from care_maps.fuse.keys import STORE_KEY, config_key
 
 __all__ = [
@@ -119,12 +120,12 @@ class SidecarWriter:
             ("feature", self._feature, "<f2"),
             ("top_classes", self._top, "<i2"),
         ):
-            values = chunk.column(name).combine_chunks().flatten().to_numpy(zero_copy_only=False)
+            values = as_numpy(chunk.column(name).combine_chunks().flatten())
             out.write(np.ascontiguousarray(values, dtype=dtype).tobytes())
         if self.num_classes == 0:
             self._rows += n
             return
-        logp = chunk.column("log_confidence").combine_chunks().flatten().to_numpy()
+        logp = as_numpy(chunk.column("log_confidence").combine_chunks().flatten())
         logp = logp.reshape(n, self.num_classes).astype("<f4")
         for y in range(self.num_classes):  # class-major: one seek per class and chunk
             self._logp.seek(self._logp_start + 4 * (y * self.n + self._rows))

@@ -35,7 +35,7 @@ import pyarrow.parquet as pq
 from care_maps.core.errors import QueryError
 from care_maps.core.frames import DEFAULT_WORLD_FRAME, check_frame_id
 from care_maps.core.keys import GRID_SHAPE_KEY
-from care_maps.core.store import META_FILE, StoreMeta, read_map_frame, read_table
+from care_maps.core.store import META_FILE, StoreMeta, as_numpy, read_map_frame, read_table
 from care_maps.fuse.layout import CELLS_TABLE, GridLayout
 from care_maps.query.map import CandidateMap
 from care_maps.query.publish import MAP_FRAME_ID, FramePlan, frame_plan
@@ -263,9 +263,9 @@ class FreeSpace:
             return None
         layout = GridLayout.from_table(header)
         cells = read_table(path, columns)
-        ix = cells.column("ix").to_numpy().astype(np.int64)
-        iy = cells.column("iy").to_numpy().astype(np.int64)
-        obstacle = cells.column("obstacle").to_numpy(zero_copy_only=False).astype(bool)
+        ix = as_numpy(cells.column("ix")).astype(np.int64)
+        iy = as_numpy(cells.column("iy")).astype(np.int64)
+        obstacle = as_numpy(cells.column("obstacle")).astype(bool)
         return cls.from_cells(layout, ix, iy, obstacle)
 
     def approach(
@@ -349,7 +349,7 @@ class GoalMaker:
         config = config or GoalConfig()
         views = store / "views.parquet"
         stamps = (
-            read_table(views, ["stamp_ns"]).column("stamp_ns").to_numpy() if views.is_file() else []
+            as_numpy(read_table(views, ["stamp_ns"]).column("stamp_ns")) if views.is_file() else []
         )
         plan = cls.plan(store, config.frame_id)
         frame = read_map_frame(store)

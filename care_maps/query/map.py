@@ -22,7 +22,7 @@ import pyarrow as pa
 from care_maps.core.errors import QueryError
 from care_maps.core.keys import ENCODER_NAME_KEY, GRID_CELL_SIZE_KEY
 from care_maps.core.maps import MapKind
-from care_maps.core.store import META_FILE, Store, read_schema, read_table
+from care_maps.core.store import META_FILE, Store, as_numpy, read_schema, read_table
 from care_maps.fuse.provenance import MAIN_TABLES, check_map_files
 from care_maps.fuse.schemas import QUERY_COLUMNS, schema_problems
 from care_maps.fuse.sidecar import read_sidecar
@@ -63,7 +63,7 @@ def list_column(table: pa.Table, name: str, dtype: type = np.float32) -> np.ndar
     col = table.column(name).combine_chunks()
     if len(col) == 0:
         return np.zeros((0, 0), dtype=dtype)
-    flat = col.flatten().to_numpy(zero_copy_only=False).astype(dtype, copy=False)
+    flat = as_numpy(col.flatten()).astype(dtype, copy=False)
     if flat.size % len(col):
         msg = f"column {name!r}: rows have different lengths; the map table is malformed, rebuild it with `care fuse`"
         raise QueryError(msg)
@@ -73,8 +73,8 @@ def list_column(table: pa.Table, name: str, dtype: type = np.float32) -> np.ndar
 def _ragged(table: pa.Table, name: str) -> tuple[np.ndarray, np.ndarray]:
     """A variable-length ``list<int32>`` column as (offsets (N+1,), values)."""
     col = table.column(name).combine_chunks()
-    offsets = col.offsets.to_numpy().astype(np.int64)
-    values = col.values.to_numpy(zero_copy_only=False).astype(np.int64)
+    offsets = as_numpy(col.offsets).astype(np.int64)
+    values = as_numpy(col.values).astype(np.int64)
     return offsets - offsets[0], values[offsets[0] : offsets[-1]]
 
 
@@ -344,7 +344,7 @@ def map_from_table(
         features, top = sidecar["feature"], sidecar["top_classes"]
     if kind == MapKind.GRID:
         positions = np.stack(
-            [table.column(c).to_numpy().astype(np.float32) for c in ("x", "y", "z_max")], axis=1
+            [as_numpy(table.column(c)).astype(np.float32) for c in ("x", "y", "z_max")], axis=1
         ).reshape(n_cand, 3)
         offsets, indices = np.zeros(n_cand + 1, np.int64), np.zeros(0, np.int64)
         cell = md.get(GRID_CELL_SIZE_KEY)
@@ -353,7 +353,7 @@ def map_from_table(
         positions = list_column(table, "center", np.float32).reshape(n_cand, 3)
         offsets, indices = _ragged(table, "point_indices")
         cell_size = None
-    ids = table.column("candidate_id").to_numpy()
+    ids = as_numpy(table.column("candidate_id"))
     if not np.array_equal(ids, np.arange(n_cand)):
         msg = f"{where}: candidate_id is not 0..N-1 in row order; rebuild the map with `care fuse`"
         raise QueryError(msg)
@@ -363,12 +363,12 @@ def map_from_table(
         text=np.asarray(text, dtype=np.float32).reshape(len(vocabulary), -1),
         logit_scale=scale,
         features=features.reshape(n_cand, -1),
-        log_norm=table.column("log_norm").to_numpy().astype(np.float32),
+        log_norm=as_numpy(table.column("log_norm")).astype(np.float32),
         top_classes=top,
-        entropy=table.column("entropy").to_numpy().astype(np.float32),
-        stderr=table.column("stderr").to_numpy().astype(np.float32),
-        pwkl=table.column("pwkl").to_numpy().astype(np.float32),
-        num_views=table.column("num_views").to_numpy().astype(np.int32),
+        entropy=as_numpy(table.column("entropy")).astype(np.float32),
+        stderr=as_numpy(table.column("stderr")).astype(np.float32),
+        pwkl=as_numpy(table.column("pwkl")).astype(np.float32),
+        num_views=as_numpy(table.column("num_views")).astype(np.int32),
         positions=positions,
         point_offsets=offsets,
         point_indices=indices,

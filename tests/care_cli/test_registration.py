@@ -1,0 +1,61 @@
+"""The command index of ``care``: a run of one command imports only the module that
+registers it, so the index must name exactly what each module registers."""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+import subprocess
+import sys
+
+import typer
+
+import care_maps.cli
+from care_maps.cli.main import COMMAND_MODULES
+
+
+def _names(module: str) -> set[str]:
+    """The commands and groups ``module`` registers on a fresh app."""
+    fresh = typer.Typer()
+    importlib.import_module(f"care_maps.cli.{module}").register(fresh)
+    commands = {c.name for c in fresh.registered_commands}
+    groups = {g.name for g in fresh.registered_groups}
+    return {n for n in commands | groups if n is not None}
+
+
+def test_the_index_names_what_each_module_registers() -> None:
+    modules = sorted(
+        m.name for m in pkgutil.iter_modules(care_maps.cli.__path__) if m.name.endswith("_cmd")
+    )
+    assert sorted(set(COMMAND_MODULES.values())) == modules
+    for module in modules:
+        indexed = {name for name, owner in COMMAND_MODULES.items() if owner == module}
+        assert _names(module) == indexed, module
+
+
+def test_one_command_imports_its_own_module_alone() -> None:
+    code = (
+        "import sys\n"
+        "from care_maps.cli import main as cli\n"
+        "sys.argv = ['care', 'query', '--help']\n"
+        "try:\n"
+        "    cli.main()\n"
+        "except SystemExit:\n"
+        "    pass\n"
+        "print(sorted(m for m in sys.modules if m.startswith('care_maps.cli.') and m.endswith('_cmd')))\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    ).stdout
+    assert out.strip().splitlines()[-1] == "['care_maps.cli.query_cmd']"
+
+
+def test_help_lists_every_command() -> None:
+    out = subprocess.run(
+        [sys.executable, "-m", "care_maps.cli.main", "--help"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
+    listed = {line.split()[0] for line in out.split("Commands:")[1].splitlines() if line.strip()}
+    assert listed == set(COMMAND_MODULES)
