@@ -16,8 +16,8 @@ from typing import Annotated, Any, NoReturn, cast
 
 import typer
 
-from care_maps.cli.choices import MapKind
 from care_maps.cli.options import Options, config_options, point_xy, with_choices
+from care_maps.core.maps import MapKind
 from care_maps.query.goals import GoalConfig
 from care_maps.query.paths import PathConfig
 from care_maps.replan.attempts import Choice, ReplanConfig
