@@ -348,7 +348,7 @@ class GoalMaker:
         store = Path(store)
         config = config or GoalConfig()
         views = store / "views.parquet"
-        stamps = (
+        stamps: np.ndarray | list[int] = (
             as_numpy(read_table(views, ["stamp_ns"]).column("stamp_ns")) if views.is_file() else []
         )
         plan = cls.plan(store, config.frame_id)

@@ -63,7 +63,7 @@ def list_column(table: pa.Table, name: str, dtype: type = np.float32) -> np.ndar
     col = table.column(name).combine_chunks()
     if len(col) == 0:
         return np.zeros((0, 0), dtype=dtype)
-    flat = as_numpy(col.flatten()).astype(dtype, copy=False)
+    flat: np.ndarray = as_numpy(col.flatten()).astype(dtype, copy=False)
     if flat.size % len(col):
         msg = f"column {name!r}: rows have different lengths; the map table is malformed, rebuild it with `care fuse`"
         raise QueryError(msg)
