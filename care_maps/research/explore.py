@@ -18,25 +18,29 @@ encoded by the same perception model (stamps after the recording's, so its per-v
 are fresh), added to the recording's views in a new store (:class:`care_maps.core.store.StoreWriter`)
 and fused again. Every store is evaluated on the same grid queries (class protocol, per room,
 ``care eval``'s success rule): the first attempt (max confidence) and two attempts of max
-confidence. Comparisons are paired over the same queries: the exact McNemar test
-(:func:`care_maps.evaluate.paired.compare`) and, with queries clustered in scenes, an exact sign-flip
-test over the scenes' mean differences (every sign pattern; ``docs/method.md``).
+confidence. Comparisons are paired over the same queries with scenes as the units (queries
+of one scene share a map): the scene-level sign-flip test of
+:mod:`care_maps.evaluate.scene_test`, its inverted 95% interval, Holm over the scene p-values of
+the five comparisons of a table, and the equivalence test within
+:data:`~care_maps.evaluate.scene_test.EQUIVALENCE_MARGIN` (Holm alike); a row reads as
+:func:`care_maps.evaluate.report.preregistered.reading` says (a difference only from its Holm p,
+"within +-3 points" only from the equivalence test, else "not shown to differ").
 
-    python -m care_maps.research.explore OUT [--scenes 8] [--views 8] [--seed 20]
+    python -m care_maps.research.explore OUT [--scenes 40] [--views 8] [--seed 20]
 """
 
 from __future__ import annotations
 
 import argparse
-import itertools
 import math
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from enum import StrEnum
 from pathlib import Path
+from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
 from care_maps.core.encoders import EncoderOptions, make_encoder
 from care_maps.core.encoders.base import RecordingContext
@@ -44,7 +48,15 @@ from care_maps.core.maps import MapKind
 from care_maps.core.store import Store, StoreMeta, StoreWriter
 from care_maps.core.vocab import STRUCTURE_NAMES
 from care_maps.evaluate.job import EvalConfig, Scene, evaluate_scene
-from care_maps.evaluate.paired import compare, comparison_rng
+from care_maps.evaluate.paired import compare, comparison_rng, holm
+from care_maps.evaluate.report.paired import INTERVAL_NOTE, difference_text
+from care_maps.evaluate.report.preregistered import reading
+from care_maps.evaluate.scene_test import (
+    ALPHA,
+    EQUIVALENCE_MARGIN,
+    EXACT_MAX_SCENES,
+    N_SIGN_FLIPS,
+)
 from care_maps.fuse.grid import GridConfig, build_grid
 from care_maps.ingest.pipeline import IngestConfig, run_ingest
 from care_maps.query.confidence import log_confidence
@@ -65,12 +77,14 @@ from care_maps.world.render import RenderConfig, Renderer
 from care_maps.world.scene import SceneConfig, generate_scene
 
 __all__ = [
+    "PAIRS",
     "Condition",
     "ExperimentConfig",
+    "comparison_lines",
+    "comparison_rows",
     "main",
     "random_views",
     "run_experiment",
-    "sign_flip_p",
     "top_confidence_values",
 ]
 
@@ -84,12 +98,23 @@ class Condition(StrEnum):
     TOP_CONFIDENCE = "top_confidence"
 
 
+PAIRS: tuple[tuple[Condition, Condition], ...] = (
+    (Condition.EXPLORE, Condition.BEFORE),
+    (Condition.RANDOM, Condition.BEFORE),
+    (Condition.TOP_CONFIDENCE, Condition.BEFORE),
+    (Condition.EXPLORE, Condition.RANDOM),
+    (Condition.EXPLORE, Condition.TOP_CONFIDENCE),
+)
+"""The comparisons (A, B) of each table: one Holm family."""
+
+
 @dataclass(frozen=True)
 class ExperimentConfig:
     """The scenes and the budget of the experiment."""
 
-    scenes: int = 8
-    """Matterport-like scenes."""
+    scenes: int = 40
+    """Matterport-like scenes: about 2,700 grid queries, for 95% intervals of about +-2
+    points (``docs/explore.md``)."""
     seed: int = 20
     """Dataset seed (scene i: :func:`care_maps.world.record.scene_seed`); 20 is the preset's own."""
     views: int = ExploreConfig.views
@@ -138,17 +163,6 @@ def random_views(
         camera = look_at([x, y, inputs.camera_height], target)
         out.append(Viewpoint((x, y), float(yaw), camera, target, -1, 0.0, 0))
     return out
-
-
-def sign_flip_p(diffs: npt.ArrayLike) -> float:
-    """Two-sided exact sign-flip p-value of ``mean(diffs)`` (one difference per scene):
-    the share of the 2^S sign patterns whose |mean| reaches the observed one."""
-    d = np.asarray(diffs, np.float64)
-    if not len(d) or not np.any(d):
-        return 1.0
-    signs = np.array(list(itertools.product((1.0, -1.0), repeat=len(d))))
-    stats = np.abs(signs @ d)
-    return float(np.mean(stats >= abs(d.sum()) - 1e-12))
 
 
 def _record(out: Path, index: int, config: ExperimentConfig) -> tuple[Path, SceneConfig]:
@@ -253,14 +267,75 @@ def _scene(out: Path, index: int, config: ExperimentConfig) -> tuple[dict, dict]
     return outcomes, {c: len(v) for c, v in chosen.items()}
 
 
-def _line(name: str, a: np.ndarray, b: np.ndarray, scene: np.ndarray, seed: int) -> str:
-    """One comparison as a table row: rates, difference, discordant pairs, both tests."""
-    res = compare(a, b, rng=comparison_rng(seed, name), n_resamples=0)
-    per_scene = [float(np.mean(a[scene == s] - b[scene == s])) for s in np.unique(scene)]
-    return (
-        f"| {name} | {100 * res.rate_a:.1f} | {100 * res.rate_b:.1f} | {100 * res.diff:+.1f} "
-        f"| {res.only_a:.0f} / {res.only_b:.0f} | {res.p_value:.3g} | {sign_flip_p(per_scene):.3g} |"
-    )
+def comparison_rows(
+    outcomes: Mapping[Condition, np.ndarray],
+    scene: np.ndarray,
+    *,
+    seed: int,
+    pairs: Sequence[tuple[Condition, Condition]] = PAIRS,
+) -> list[dict[str, Any]]:
+    """One row per pair ``(A, B)`` of ``outcomes`` (per-query success, aligned; ``scene``:
+    each query's scene), as :func:`care_maps.evaluate.report.preregistered.reading` reads rows:
+    rates, difference and its 95% interval in points, the discordant queries, the scene-level
+    sign-flip p and equivalence p (:func:`care_maps.evaluate.scene_test.scene_signflip`), both
+    Holm-corrected over ``pairs`` (one family), whether the family's scenes can reject at all,
+    and the reading."""
+    rows: list[dict[str, Any]] = []
+    for a, b in pairs:
+        name = f"{a} vs {b}"
+        res = compare(outcomes[a], outcomes[b], rng=comparison_rng(seed, name), groups=scene)
+        test = res.scene
+        assert test is not None  # groups given: the scene test always runs
+        rows.append(
+            {
+                "comparison": name,
+                "rate_a": 100 * res.rate_a,
+                "rate_b": 100 * res.rate_b,
+                "diff": 100 * res.diff,
+                "lo": 100 * res.lo,
+                "hi": 100 * res.hi,
+                "only_a": res.only_a,
+                "only_b": res.only_b,
+                "scenes": test.scenes,
+                "effective_scenes": test.effective,
+                "scene_p": test.p_value,
+                "scene_mc_error": test.mc_error,
+                "scene_min_p": test.min_p,
+                "equivalence_p": test.equivalence_p,
+            }
+        )
+    adjusted = holm(np.array([r["scene_p"] for r in rows]))
+    equivalent = holm(np.array([r["equivalence_p"] for r in rows]))
+    can_reject = bool(min((r["scene_min_p"] for r in rows), default=1.0) <= ALPHA / len(rows))
+    for row, p, q in zip(rows, adjusted, equivalent, strict=True):
+        row.update(holm_p=float(p), holm_equivalence_p=float(q), family_can_reject=can_reject)
+        row["reading"] = str(reading(row))
+    return rows
+
+
+def comparison_lines(rows: Sequence[dict[str, Any]]) -> list[str]:
+    """:func:`comparison_rows` as a Markdown table (a Holm p of a family its scenes cannot
+    reject prints as "–"; a Monte Carlo scene p with its standard error)."""
+    lines = [
+        "| comparison | A % | B % | A - B, points [95% CI] | only A / only B | scene p "
+        f"| Holm p | equivalence Holm p (±{100 * EQUIVALENCE_MARGIN:.0f}) | reading |",
+        "| --- | ---: | ---: | --- | ---: | ---: | ---: | ---: | --- |",
+    ]
+    for r in rows:
+        scene_p = f"{r['scene_p']:.3g}"
+        if r["scene_mc_error"] > 0:
+            scene_p += f" ±{r['scene_mc_error']:.1g}"
+        holm_p, equivalence = (
+            (f"{r['holm_p']:.3g}", f"{r['holm_equivalence_p']:.3g}")
+            if r["family_can_reject"]
+            else ("–", "–")
+        )
+        lines.append(
+            f"| {r['comparison']} | {r['rate_a']:.1f} | {r['rate_b']:.1f} "
+            f"| {difference_text(r)} | {r['only_a']:.0f} / {r['only_b']:.0f} | {scene_p} "
+            f"| {holm_p} | {equivalence} | {r['reading']} |"
+        )
+    return lines
 
 
 def run_experiment(out: Path, config: ExperimentConfig | None = None) -> str:
@@ -283,23 +358,21 @@ def run_experiment(out: Path, config: ExperimentConfig | None = None) -> str:
         f"per scene: {', '.join(map(str, budgets))} (budget {config.views})",
         "",
     ]
-    pairs = [
-        (Condition.EXPLORE, Condition.BEFORE),
-        (Condition.RANDOM, Condition.BEFORE),
-        (Condition.TOP_CONFIDENCE, Condition.BEFORE),
-        (Condition.EXPLORE, Condition.RANDOM),
-        (Condition.EXPLORE, Condition.TOP_CONFIDENCE),
+    patterns = (
+        "every sign pattern"
+        if len(np.unique(scene)) <= EXACT_MAX_SCENES
+        else f"{N_SIGN_FLIPS:,} random sign patterns"
+    )
+    lines += [
+        f"Paired over the same queries; {INTERVAL_NOTE} ({patterns}); Holm over the "
+        f"{len(PAIRS)} scene p-values of each table; equivalence: two one-sided sign-flip tests "
+        f"at ±{100 * EQUIVALENCE_MARGIN:.0f} points, Holm alike. A: the first condition named.",
+        "",
     ]
     for column, title in ((0, "first attempt"), (1, "two attempts, max confidence")):
         result = {c: np.array([outcomes[c][k][column] for k in keys], float) for c in Condition}
-        lines += [
-            f"## {title}",
-            "| comparison | A % | B % | A - B (pp) | only A / only B | McNemar p | sign-flip p |",
-            "| --- | --- | --- | --- | --- | --- | --- |",
-        ]
-        for a, b in pairs:
-            lines.append(_line(f"{a} vs {b}", result[a], result[b], scene, config.seed))
-        lines.append("")
+        rows = comparison_rows(result, scene, seed=config.seed)
+        lines += [f"## {title}", *comparison_lines(rows), ""]
     lines.append(f"run time: {time.perf_counter() - start:.0f} s")
     return "\n".join(lines)
 
