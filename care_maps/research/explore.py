@@ -48,11 +48,10 @@ from care_maps.core.maps import MapKind
 from care_maps.core.store import Store, StoreMeta, StoreWriter
 from care_maps.core.vocab import STRUCTURE_NAMES
 from care_maps.evaluate.job import EvalConfig, Scene, evaluate_scene
-from care_maps.evaluate.paired import compare, comparison_rng, holm
+from care_maps.evaluate.paired import compare, comparison_rng
 from care_maps.evaluate.report.paired import INTERVAL_NOTE, difference_text
-from care_maps.evaluate.report.preregistered import reading
+from care_maps.evaluate.report.preregistered import with_holm
 from care_maps.evaluate.scene_test import (
-    ALPHA,
     EQUIVALENCE_MARGIN,
     EXACT_MAX_SCENES,
     N_SIGN_FLIPS,
@@ -304,13 +303,7 @@ def comparison_rows(
                 "equivalence_p": test.equivalence_p,
             }
         )
-    adjusted = holm(np.array([r["scene_p"] for r in rows]))
-    equivalent = holm(np.array([r["equivalence_p"] for r in rows]))
-    can_reject = bool(min((r["scene_min_p"] for r in rows), default=1.0) <= ALPHA / len(rows))
-    for row, p, q in zip(rows, adjusted, equivalent, strict=True):
-        row.update(holm_p=float(p), holm_equivalence_p=float(q), family_can_reject=can_reject)
-        row["reading"] = str(reading(row))
-    return rows
+    return with_holm(rows, ())
 
 
 def comparison_lines(rows: Sequence[dict[str, Any]]) -> list[str]:

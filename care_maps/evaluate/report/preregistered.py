@@ -70,6 +70,7 @@ __all__ = [
     "preregistered_markdown",
     "query_breakdown",
     "reading",
+    "with_holm",
     "write_preregistered",
 ]
 
@@ -209,9 +210,9 @@ def _row(
     }
 
 
-def _with_holm(rows: list[dict], keys: Sequence[str]) -> list[dict]:
-    """Holm over each family of rows sharing ``keys``, on the scene-level p-values (times
-    ``baseline_choices``): ``holm_p`` of the difference, ``holm_equivalence_p`` of the
+def with_holm(rows: list[dict], keys: Sequence[str]) -> list[dict]:
+    """Holm over each family of rows sharing ``keys`` (``()``: one family), on the scene-level
+    p-values (times ``baseline_choices``, 1 where a row has none): ``holm_p`` of the difference, ``holm_equivalence_p`` of the
     equivalence test; ``family_size``, ``family_min_p`` (the smallest corrected p any row
     could reach) and ``family_can_reject`` (whether that passes Holm's first step,
     ``alpha / m``); then each row's :func:`reading`."""
@@ -221,7 +222,7 @@ def _with_holm(rows: list[dict], keys: Sequence[str]) -> list[dict]:
     for idx in groups.values():
 
         def scaled(name: str, idx: list[int] = idx) -> np.ndarray:
-            values = [min(1.0, rows[i][name] * rows[i]["baseline_choices"]) for i in idx]
+            values = [min(1.0, rows[i][name] * rows[i].get("baseline_choices", 1)) for i in idx]
             return np.array(values, np.float64)
 
         adjusted = holm(scaled("scene_p"))
@@ -277,7 +278,7 @@ def headline_table(
                     rules, first[kind, protocol], rule, base, bootstrap=bootstrap, seed=seed
                 )
                 rows.append(_row(kind, protocol, rule, base, res, family, choices))
-    return pa.Table.from_pylist(_with_holm(rows, ("map", "protocol", "baseline", "family")))
+    return pa.Table.from_pylist(with_holm(rows, ("map", "protocol", "baseline", "family")))
 
 
 def best_of_k_table(
@@ -301,7 +302,7 @@ def best_of_k_table(
                 rules, first[kind, protocol], rule, MAX_CONF, bootstrap=bootstrap, seed=seed
             )
             here.append(_row(kind, protocol, rule, MAX_CONF, res, "best-of-k"))
-        here = _with_holm(here, ("map", "protocol"))
+        here = with_holm(here, ("map", "protocol"))
         for name in {r["strategy"] for r in here}:
             best = max(
                 (r for r in here if r["strategy"] == name), key=lambda r: (r["rate"], -r["k"])
