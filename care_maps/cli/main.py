@@ -253,10 +253,15 @@ def _interrupt(signum: int, frame: object) -> None:
 def _raise_again(unraisable: Any) -> None:
     """``sys.unraisablehook`` of the program: a KeyboardInterrupt that Python had to drop (it
     came while a weakref callback or a ``__del__`` ran, say, during an import) is raised
-    again in the main thread instead of printed as "Exception ignored"; anything else is
+    again in the main thread instead of printed as "Exception ignored". Once the run is
+    interrupted, any other one is dropped: it comes from the finaliser of an object the
+    interruption left half-built (a progress bar stopped inside its constructor has no
+    position to clear), and the run's one line says what happened. Anything else is
     reported as Python reports it."""
     if isinstance(unraisable.exc_value, KeyboardInterrupt):
         _thread.interrupt_main(signal.SIGINT)
+        return
+    if _stopped_by is not None:
         return
     sys.__unraisablehook__(unraisable)
 
