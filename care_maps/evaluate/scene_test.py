@@ -318,6 +318,19 @@ def _equivalence_from_kept(
     return max(above, below)
 
 
+def _prepared(
+    sums: np.ndarray, counts: np.ndarray, signs: np.ndarray
+) -> tuple[tuple[np.ndarray, np.ndarray], float, float] | None:
+    """The kept pattern sums and the observed totals of checked scene ``sums`` and
+    ``counts``; None without a scene."""
+    sums = np.asarray(sums, np.float64)
+    counts = np.asarray(counts, np.float64)
+    _check(sums, counts, signs)
+    if not len(sums):
+        return None
+    return _kept_sums(signs, sums, counts), float(sums.sum()), float(counts.sum())
+
+
 def equivalence_p(
     sums: np.ndarray,
     counts: np.ndarray,
@@ -328,13 +341,8 @@ def equivalence_p(
 ) -> float:
     """p-value of the equivalence test ``|delta| < margin`` (two one-sided sign-flip tests,
     the larger p); NaN without a scene."""
-    sums = np.asarray(sums, np.float64)
-    counts = np.asarray(counts, np.float64)
-    _check(sums, counts, signs)
-    if not len(sums):
-        return float("nan")
-    kept = _kept_sums(signs, sums, counts)
-    return _equivalence_from_kept(kept, float(sums.sum()), float(counts.sum()), exact, margin)
+    ready = _prepared(sums, counts, signs)
+    return float("nan") if ready is None else _equivalence_from_kept(*ready, exact, margin)
 
 
 def signflip_p(
@@ -344,13 +352,8 @@ def signflip_p(
     ``counts`` (:func:`scene_sums`) against the patterns ``signs`` (:func:`sign_vectors`):
     ``#{T* >= T} / 2^G`` when ``exact``, else ``(1 + #{T* >= T}) / (1 + B)``. NaN without a
     scene."""
-    sums = np.asarray(sums, np.float64)
-    counts = np.asarray(counts, np.float64)
-    _check(sums, counts, signs)
-    if not len(sums):
-        return float("nan")
-    kept = _kept_sums(signs, sums, counts)
-    return _p_from_kept(kept, float(sums.sum()), float(counts.sum()), d, exact)
+    ready = _prepared(sums, counts, signs)
+    return float("nan") if ready is None else _p_from_kept(*ready, d, exact)
 
 
 def _interval_from_kept(
@@ -387,13 +390,10 @@ def signflip_interval(
     ``alpha``, as ``(low, high)``: exact order statistics of the patterns' half-sample
     differences (module docstring), not a search. ``(-1, 1)`` where no p-value can reach
     ``alpha`` (too few scenes or patterns); ``(nan, nan)`` without a scene."""
-    sums = np.asarray(sums, np.float64)
-    counts = np.asarray(counts, np.float64)
-    _check(sums, counts, signs)
-    if not len(sums):
-        return float("nan"), float("nan")
-    kept = _kept_sums(signs, sums, counts)
-    return _interval_from_kept(kept, float(sums.sum()), float(counts.sum()), exact, alpha)
+    ready = _prepared(sums, counts, signs)
+    return (
+        (float("nan"), float("nan")) if ready is None else _interval_from_kept(*ready, exact, alpha)
+    )
 
 
 def scene_signflip(
