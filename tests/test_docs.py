@@ -190,8 +190,8 @@ def test_cli_reference_is_current() -> None:
 
 
 BENCH_SECTIONS = (
-    "ingest", "world", "fuse", "scale", "query", "paths", "cold_query", "batch", "dataset",
-    "travel",
+    "ingest", "encode", "world", "fuse", "scale", "query", "paths", "cold_query", "batch",
+    "dataset", "travel",
 )  # fmt: skip
 """The sections of docs/benchmarks.md, each written by ``bench/<name>.py``."""
 

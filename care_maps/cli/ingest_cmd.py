@@ -29,7 +29,8 @@ _READ = "Topics and frames"
 """Help panel of the reading options, shared by ``care ingest`` and ``care topics``."""
 _SOURCE_HELP = (
     "MCAP file, rosbag2 directory, ROS 1 .bag, or a dataset folder (ScanNet, Replica, TUM "
-    "RGB-D, ICL-NUIM/Redwood, Matterport3D, generic: docs/inputs.md)."
+    "RGB-D, ICL-NUIM/Redwood, Matterport3D, generic: docs/inputs.md); several files of one "
+    "recording (split bags or MCAP files, e.g. run_*.bag) are read as one, in time order."
 )
 
 read_options = config_options(
@@ -64,7 +65,7 @@ read_options = config_options(
 @read_options
 @config_options("selection", FrameSelection)
 def ingest(
-    recording: Annotated[Path, typer.Argument(help=_SOURCE_HELP)],
+    recording: Annotated[list[Path], typer.Argument(help=_SOURCE_HELP)],
     out: Annotated[
         Path,
         typer.Option(
@@ -89,15 +90,20 @@ def ingest(
         encoder_options=encoding.config(),
         select=selection.config(),
     )
-    path = ingest(recording, out, config, run=run.config()).path
+    path = ingest(_one_or_parts(recording), out, config, run=run.config()).path
     for line in (ingest_line(path), geometry_line(path)):
         if line is not None:
             typer.echo(line)
 
 
+def _one_or_parts(paths: list[Path]) -> Path | list[Path]:
+    """The command line's recording: one path, or one recording's files."""
+    return paths[0] if len(paths) == 1 else paths
+
+
 @read_options
 def topics(
-    recording: Annotated[Path, typer.Argument(help=_SOURCE_HELP)],
+    recording: Annotated[list[Path], typer.Argument(help=_SOURCE_HELP)],
     read: Options[ReadOptions] = None,  # type: ignore[assignment]
     stamps: Annotated[
         bool,
@@ -112,30 +118,34 @@ def topics(
     folder, its layout, views and what it reads them with."""
     from care_maps.core.errors import CareError
     from care_maps.ingest.folders.frames import open_frames, resolve_layout
-    from care_maps.ingest.readers import open_reader
+    from care_maps.ingest.parts import SplitReader, open_recording
     from care_maps.ingest.source import RecordingFrames
 
     options = read.config()
+    source = _one_or_parts(recording)
     if stamps:
-        with open_frames(recording, options) as frames:
+        with open_frames(source, options) as frames:
             for frame in frames:
                 typer.echo(str(frame.stamp_ns))
         return
-    if resolve_layout(recording, options.format) is not None:
-        _folder_topics(recording, options)
+    if isinstance(source, Path) and resolve_layout(source, options.format) is not None:
+        _folder_topics(source, options)
         return
 
-    with open_reader(recording) as reader:
+    with open_recording(source) as reader:
         listed = reader.topics()
+        if isinstance(reader, SplitReader):
+            names = ", ".join(str(p) for p in reader.parts)
+            typer.echo(f"one recording in {len(reader.parts)} files, in time order: {names}")
     width = max((len(n) for n in listed), default=0)
     for info in listed.values():
         typer.echo(f"{info.name:<{width}}  {info.msgtype:<36} {info.count:>7}")
     from care_maps.ingest.consistency import topics_lines
 
     try:
-        with RecordingFrames(recording, options) as frames:
+        with RecordingFrames(source, options) as frames:
             chosen = frames.describe()
-            geometry = topics_lines(recording, frames, options)
+            geometry = topics_lines(frames.where, frames, options)
     except CareError as err:
         typer.echo(f"auto-detection: {err}")
         raise typer.Exit(1) from err

@@ -586,11 +586,15 @@ def rebuild_hint(store: Path, table: str) -> str:
     name = Path(table).name.removesuffix(".parquet").removesuffix(".json")
     recording = (read_marker(store) or {}).get("source") or "RECORDING"
     meta = Path(store) / "meta.json"
+    files: list[str] = []
     with contextlib.suppress(OSError, ValueError, AttributeError, KeyError, TypeError):
         # a store written without a recording (the Python API) records none
-        recording = json.loads(meta.read_text())["source"]["path"] or "RECORDING"
+        source = json.loads(meta.read_text())["source"]
+        recording = source["path"] or "RECORDING"
+        # a recording in several files: every one of them
+        files = [str(f["path"]) for f in source.get("files") or ()]
     if recording != "RECORDING":  # recorded relative to the store
-        recording = os.path.normpath(Path(store) / recording)
+        recording = " ".join(os.path.normpath(Path(store) / f) for f in files or [recording])
     template = REBUILD.get(name, "care ingest {recording} --out {store} --force")
     return "`" + template.format(store=store, recording=recording) + "`"
 

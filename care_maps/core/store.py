@@ -76,6 +76,7 @@ __all__ = [
     "VIEWS_SCHEMA_PNG",
     "EncodedDepth",
     "EncoderInfo",
+    "SourceFile",
     "SourceRecord",
     "Store",
     "StoreMeta",
@@ -499,21 +500,50 @@ layout is refused, to be ingested again."""
 
 
 @dataclass(frozen=True)
+class SourceFile:
+    """One file of a recording written in several: where it lies relative to the store,
+    its name and size."""
+
+    path: str | None = None
+    name: str | None = None
+    size: int | None = None
+
+
+@dataclass(frozen=True)
 class SourceRecord:
     """The recording a store was made from: where it lies *relative to the store* (no
     absolute machine path inside a store) and what it is (size and checksum)."""
 
     path: str | None = None
-    """Relative to the store directory (version 1 stores: absolute)."""
+    """Relative to the store directory (version 1 stores: absolute); of a recording in
+    several files, the first in time."""
     name: str | None = None
     size: int | None = None
     blake2b: str | None = None
+    """Of a recording in several files, a checksum of every file's checksum."""
+    files: tuple[SourceFile, ...] = ()
+    """A recording in several files: each, in the order read (empty for one, and then
+    not written)."""
 
     def resolve(self, store: Path) -> Path | None:
         """The recording's path as seen from ``store`` (None when none is recorded)."""
         if not self.path:
             return None
         return Path(os.path.normpath(Path(store).absolute() / self.path))
+
+
+def _source_record(source: Any) -> SourceRecord:
+    """``meta.json``'s ``source``, typed (raises KeyError, TypeError or ValueError)."""
+    if not isinstance(source, dict):
+        return SourceRecord()
+    listed = source.get("files") or []
+    if not isinstance(listed, list) or not all(isinstance(f, dict) for f in listed):
+        msg = f"source files {listed!r} are not a list of objects"
+        raise TypeError(msg)
+    files = tuple(SourceFile(**{k: f.get(k) for k in ("path", "name", "size")}) for f in listed)
+    return SourceRecord(
+        **{k: source.get(k) for k in ("path", "name", "size", "blake2b")}, files=files
+    )
 
 
 @dataclass(frozen=True)
@@ -558,6 +588,8 @@ class StoreMeta:
 
     def to_json(self) -> str:
         data = asdict(self)
+        if not self.source.files:  # a recording in one file: no list of files
+            del data["source"]["files"]
         data["encoder"] = None if self.encoder is None else {
             "name": self.encoder.name, "version": self.encoder.version, "dim": self.encoder.dim
         }  # fmt: skip
@@ -591,8 +623,7 @@ class StoreMeta:
             values.update(
                 num_views=int(data["num_views"]),
                 encoder=None if not enc else EncoderInfo(enc["name"], enc["version"], int(enc["dim"])),
-                source=SourceRecord(**{k: source.get(k) for k in ("path", "name", "size", "blake2b")})
-                if isinstance(source, dict) else SourceRecord(),
+                source=_source_record(source),
                 label_names=tuple(data.get("label_names") or ()),
                 vocabulary=tuple(data.get("vocabulary") or ()),
                 topics=data.get("topics") or {},

@@ -3,6 +3,7 @@ stores out.
 
 - :mod:`care_maps.ingest.write`: write frames as a recording (the sample world uses it),
 - :mod:`care_maps.ingest.readers`: one reader interface over the container formats,
+- :mod:`care_maps.ingest.parts`: a recording in several files (split bags, MCAP) read as one,
 - :mod:`care_maps.ingest.decode`: ROS messages to numpy arrays,
 - :mod:`care_maps.ingest.undistort`: lens distortion removed from the images (OpenCV),
 - :mod:`care_maps.ingest.topics`: which topics hold what (auto-detection, overrides),

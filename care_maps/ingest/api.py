@@ -6,6 +6,7 @@ from pathlib import Path
 
 from care_maps.core.encoders import Encoder
 from care_maps.core.store import Store
+from care_maps.ingest.parts import Recording
 from care_maps.ingest.pipeline import IngestConfig, run_ingest
 from care_maps.runtime.execution import DEFAULT_EXECUTION, Execution
 
@@ -13,7 +14,7 @@ __all__ = ["ingest"]
 
 
 def ingest(
-    recording: Path,
+    recording: Recording,
     out: Path,
     config: IngestConfig | None = None,
     *,
@@ -21,6 +22,9 @@ def ingest(
     encoder: Encoder | None = None,
 ) -> Store:
     """Ingest ``recording`` into the store ``out`` and open it.
+
+    ``recording``: a recording (MCAP file, rosbag2 directory, ROS 1 bag), a dataset folder,
+    or a list of one recording's files (split bags or MCAP files), read as one in time order.
 
     Everything the store depends on is in the arguments: the recording, and what the store
     is made from (``config``, default :class:`IngestConfig`); ``run`` says how the job runs

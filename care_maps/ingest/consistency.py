@@ -94,7 +94,8 @@ class GeometrySampler:
 class SourceReading:
     """How a source was read, so a verdict can name the option that reads it otherwise."""
 
-    path: Path
+    path: Path | str
+    """The source, or how a recording in several files is named (its files)."""
     folder: bool
     """A dataset folder (its poses file may be in another convention) or a recording."""
     quaternion_lines: bool = False
@@ -130,7 +131,7 @@ def check_geometry(sampler: GeometrySampler, reading: SourceReading) -> Verdict:
     return replace(verdict, floor=floor_support(samples)) if samples else verdict
 
 
-def source_reading(path: Path, frames: Any, options: Any) -> SourceReading:
+def source_reading(path: Path | str, frames: Any, options: Any) -> SourceReading:
     """How ``frames`` (a recording's or a dataset folder's, entered) read ``path`` with the
     read ``options``: what a verdict's fix is phrased against."""
     described = frames.describe()
@@ -142,7 +143,7 @@ def source_reading(path: Path, frames: Any, options: Any) -> SourceReading:
     axes = described.get("camera_convention") or {}
     camera = CameraConvention(axes["convention"]) if axes.get("convention") else None
     return SourceReading(
-        path=Path(path),
+        path=path if isinstance(path, str) else Path(path),
         folder=layout is not None,
         quaternion_lines=layout is not None and layout.pose_lines,
         depth_scale=None if scale is None else float(scale),
@@ -230,7 +231,7 @@ def _fix(verdict: Verdict, reading: SourceReading, K: np.ndarray | None) -> str:
     return f"the focal length looks {f:.2g} times the one read: pass --intrinsics {fx:.1f},{fy:.1f},{cx:g},{cy:g} (or the camera's calibration)"
 
 
-def topics_lines(path: Path, frames: Any, options: Any) -> list[str]:
+def topics_lines(path: Path | str, frames: Any, options: Any) -> list[str]:
     """``care topics``' check: the first :data:`TOPICS_VIEWS` views judged, before any
     encoding, and what ingest would say of them."""
     sampler = sample_frames(frames, TOPICS_VIEWS)

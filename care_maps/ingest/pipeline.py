@@ -17,7 +17,9 @@ shows a bar).
 
 from __future__ import annotations
 
+import hashlib
 import os
+from collections.abc import Iterator
 from contextlib import closing
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -51,8 +53,9 @@ from care_maps.ingest.consistency import (
     source_reading,
 )
 from care_maps.ingest.folders.frames import Frames, folder_identity, open_frames
+from care_maps.ingest.parts import Recording, recording_parts
 from care_maps.ingest.select import FrameSelection, FrameSelector
-from care_maps.ingest.source import ReadOptions
+from care_maps.ingest.source import ReadOptions, RecordingFrames
 from care_maps.runtime.execution import DEFAULT_EXECUTION, Execution
 from care_maps.runtime.readahead import read_ahead
 from care_maps.runtime.threads import Work, threads_for
@@ -108,14 +111,28 @@ class IngestConfig:
         )
 
 
-def _source_identity(path: Path, read: ReadOptions) -> dict[str, Any]:
+def _source_identity(parts: tuple[Path, ...], read: ReadOptions) -> dict[str, Any]:
     """What a recording *is*: its size and checksum (every file of a bag directory or dataset
     folder, with their relative names), not where it lies or when it was touched, so a dataset
     copied to another directory or machine keeps its stores
     (:func:`care_maps.core.fingerprint.content_digest`); for a dataset folder also the layout it is read
-    as and what the layout reads it with (:func:`care_maps.ingest.folders.frames.folder_identity`)."""
-    identity = content_digest(path)
-    layout = folder_identity(path, read)
+    as and what the layout reads it with (:func:`care_maps.ingest.folders.frames.folder_identity`).
+
+    A recording in several files is their total size and a checksum of every file's, in
+    whatever order they are given (their content decides the order they are read in), so a
+    change to any file rebuilds the store; ``parts`` counts them."""
+    if len(parts) > 1:
+        digests = [content_digest(part) for part in parts]
+        h = hashlib.blake2b(digest_size=16)
+        for checksum in sorted(d["blake2b"] for d in digests):
+            h.update(checksum.encode())
+        return {
+            "size": sum(d["size"] for d in digests),
+            "blake2b": h.hexdigest(),
+            "parts": len(parts),
+        }
+    identity = content_digest(parts[0])
+    layout = folder_identity(parts[0], read)
     return identity if layout is None else {**identity, "layout": layout}
 
 
@@ -225,13 +242,21 @@ class _Job:
     job runs."""
 
     recording: Path
+    """The recording, or the first of its files as given."""
     out: Path
     config: IngestConfig
     run: Execution
+    parts: tuple[Path, ...]
+    """The recording's files (itself, if one)."""
+
+    @property
+    def source(self) -> Path | tuple[Path, ...]:
+        """What is read: the recording, or its files."""
+        return self.recording if len(self.parts) == 1 else self.parts
 
 
 def run_ingest(
-    recording: Path,
+    recording: Recording,
     out: Path,
     config: IngestConfig | None = None,
     *,
@@ -240,12 +265,16 @@ def run_ingest(
 ) -> Path:
     """Build the store ``out`` from ``recording`` with ``config``; returns the store path.
 
+    ``recording``: a recording, a dataset folder, or the files of one recording written in
+    several (split bags or MCAP files, :mod:`care_maps.ingest.parts`), read as one.
+
     ``encoder`` overrides ``config.encoder`` with an instance (e.g. one built in a test or
     shared across many recordings). Returns at once if the store is up to date (unless
     ``run.overwrite``). Runs on the thread pools of :attr:`care_maps.runtime.threads.Work.DEFAULT`
     whoever calls it (the encoder's forward pass on :attr:`~care_maps.runtime.threads.Work.ENCODE`'s).
     """
-    job = _Job(Path(recording), Path(out), config or IngestConfig(), run)
+    parts = recording_parts(recording)
+    job = _Job(parts[0], Path(out), config or IngestConfig(), run, parts)
     with threads_for(Work.DEFAULT):
         return _run_ingest(job, encoder)
 
@@ -256,20 +285,20 @@ def _run_ingest(job: _Job, encoder: Encoder | None) -> Path:
         msg = f"{recording}: no such file or directory; check the recording path."
         raise IngestError(msg)
     # refused before any work: a path we did not create, the recording itself, ...
-    check_output(out, kind=OutputKind.STORE, inputs=[recording])
+    check_output(out, kind=OutputKind.STORE, inputs=job.parts)
     if config.rrd is not None:
-        check_file_output(config.rrd, inputs=[recording])
-    source = _source_identity(recording, config.read)
+        check_file_output(config.rrd, inputs=job.parts)
+    source = _source_identity(job.parts, config.read)
     request = request_fingerprint(config, source) if encoder is None else None
     if request is not None and _up_to_date(job, request, "request_fingerprint"):
         return _log_missing_rrd(job)  # before building the encoder: no model is loaded
     # opening the recording checks its topics, camera info and pose source (a folder its
     # layout's files): a source that cannot be read is refused before a model is loaded
-    with open_frames(recording, config.read) as frames:
+    with open_frames(job.source, config.read) as frames:
         if encoder is None and config.encoder is not None:
             encoder = make_encoder(config.encoder, config.encoder_options)
         with output_lock(out):
-            check_output(out, kind=OutputKind.STORE, inputs=[recording])  # as the lock found it
+            check_output(out, kind=OutputKind.STORE, inputs=job.parts)  # as the lock found it
             fp = fingerprint(config, encoder, source)
             if _up_to_date(job, fp):
                 return _log_missing_rrd(job)
@@ -333,7 +362,9 @@ def _build(
     fp: str,
     request: str | None,
 ) -> None:
-    config, recording = job.config, job.recording
+    config = job.config
+    # a recording's first file by time, once its files are open
+    recording = job.recording if len(job.parts) == 1 else frames.path
     vocab = _vocabulary(config, frames.label_names)
     if encoder is not None:
         encoder.prepare(RecordingContext(recording, frames.label_names))
@@ -343,7 +374,8 @@ def _build(
     logger = _open_logger(job, frames)
     bar = tqdm(
         total=frames.total,
-        desc=f"ingest {recording.name}",
+        desc=f"ingest {recording.name}"
+        + (f" (+{len(job.parts) - 1})" if len(job.parts) > 1 else ""),
         unit="frame",
         disable=not job.run.progress,
     )
@@ -363,7 +395,10 @@ def _build(
                 sampler,
             )
             # before anything is committed: geometry the views disagree on is refused
-            reading = source_reading(recording, frames, config.read)
+            where: Path | str = recording
+            if isinstance(frames, RecordingFrames) and len(job.parts) > 1:
+                where = frames.where  # the recording's files
+            reading = source_reading(where, frames, config.read)
             verdict = check_geometry(sampler, reading)
             refuse_unless_consistent(
                 verdict, reading, sampler.K, accept=config.read.accept_geometry
@@ -403,22 +438,39 @@ def _stream(
     depth: int,
     sampler: GeometrySampler,
 ) -> None:
-    """Frames to the store: read and decoded up to ``depth`` ahead on a background thread
-    (:func:`care_maps.runtime.readahead.read_ahead`) while this thread encodes and writes them, so
-    the recording's decompression and the store's encoding share a machine's cores
-    (``--read-ahead 0``: all in one thread, the same store)."""
+    """Frames to the store in three stages that overlap on a machine's cores: the recording
+    read and decoded up to ``depth`` frames ahead on one background thread
+    (:func:`care_maps.runtime.readahead.read_ahead`); the kept frames batched and made ready
+    for the model (:meth:`Encoder.prepare_views`: resized, normalised) one batch ahead on a
+    second; and, in this thread, the model's forward pass and the store's writer, whose own
+    thread encodes the images. So the next batch is read and prepared while this one is in
+    the model (``--read-ahead 0``: all in one thread, the same store)."""
+    batches = _batches(frames, selector, bar, max(1, batch_size), depth)
+    prepared = (
+        (batch, None if encoder is None else encoder.prepare_views(batch)) for batch in batches
+    )
+    with closing(read_ahead(prepared, min(depth, 1))) as ahead:
+        for batch, inputs in ahead:
+            features = None
+            if encoder is not None:
+                with threads_for(Work.ENCODE):  # the model's products scale with cores
+                    features = encoder.encode_prepared(inputs)
+                if len(features) != len(batch):
+                    msg = f"encoder {encoder.name!r} returned {len(features)} feature maps for {len(batch)} views"
+                    raise IngestError(msg)
+            for i, frame in enumerate(batch):
+                if logger is not None:
+                    logger.log(writer.num_views, frame)
+                sampler.add(frame)
+                writer.add(frame, None if features is None else np.asarray(features[i]))
+
+
+def _batches(
+    frames: Frames, selector: FrameSelector, bar: tqdm, size: int, depth: int
+) -> Iterator[list[Frame]]:
+    """The frames ``selector`` keeps, in batches of ``size`` (the last one shorter), read
+    ``depth`` frames ahead."""
     batch: list[Frame] = []
-
-    def flush() -> None:
-        with threads_for(Work.ENCODE):  # the model's products scale with cores
-            features = encoder.encode_views(batch) if encoder is not None else None
-        if encoder is not None and features is not None and len(features) != len(batch):
-            msg = f"encoder {encoder.name!r} returned {len(features)} feature maps for {len(batch)} views"
-            raise IngestError(msg)
-        for i, frame in enumerate(batch):
-            writer.add(frame, None if features is None else np.asarray(features[i]))
-        batch.clear()
-
     with closing(read_ahead(frames, depth)) as ahead:
         for frame in ahead:
             bar.update(1)
@@ -426,14 +478,29 @@ def _stream(
                 if selector.done:
                     break
                 continue
-            if logger is not None:
-                logger.log(writer.num_views + len(batch), frame)
-            sampler.add(frame)
             batch.append(frame)
-            if len(batch) >= max(1, batch_size):
-                flush()
+            if len(batch) >= size:
+                yield batch
+                batch = []
     if batch:
-        flush()
+        yield batch
+
+
+def _files(job: _Job, frames: Frames) -> dict[str, Any]:
+    """A recording in several files: each file, in the order read (its path relative to the
+    store, name and size; their checksums are the source's); nothing for one."""
+    if len(job.parts) == 1 or not isinstance(frames, RecordingFrames):
+        return {}
+    return {
+        "files": [
+            {
+                "path": os.path.relpath(part.resolve(), job.out.resolve()),
+                "name": part.name,
+                "size": part.stat().st_size if part.is_file() else None,
+            }
+            for part in frames.parts
+        ]
+    }
 
 
 def _meta(
@@ -446,6 +513,7 @@ def _meta(
 ) -> dict[str, Any]:
     config = job.config
     described = frames.describe()
+    first = job.recording if len(job.parts) == 1 else frames.path
     recorded = config_fields(config, _NOT_RECORDED)
     for name in _READ_NOT_RECORDED:  # not what the store is (see there)
         recorded["read"].pop(name, None)
@@ -457,9 +525,10 @@ def _meta(
         "fingerprint": fp,
         "source": {
             # relative to the store: no machine's absolute path inside a store
-            "path": os.path.relpath(job.recording.resolve(), job.out.resolve()),
-            "name": job.recording.name,
+            "path": os.path.relpath(first.resolve(), job.out.resolve()),
+            "name": first.name,
             **source,
+            **_files(job, frames),
         },
         "topics": described["topics"],
         "world_frame": described["world_frame"],

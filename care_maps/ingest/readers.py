@@ -15,6 +15,7 @@ works, and raise rather than return an empty recording if that fails too.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Collection, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +27,7 @@ from care_maps.ingest.typestores import register_msgdef, ros1_typestore, ros2_ty
 
 __all__ = [
     "READERS",
+    "ClosedOnExit",
     "RecordingReader",
     "Ros2Reader",
     "Rosbag1Reader",
@@ -67,11 +69,31 @@ class RecordingReader(Protocol):
         """Decoded ``(topic, log_time_ns, message)`` in log-time order; all topics if empty."""
         ...
 
+    def first_time(self) -> int | None:
+        """Log time (ns) of the first message, none decoded; None for an empty recording."""
+        ...
+
+
+class ClosedOnExit:
+    """A reader (or frames over one) left by ``with`` is closed, whatever happened inside:
+    the one ``__exit__`` of every reader and frames class, each defining :meth:`close`."""
+
+    def close(self) -> None:
+        """Release what the reader holds open."""
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
 
 _CORRUPT_HINT = "the file is truncated or corrupt; re-copy or re-record it"
 
 
-class _RosbagsReader:
+class _RosbagsReader(ClosedOnExit):
     """Shared part of the rosbags-backed readers: typestore extension and lazy decoding."""
 
     kind = ""
@@ -106,14 +128,6 @@ class _RosbagsReader:
             self._learn(conn)
         return self
 
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
-
     def close(self) -> None:
         if self._reader is not None:
             reader, self._reader = self._reader, None
@@ -146,6 +160,23 @@ class _RosbagsReader:
 
     def _raw(self, conns: list[Any]) -> Iterator[tuple[Any, int, bytes]]:
         return self._reader.messages(conns)
+
+    def first_time(self) -> int | None:
+        conns = self._connections()
+        if not conns:
+            return None
+        try:
+            # each storage file yields in log-time order: its first message is its earliest
+            times = [int(t) for _, t, _ in self._firsts(conns)]
+        except Exception as err:
+            msg = f"{self.path}: error while reading messages ({type(err).__name__}: {err}); {_CORRUPT_HINT}."
+            raise IngestError(msg) from err
+        return min(times, default=None)
+
+    def _firsts(self, conns: list[Any]) -> Iterator[tuple[Any, int, bytes]]:
+        """The first raw message of the recording (of each storage file where they are read
+        one by one)."""
+        yield from itertools.islice(self._raw(conns), 1)
 
     def messages(self, topics: Collection[str] = ()) -> Iterator[tuple[str, int, Any]]:
         wanted = set(topics)
@@ -223,6 +254,15 @@ class Ros2Reader(_RosbagsReader):
             own = [c for c in conns if c.owner is f or c in f.connections]
             if own:
                 yield from f.messages(own)
+
+    def _firsts(self, conns: list[Any]) -> Iterator[tuple[Any, int, bytes]]:
+        if not self._files:
+            yield from super()._firsts(conns)
+            return
+        for f in self._files:
+            own = [c for c in conns if c.owner is f or c in f.connections]
+            if own:
+                yield from itertools.islice(f.messages(own), 1)
 
     def close(self) -> None:
         for f in self._files:

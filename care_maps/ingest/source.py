@@ -7,6 +7,9 @@ Two passes over the recording, so memory stays bounded whatever its length:
 2. the image topics are streamed through :class:`care_maps.ingest.sync.StampSync`; only the
    messages inside the matching window are held, and each matched set becomes a Frame.
 
+A recording in several files (split bags, MCAP files) is read the same way, its files'
+messages merged in log-time order (:mod:`care_maps.ingest.parts`).
+
 Frame conventions: the pose is ``world_from_camera`` of an *optical* frame (x right, y
 down, z forward, as REP 103 prescribes for image frames) at the colour image's header stamp.
 The camera frame (``--camera-frame``, default the camera info's or the image's
@@ -38,8 +41,6 @@ from collections import Counter
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field, replace
 from enum import StrEnum
-from pathlib import Path
-from types import TracebackType
 from typing import Any, ClassVar
 
 import numpy as np
@@ -59,7 +60,14 @@ from care_maps.ingest.conventions import (
 )
 from care_maps.ingest.folders.base import DatasetLayout
 from care_maps.ingest.intrinsics import CameraIntrinsics
-from care_maps.ingest.readers import RecordingReader, TopicInfo, open_reader
+from care_maps.ingest.parts import (
+    Recording,
+    SplitReader,
+    open_recording,
+    parts_label,
+    recording_parts,
+)
+from care_maps.ingest.readers import ClosedOnExit, RecordingReader, TopicInfo
 from care_maps.ingest.sync import Match, StampSync
 from care_maps.ingest.tf import TFBuffer, Uncovered, check_transform
 from care_maps.ingest.topics import (
@@ -244,11 +252,17 @@ class ReadStats:
         return counts
 
 
-class RecordingFrames:
+class RecordingFrames(ClosedOnExit):
     """Context manager over a recording; iterate it (once) for posed, synchronised frames."""
 
-    def __init__(self, path: Path, options: ReadOptions | None = None) -> None:
-        self.path = Path(path)
+    def __init__(self, path: Recording, options: ReadOptions | None = None) -> None:
+        self.parts = recording_parts(path)
+        """The recording's files: one, or several in order of their first message's time
+        once entered (:mod:`care_maps.ingest.parts`)."""
+        self.path = self.parts[0]
+        """The recording's (first) file."""
+        self.where = parts_label(self.parts)
+        """How messages name the recording."""
         self.options = options or ReadOptions()
         self.stats = ReadStats()
         self.label_names: tuple[str, ...] = ()
@@ -272,28 +286,23 @@ class RecordingFrames:
 
     # -- pass 1 ---------------------------------------------------------------------------
     def __enter__(self) -> RecordingFrames:
-        reader = open_reader(self.path)
+        reader = open_recording(self.parts)
         self._reader = reader.__enter__()
+        if isinstance(reader, SplitReader):  # now in time order
+            self.parts, self.path = reader.parts, reader.path
+            self.where = parts_label(self.parts)
         try:
             self._prepare()
         except IngestError as err:
             self.close()
-            if str(err).startswith(str(self.path)):
+            if self._names_where(str(err)):
                 raise
-            msg = f"{self.path}: {err}"
+            msg = f"{self.where}: {err}"
             raise IngestError(msg) from err
         except BaseException:
             self.close()
             raise
         return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
     def close(self) -> None:
         if self._reader is not None:
@@ -306,7 +315,7 @@ class RecordingFrames:
         self.topics = self._reader.topics()
         sel = select_topics(
             self.topics,
-            path=str(self.path),
+            path=self.where,
             rgb=o.rgb,
             depth=o.depth,
             camera_info=o.camera_info,
@@ -314,8 +323,10 @@ class RecordingFrames:
             intrinsics=o.intrinsics is not None,
         )
         self.selection = sel
+        if isinstance(self._reader, SplitReader):
+            self._reader.check_frames(sel.rgb)
         if not o.static_pose and not sel.tf and not sel.pose_source:
-            msg = f"{self.path}: no pose source: no /tf or /tf_static messages and no nav_msgs/Odometry or geometry_msgs/PoseStamped topic; pass --static-pose to give every frame the identity pose, or --pose-source TOPIC."
+            msg = f"{self.where}: no pose source: no /tf or /tf_static messages and no nav_msgs/Odometry or geometry_msgs/PoseStamped topic; pass --static-pose to give every frame the identity pose, or --pose-source TOPIC."
             raise IngestError(msg)
         depth_info = None if o.depth_registered else depth_camera_info(self.topics, sel)
         # a pose topic TF may not need: read with the small topics, taken as the pose source
@@ -351,7 +362,7 @@ class RecordingFrames:
             given = o.intrinsics
             self._infos = [(0, given.K, given.width, given.height, given.lens)]
         if not self._infos:
-            msg = f"{self.path}: camera info topic {sel.camera_info} has no messages; record camera_info, pass --camera-info TOPIC, or give the intrinsics with --intrinsics fx,fy,cx,cy (or a camera_info YAML)."
+            msg = f"{self.where}: camera info topic {sel.camera_info} has no messages; record camera_info, pass --camera-info TOPIC, or give the intrinsics with --intrinsics fx,fy,cx,cy (or a camera_info YAML)."
             raise IngestError(msg)
         if self.camera_frame is None and not o.camera_frame:
             self.camera_frame = self._first_image_frame()
@@ -410,7 +421,7 @@ class RecordingFrames:
             "aligned_depth_to_color topic, e.g. realsense2_camera align_depth:=true)"
         )
         msg = (
-            f"{self.path}: depth {sel.depth} comes from another sensor than {sel.rgb} (its "
+            f"{self.where}: depth {sel.depth} comes from another sensor than {sel.rgb} (its "
             f"camera info {topic}: {found}); {fix}, or pass --depth-registered if it is "
             "registered already."
         )
@@ -444,7 +455,7 @@ class RecordingFrames:
         topic = self.selection.pose_source
         child = samples[0].child or self.camera_frame
         if not child:
-            msg = f"{self.path}: pose source {topic} is a PoseStamped and the camera frame is unknown; pass --camera-frame."
+            msg = f"{self.where}: pose source {topic} is a PoseStamped and the camera frame is unknown; pass --camera-frame."
             raise IngestError(msg)
         parent = samples[0].parent
         replaced = self._tf.describe_edge(child)
@@ -487,10 +498,10 @@ class RecordingFrames:
         try:
             names = json.loads(text)
         except json.JSONDecodeError as err:
-            msg = f"{self.path}: topic {topic} is not a JSON list of class names ({err}); fix or drop the topic."
+            msg = f"{self.where}: topic {topic} is not a JSON list of class names ({err}); fix or drop the topic."
             raise IngestError(msg) from err
         if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
-            msg = f"{self.path}: topic {topic} must hold a JSON list of strings."
+            msg = f"{self.where}: topic {topic} must hold a JSON list of strings."
             raise IngestError(msg)
         return tuple(names)
 
@@ -513,7 +524,7 @@ class RecordingFrames:
         elsewhere = next((f for f in _WORLD_FRAME_NAMES if f in frames), None)
         if elsewhere is not None:
             msg = (
-                f"{self.path}: camera frame {self.camera_frame!r} is not connected to world "
+                f"{self.where}: camera frame {self.camera_frame!r} is not connected to world "
                 f"frame {elsewhere!r}: {self._tf.describe_tree(self.camera_frame)}, "
                 f"{self._tf.describe_tree(elsewhere)}; record the transform that joins them, "
                 f"or pass --world-frame {root} to map in the camera's own tree"
@@ -593,7 +604,7 @@ class RecordingFrames:
         if digest == first:
             return
         assert self.selection is not None
-        msg = f"{self.path}: colour topic {self.selection.rgb} has different images at one stamp, {stamp} ns; the view there is ambiguous (the camera's header stamps are not unique: re-stamp the images in the recording, or pass --rgb TOPIC)."
+        msg = f"{self.where}: colour topic {self.selection.rgb} has different images at one stamp, {stamp} ns; the view there is ambiguous (the camera's header stamps are not unique: re-stamp the images in the recording, or pass --rgb TOPIC)."
         raise IngestError(msg)
 
     def _check_pose(self, frame: Frame) -> None:
@@ -606,7 +617,7 @@ class RecordingFrames:
         o = self.options
         position = np.asarray(frame.cam_to_world[:3, 3], np.float64)
         view = (
-            f"{self.path}: view {self.stats.frames} at stamp {frame.stamp_ns} ns: camera frame "
+            f"{self.where}: view {self.stats.frames} at stamp {frame.stamp_ns} ns: camera frame "
             f"{self.camera_frame!r} in world frame {self.world_frame!r}"
         )
         distance = float(np.linalg.norm(position))
@@ -629,7 +640,7 @@ class RecordingFrames:
         if self.camera_frame is None:
             self.camera_frame = str(msg.header.frame_id).lstrip("/") or None
             if self.camera_frame is None and not self.options.static_pose:
-                msg_ = f"{self.path}: neither the camera info nor the images name their frame (header.frame_id); pass --camera-frame."
+                msg_ = f"{self.where}: neither the camera info nor the images name their frame (header.frame_id); pass --camera-frame."
                 raise IngestError(msg_)
         if self.world_frame is None and not self.options.static_pose:
             self._resolve_world_frame()
@@ -663,19 +674,19 @@ class RecordingFrames:
         assert sel is not None
         d = self.stats.dropped
         if self.stats.rgb_messages == 0:
-            return f"{self.path}: colour topic {sel.rgb} has no messages; pass --rgb TOPIC."
+            return f"{self.where}: colour topic {sel.rgb} has no messages; pass --rgb TOPIC."
         if d["no_depth"]:
             near = (
                 ""
                 if self._nearest_miss_ns is None
                 else f" (nearest was {self._nearest_miss_ns / 1e6:.0f} ms)"
             )
-            return f"{self.path}: no colour image on {sel.rgb} has a depth image on {sel.depth} within --max-dt {self.options.max_dt * 1e3:.0f} ms{near}; raise --max-dt or pass --depth TOPIC."
+            return f"{self.where}: no colour image on {sel.rgb} has a depth image on {sel.depth} within --max-dt {self.options.max_dt * 1e3:.0f} ms{near}; raise --max-dt or pass --depth TOPIC."
         if d["no_valid_depth"]:
-            return f"{self.path}: depth topic {sel.depth} has no valid pixel (finite and > 0) in any of {d['no_valid_depth']} frames; check the depth topic and its encoding."
+            return f"{self.where}: depth topic {sel.depth} has no valid pixel (finite and > 0) in any of {d['no_valid_depth']} frames; check the depth topic and its encoding."
         if self._unposed():
             return self._why_unposed()
-        return f"{self.path}: no frame could be read ({dict(d)})."
+        return f"{self.where}: no frame could be read ({dict(d)})."
 
     def _unposed(self) -> int:
         """Colour images dropped so far for want of a pose, whatever the reason."""
@@ -725,7 +736,7 @@ class RecordingFrames:
             edges = ", ".join(f"{self._tf.parent(c)}->{c}" for c in self._lone)
             fix += f"; if {edges} is a fixed mount, publish it on /tf_static"
         return (
-            f"{self.path}: {self._unposed()} of {total} colour images on {sel.rgb} have no "
+            f"{self.where}: {self._unposed()} of {total} colour images on {sel.rgb} have no "
             f"pose ({reasons}; colour stamps checked against the transforms' samples "
             f"± --max-dt {self.options.max_dt * 1e3:g} ms): the moving transforms from camera "
             f"frame {self.camera_frame!r} to world frame {self.world_frame!r} ({chosen}) "
@@ -737,10 +748,14 @@ class RecordingFrames:
         try:
             return self._assemble_checked(match)
         except IngestError as err:
-            if str(err).startswith(str(self.path)):
+            if self._names_where(str(err)):
                 raise
-            msg = f"{self.path}: {err}"
+            msg = f"{self.where}: {err}"
             raise IngestError(msg) from err
+
+    def _names_where(self, line: str) -> bool:
+        """Whether an error's line already starts with the recording or one of its files."""
+        return any(line.startswith(str(name)) for name in (self.where, *self.parts))
 
     def _assemble_checked(self, match: Match) -> Frame | None:
         sel = self.selection
@@ -750,7 +765,7 @@ class RecordingFrames:
         depth = decode.decode_depth(match.secondary["depth"], sel.depth, self.options.depth_scale)
         h, w = rgb.shape[:2]
         if depth.shape != (h, w):
-            msg = f"{self.path}: colour images on {sel.rgb} are {w}x{h} but depth images on {sel.depth} are {depth.shape[1]}x{depth.shape[0]}; record depth registered to colour (e.g. aligned_depth_to_color) or pass --depth TOPIC."
+            msg = f"{self.where}: colour images on {sel.rgb} are {w}x{h} but depth images on {sel.depth} are {depth.shape[1]}x{depth.shape[0]}; record depth registered to colour (e.g. aligned_depth_to_color) or pass --depth TOPIC."
             raise IngestError(msg)
         K, lens = self._intrinsics(match.stamp_ns, w, h)
         rgb = undistort(rgb, K, lens, blend=True)
@@ -768,7 +783,7 @@ class RecordingFrames:
                 continue
             label = decode.decode_label(msg, sel.extras[key])
             if label.shape != (h, w):
-                msg_ = f"{self.path}: label images on {sel.extras[key]} are {label.shape[1]}x{label.shape[0]}, colour images {w}x{h}; they must match."
+                msg_ = f"{self.where}: label images on {sel.extras[key]} are {label.shape[1]}x{label.shape[0]}, colour images {w}x{h}; they must match."
                 raise IngestError(msg_)
             extras[key] = undistort(label, K, lens, blend=False)
         kept = jpeg if rgb is decoded else None  # undistorted: other pixels than those bytes
@@ -782,9 +797,9 @@ class RecordingFrames:
             sel = self.selection
             assert sel is not None
             if self.options.intrinsics is not None:
-                msg = f"{self.path}: --intrinsics are for {iw}x{ih} images but {sel.rgb} has {w}x{h}; give the colour camera's intrinsics."
+                msg = f"{self.where}: --intrinsics are for {iw}x{ih} images but {sel.rgb} has {w}x{h}; give the colour camera's intrinsics."
             else:
-                msg = f"{self.path}: camera info {sel.camera_info} is for {iw}x{ih} images but {sel.rgb} has {w}x{h}; pass the colour camera's --camera-info, or --intrinsics."
+                msg = f"{self.where}: camera info {sel.camera_info} is for {iw}x{ih} images but {sel.rgb} has {w}x{h}; pass the colour camera's --camera-info, or --intrinsics."
             raise IngestError(msg)
         return K, lens
 

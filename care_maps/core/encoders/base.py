@@ -11,7 +11,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import cast
+from typing import Any, cast
 
 import numpy as np
 
@@ -90,6 +90,16 @@ class Encoder(ABC):
     @abstractmethod
     def encode_views(self, frames: Sequence[Frame]) -> np.ndarray:
         """Dense feature maps (B, fh, fw, d) float32, each cell L2-normalised."""
+
+    def prepare_views(self, frames: Sequence[Frame]) -> Any:
+        """What :meth:`encode_views` does before its forward pass (resizing, normalising),
+        for ingest to run on a background thread ahead of the model; :meth:`encode_prepared`
+        takes the result. Default: the frames as they are (all the work is the forward)."""
+        return frames
+
+    def encode_prepared(self, prepared: Any) -> np.ndarray:
+        """:meth:`encode_views` of what :meth:`prepare_views` returned: the same maps."""
+        return self.encode_views(prepared)
 
     @abstractmethod
     def encode_text(self, names: Sequence[str]) -> np.ndarray:

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, Any, NamedTuple, cast
 
 import numpy as np
 
@@ -47,13 +47,22 @@ from care_maps.core.frames import Frame
 if TYPE_CHECKING:
     from transformers import CLIPTextConfig
 
-__all__ = ["DEFAULT_CHECKPOINT", "PROMPT_TEMPLATE", "ClipEncoder"]
+__all__ = ["DEFAULT_CHECKPOINT", "PROMPT_TEMPLATE", "ClipEncoder", "PreparedBatch"]
 
 DEFAULT_CHECKPOINT = "openai/clip-vit-base-patch32"
 """Used when no ``--weights`` is given; needs a download (or the Hugging Face cache)."""
 
 PROMPT_TEMPLATE = "a photo of a {}."
 """CLIP's standard zero-shot prompt; the class name replaces ``{}``."""
+
+
+class PreparedBatch(NamedTuple):
+    """Views made ready for the vision tower (:meth:`ClipEncoder.prepare_views`)."""
+
+    pixels: Any
+    """(B, 3, fh * patch, fw * patch) float32 tensor, resized and normalised."""
+    fh: int
+    fw: int
 
 
 class ClipEncoder(Encoder):
@@ -133,33 +142,59 @@ class ClipEncoder(Encoder):
 
     def encode_views(self, frames: Sequence[Frame]) -> np.ndarray:
         """Dense (B, fh, fw, d) float32 maps, L2-normalised per cell; views share one size."""
+        return self.encode_prepared(self.prepare_views(frames))
+
+    def prepare_views(self, frames: Sequence[Frame]) -> list[PreparedBatch]:
+        """The model's inputs for ``frames``, one :class:`PreparedBatch` per ``batch_size``
+        views: resized to the patch grid and normalised, on the encoder's device. All of
+        :meth:`encode_views` but the forward pass, so ingest runs it on a background thread
+        for the next batch while this one is in the model."""
         if not frames:
-            return np.zeros((0, 0, 0, self.dim), np.float32)
+            return []
         sizes = {(f.height, f.width) for f in frames}
         if len(sizes) > 1:
             msg = f"views of different sizes {sorted(sizes)} in one batch; encode them separately"
             raise EncoderError(msg)
         height, width = sizes.pop()
         fh, fw = self.grid_shape(height, width)
-        out = [
-            self._dense(np.stack([f.rgb for f in frames[i : i + self.batch_size]]), fh, fw)
+        return [
+            PreparedBatch(
+                self.pixels(np.stack([f.rgb for f in frames[i : i + self.batch_size]]), fh, fw),
+                fh,
+                fw,
+            )
             for i in range(0, len(frames), self.batch_size)
         ]
-        return np.concatenate(out)
 
-    def _dense(self, rgb: np.ndarray, fh: int, fw: int) -> np.ndarray:
+    def encode_prepared(self, prepared: Sequence[PreparedBatch]) -> np.ndarray:
+        """Dense maps of what :meth:`prepare_views` made: the forward pass alone."""
+        if not prepared:
+            return np.zeros((0, 0, 0, self.dim), np.float32)
+        return np.concatenate([self.dense(batch.pixels, batch.fh, batch.fw) for batch in prepared])
+
+    def pixels(self, rgb: np.ndarray, fh: int, fw: int) -> Any:
+        """(B, 3, fh * patch, fw * patch) float32 model input of (B, H, W, 3) uint8 views:
+        resized whole (bicubic, antialiased, clipped to the uint8 range) and normalised as
+        the checkpoint's image processor does."""
         import torch
         import torch.nn.functional as F
 
-        vision = self.model.vision_model
         with torch.no_grad():
             x = torch.from_numpy(rgb).to(self.device).permute(0, 3, 1, 2).float()
             size = (fh * self.patch, fw * self.patch)
             if tuple(x.shape[2:]) != size:
                 x = F.interpolate(x, size=size, mode="bicubic", antialias=True, align_corners=False)
                 x = x.clamp(0.0, 255.0)  # bicubic overshoots; the uint8 pipeline would clip
-            x = x * self._gain + self._bias
-            hidden = vision.embeddings(x, interpolate_pos_encoding=True)
+            return x * self._gain + self._bias
+
+    def dense(self, pixels: Any, fh: int, fw: int) -> np.ndarray:
+        """The forward pass: (B, fh, fw, d) float32 MaskCLIP maps of :meth:`pixels`' input."""
+        import torch
+        import torch.nn.functional as F
+
+        vision = self.model.vision_model
+        with torch.no_grad():
+            hidden = vision.embeddings(pixels, interpolate_pos_encoding=True)
             hidden = vision.pre_layrnorm(hidden)
             *layers, last = vision.encoder.layers
             for layer in layers:
@@ -168,7 +203,7 @@ class ClipEncoder(Encoder):
             values = attn.out_proj(attn.v_proj(last.layer_norm1(hidden[:, 1:])))
             feats = self.model.visual_projection(vision.post_layernorm(values))
             feats = F.normalize(feats, dim=-1)
-        return feats.reshape(len(rgb), fh, fw, self.dim).float().cpu().numpy()
+        return feats.reshape(len(pixels), fh, fw, self.dim).float().cpu().numpy()
 
     def encode_crops(self, crops: Sequence[np.ndarray]) -> np.ndarray:
         """Whole-crop features (B, d) of (h, w, 3) uint8 crops, L2-normalised."""

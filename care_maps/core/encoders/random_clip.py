@@ -4,8 +4,8 @@ benchmarks load where no real weights can be downloaded.
 The files are those of a real checkpoint (the model, a byte-level BPE tokenizer, an image
 processor), so every loading path of :mod:`care_maps.core.encoders.clip` runs as on ``openai/clip-*``;
 only the weights (seed 0) and the tokenizer's vocabulary (one token per byte symbol, with and
-without the end-of-word mark, plus merges for "chair") are made up. Two sizes: a tiny one
-for tests, and ViT-B/32's architecture (``CLIPConfig``'s defaults) for timing and memory.
+without the end-of-word mark, plus merges for "chair") are made up. Three sizes: a tiny one
+for tests, and ViT-B/32's and ViT-L/14's architectures for timing and memory.
 """
 
 from __future__ import annotations
@@ -28,6 +28,26 @@ class ClipSize(StrEnum):
     """32-wide towers, 2 text layers: a test loads and runs it in milliseconds."""
     VIT_B32 = "vit-b32"
     """ViT-B/32's towers and projection: its load time and memory are a real checkpoint's."""
+    VIT_L14 = "vit-l14"
+    """ViT-L/14's (``openai/clip-vit-large-patch14``): 24 vision layers of width 1024, patch
+    14, a 768-wide text tower and projection."""
+
+
+_VIT_L14_TEXT = {
+    "hidden_size": 768,
+    "intermediate_size": 3072,
+    "num_attention_heads": 12,
+    "num_hidden_layers": 12,
+}
+_VIT_L14_VISION = {
+    "hidden_size": 1024,
+    "intermediate_size": 4096,
+    "num_attention_heads": 16,
+    "num_hidden_layers": 24,
+    "image_size": 224,
+    "patch_size": 14,
+}
+"""ViT-L/14's towers, from the checkpoint's ``config.json`` (the rest: ``CLIPConfig``'s defaults)."""
 
 
 def _tokenizer_files(out: Path) -> dict[str, int]:
@@ -81,6 +101,13 @@ def save_random_clip(out: Path, *, size: ClipSize = ClipSize.TINY, layers: int =
             size={"shortest_edge": TINY_IMAGE},
             crop_size={"height": TINY_IMAGE, "width": TINY_IMAGE},
         )
+    elif size is ClipSize.VIT_L14:
+        config = CLIPConfig(
+            text_config={**ids, **_VIT_L14_TEXT},
+            vision_config=_VIT_L14_VISION,
+            projection_dim=768,
+        )
+        processor = CLIPImageProcessor()
     else:
         config = CLIPConfig(text_config=ids)
         processor = CLIPImageProcessor()

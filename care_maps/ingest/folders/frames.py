@@ -26,7 +26,6 @@ import math
 from collections.abc import Iterator
 from dataclasses import asdict, fields, replace
 from pathlib import Path
-from types import TracebackType
 from typing import Any
 
 import numpy as np
@@ -35,6 +34,8 @@ from care_maps.core.errors import IngestError
 from care_maps.core.frames import DEFAULT_CAMERA_FRAME, Frame
 from care_maps.ingest.folders import LAYOUTS, DatasetLayout, FolderLayout, detect_layout
 from care_maps.ingest.folders.base import FolderOptions, FolderView
+from care_maps.ingest.parts import Recording, parts_label, recording_parts
+from care_maps.ingest.readers import ClosedOnExit
 from care_maps.ingest.source import ReadOptions, ReadStats, RecordingFrames
 from care_maps.ingest.undistort import Distortion, undistort
 
@@ -92,10 +93,18 @@ def resolve_layout(path: Path, forced: DatasetLayout | None = None) -> DatasetLa
     return kind
 
 
-def open_frames(path: Path, options: ReadOptions | None = None) -> Frames:
+def open_frames(path: Recording, options: ReadOptions | None = None) -> Frames:
     """The frames of ``path`` (not yet entered: ``with open_frames(p, o) as frames``): a
-    :class:`FolderFrames` for a dataset folder, else a :class:`care_maps.ingest.source.RecordingFrames`."""
+    :class:`FolderFrames` for a dataset folder, else a :class:`care_maps.ingest.source.RecordingFrames`
+    (of one recording's several files too, :mod:`care_maps.ingest.parts`)."""
     options = options or ReadOptions()
+    parts = recording_parts(path)
+    if len(parts) > 1:
+        if options.format is not None:
+            msg = f"{parts_label(parts)}: --format {options.format} reads dataset folders, and these are the files of a recording; leave --format out."
+            raise IngestError(msg)
+        return RecordingFrames(parts, options)
+    path = parts[0]
     kind = resolve_layout(path, options.format)
     if kind is None:
         return RecordingFrames(path, options)
@@ -118,7 +127,7 @@ def open_layout(path: Path, kind: DatasetLayout, options: ReadOptions) -> Folder
     return LAYOUTS[kind](Path(path), max_dt=options.max_dt, options=FolderOptions.of(options))
 
 
-class FolderFrames:
+class FolderFrames(ClosedOnExit):
     """Context manager over a dataset folder; iterate it (once) for posed frames."""
 
     def __init__(
@@ -156,14 +165,6 @@ class FolderFrames:
         self.stats.rgb_messages = len(views) + sum(layout.dropped.values())
         self.stats.dropped.update(layout.dropped)
         return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
     def close(self) -> None:
         """Nothing stays open between views: each image is read and closed in turn."""

@@ -1,0 +1,339 @@
+"""What a user's own CLIP costs at ingest: `care ingest --encoder clip` against the bare
+forward pass of the same model on the same inputs, side by side in one run.
+
+The living-room recording (``../shared/data``, 640x480, JPEG colour as a robot records it,
+written to MCAP; frames repeat, the clock going on, past its 211) is ingested with a CLIP of
+ViT-B/32's architecture and random weights (:mod:`care_maps.core.encoders.random_clip`; no
+download), each way in a fresh process with its own peak memory (``bench/rss.py``):
+
+- ``care ingest REC --encoder clip --weights DIR --vocabulary scannet200``, the whole command
+  (interpreter start, imports, model load, the vocabulary's text, reading, decoding, the
+  geometry check, the store);
+- the bare forward: the same model (``ClipEncoder.encode_prepared``: the vision tower up to
+  the MaskCLIP value path and the projection) on the same views read back from the
+  recording, resized and normalised beforehand and untimed, in batches of the same size with
+  the same threads (``Work.ENCODE``: every core). Its views/s is the floor ingest is held to.
+
+Also the bare forward's views/s by batch size (what the default batch is chosen from), a
+ViT-L/14 row with ``--large`` (too slow for 2 cores at 200 views: ``--large-views``, default
+8), a GPU row with ``--device cuda`` where torch sees one (else a note), and ``--baseline
+DIR``: the same ``care ingest`` from another checkout of the project (``git archive HEAD |
+tar -x -C DIR``), to measure a change against what it replaces in the same run.
+
+    python bench/encode.py [--views 200] [--large] [--device cuda] [--baseline DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from bench.docs_section import add_docs_flag, recorded  # noqa: E402
+
+DATA = ROOT.parent / "shared" / "data" / "rgbd" / "livingroom1_clean_micro"
+OFFLINE = {"HF_HUB_OFFLINE": "1", "TRANSFORMERS_OFFLINE": "1"}
+VOCABULARY = "scannet200"
+SWEEP = (2, 4, 8, 16)
+"""Batch sizes of the bare forward's sweep."""
+
+_INGEST = r"""
+import json, resource, sys, time
+t0 = time.perf_counter()
+case = json.loads(sys.argv[1])
+sys.argv = ["bench-care", "ingest", *case["args"]]  # not "care": exits come back here
+import care_maps
+from care_maps.cli.main import main
+try:
+    main()
+except SystemExit as done:
+    if done.code:
+        raise
+seconds = time.perf_counter() - t0
+from bench.rss import peak_rss_mb
+use = resource.getrusage(resource.RUSAGE_SELF)
+views = json.loads(open(case["out"] + "/meta.json").read())["num_views"]
+print(json.dumps({"seconds": seconds, "cpu": use.ru_utime + use.ru_stime, "views": views,
+                  "peak_mb": peak_rss_mb(), "package": care_maps.__file__}))
+"""
+
+_BARE = r"""
+import json, resource, sys, time
+from pathlib import Path
+case = json.loads(sys.argv[1])
+from care_maps.runtime.threads import Work, use_threads
+threads = use_threads(Work.ENCODE)  # what ingest's forward pass runs under
+import torch
+from care_maps.core.encoders import EncoderOptions, make_encoder
+from care_maps.ingest.folders.frames import open_frames
+from care_maps.ingest.source import ReadOptions
+from bench.rss import peak_rss_mb
+options = EncoderOptions(weights=case["weights"], device=case["device"], batch_size=max(case["sizes"]))
+encoder = make_encoder("clip", options)
+cuda = encoder.device.type == "cuda"
+
+def cpu():
+    use = resource.getrusage(resource.RUSAGE_SELF)
+    return use.ru_utime + use.ru_stime
+
+def batches(size):  # the recording's first views, decoded as ingest decodes them
+    batch, seen = [], 0
+    with open_frames(Path(case["rec"]), ReadOptions()) as stream:
+        for frame in stream:
+            batch.append(frame)
+            seen += 1
+            if len(batch) == size or seen == case["views"]:
+                yield batch
+                batch = []
+            if seen == case["views"]:
+                return
+
+encoder.encode_prepared(encoder.prepare_views(next(batches(1))))  # first call, untimed
+rows = []
+for size in case["sizes"]:
+    seconds = cpu_s = 0.0
+    views = 0
+    for batch in batches(size):
+        prepared = encoder.prepare_views(batch)  # untimed, as the decoding
+        if cuda:
+            torch.cuda.synchronize()
+        t, c = time.perf_counter(), cpu()
+        encoder.encode_prepared(prepared)  # to host memory, as ingest takes it
+        seconds += time.perf_counter() - t
+        cpu_s += cpu() - c
+        views += len(batch)
+    rows.append({"batch": size, "seconds": seconds, "cpu": cpu_s, "views": views})
+print(json.dumps({"rows": rows, "threads": threads, "peak_mb": peak_rss_mb()}))
+"""
+
+
+def _living_room(views: int) -> Iterator:
+    """``views`` living-room frames with their poses (past the 211 recorded, they start
+    again, the clock going on)."""
+    import numpy as np
+    from PIL import Image
+
+    from care_maps.core.frames import Frame
+
+    lines = (DATA / "trajectory.log").read_text().split("\n")
+    intrinsic = json.loads((DATA / "camera_intrinsic.json").read_text())["intrinsic_matrix"]
+    K = np.array(intrinsic).reshape(3, 3).T
+    count = len(list((DATA / "image").glob("*.jpg")))
+    for i in range(views):
+        k = i % count
+        pose = np.array([[float(x) for x in row.split()] for row in lines[5 * k + 1 : 5 * k + 5]])
+        rgb = np.asarray(Image.open(DATA / "image" / f"{k:05d}.jpg").convert("RGB"))
+        depth = np.asarray(Image.open(DATA / "depth" / f"{k:05d}.png")).astype(np.float32) / 1e3
+        yield Frame(10**9 + i * 33_333_333, rgb, depth, K, pose)
+
+
+def _recording(work: Path, views: int) -> Path:
+    from care_maps.ingest.write import write_recording
+
+    path = work / f"living_room_{views}.mcap"
+    if not path.is_file():
+        write_recording(path, _living_room(views), fmt="mcap", compressed_rgb=True)
+    return path
+
+
+def _weights(work: Path, size: str) -> Path:
+    from care_maps.core.encoders.random_clip import ClipSize, save_random_clip
+
+    path = work / f"clip-{size}-random"
+    if not path.is_dir():
+        save_random_clip(path, size=ClipSize(size))
+    return path
+
+
+def _child(script: str, case: dict, cwd: Path) -> dict:
+    env = {**os.environ, **OFFLINE, "PYTHONPATH": f"{cwd}{os.pathsep}{ROOT}"}
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    done = subprocess.run(
+        [sys.executable, "-c", script, json.dumps(case)],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    if done.returncode != 0:
+        lines = done.stderr.strip().splitlines() or ["no output"]
+        return {"error": lines[-1]}
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def _ingest(rec: Path, weights: Path, out: Path, device: str | None, cwd: Path = ROOT) -> dict:
+    args = [str(rec), "--out", str(out), "--encoder", "clip", "--weights", str(weights),
+            "--vocabulary", VOCABULARY, "--force"]  # fmt: skip
+    if device:
+        args += ["--device", device]
+    return _child(_INGEST, {"args": args, "out": str(out)}, cwd)
+
+
+def _bare(rec: Path, weights: Path, views: int, device: str | None, sizes: list[int]) -> dict:
+    case = {"rec": str(rec), "weights": str(weights), "views": views, "device": device,
+            "sizes": sizes}  # fmt: skip
+    return _child(_BARE, case, ROOT)
+
+
+def _cuda() -> bool:
+    probe = "import torch; print(torch.cuda.is_available())"
+    done = subprocess.run(
+        [sys.executable, "-c", probe], capture_output=True, text=True, check=False
+    )
+    return done.stdout.strip() == "True"
+
+
+def _row(model: str, device: str, way: str, res: dict, floor: dict | None) -> None:
+    """Print one table row, with its rates over the floor's (wall and CPU time)."""
+    if "error" in res:
+        print(f"| {model} | {device} | {way} | failed: {res['error']} | | | | | | |")
+        return
+    rate, per_cpu = res["views"] / res["seconds"], res["views"] / res["cpu"]
+    of_wall = of_cpu = ""
+    if floor is not None:
+        of_wall = f"{rate / (floor['views'] / floor['seconds']):.2f}"
+        of_cpu = f"{per_cpu / (floor['views'] / floor['cpu']):.2f}"
+    print(
+        f"| {model} | {device} | {way} | {res['views']} | {res['seconds']:.1f} | {rate:.2f} "
+        f"| {of_wall} | {res['cpu']:.0f} | {per_cpu:.2f} | {of_cpu} | {res['peak_mb']:,.0f} |"
+    )
+
+
+def _best(runs: list[dict]) -> dict:
+    """The run of least wall time (CPU time: the least of any run), or the first error."""
+    failed = [r for r in runs if "error" in r]
+    if failed:
+        return failed[0]
+    return {**min(runs, key=lambda r: r["seconds"]), "cpu": min(r["cpu"] for r in runs)}
+
+
+def _past_start(long: dict, short: dict) -> dict:
+    """What the views past a short run's cost: the difference of two runs (program start,
+    model load and the vocabulary's text cancel out)."""
+    if "error" in long or "error" in short:
+        return long if "error" in long else short
+    return {
+        "views": long["views"] - short["views"],
+        "seconds": long["seconds"] - short["seconds"],
+        "cpu": long["cpu"] - short["cpu"],
+        "peak_mb": long["peak_mb"],
+    }
+
+
+def _compare(
+    model: str,
+    device: str | None,
+    recs: tuple[Path, Path],
+    weights: Path,
+    work: Path,
+    baseline: Path | None,
+    repeat: int,
+) -> None:
+    """The bare forward and ``care ingest`` (and the baseline checkout's) on the long of
+    ``recs``, and ingest on the short one, one after another ``repeat`` times, each way's
+    best run."""
+    from care_maps.core.store import BATCH_SIZE
+
+    label = device or "cpu"
+    rec, short = recs
+    views = int(rec.stem.rsplit("_", 1)[-1])
+    ways = {"ingest": ROOT, **({"before": baseline} if baseline is not None else {})}
+    runs: dict[str, list[dict]] = {"bare": []}
+    for _ in range(repeat):
+        res = _bare(rec, weights, views, device, [BATCH_SIZE])
+        runs["bare"].append(res if "error" in res else {**res, **res["rows"][0]})
+        for way, checkout in ways.items():
+            store = work / f"store-{way}"
+            runs.setdefault(way, []).append(_ingest(rec, weights, store, device, checkout))
+            runs.setdefault(f"{way}-short", []).append(
+                _ingest(short, weights, store, device, checkout)
+            )
+    floor = _best(runs["bare"])
+    _row(model, label, "bare forward (the floor)", floor, None)
+    floor = None if "error" in floor else floor
+    for way, checkout in ways.items():
+        name = "`care ingest --encoder clip`" if way == "ingest" else f"the same from {checkout}"
+        long, cut = _best(runs[way]), _best(runs[f"{way}-short"])
+        _row(model, label, name, long, floor)
+        _row(model, label, f"{name}: views past the first {cut.get('views', '?')}",
+             _past_start(long, cut), floor)  # fmt: skip
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--views", type=int, default=200, help="Views a way (default 200).")
+    parser.add_argument("--large", action="store_true", help="Add ViT-L/14 rows.")
+    parser.add_argument("--large-views", type=int, default=8, help="Views of the ViT-L/14 rows.")
+    parser.add_argument("--sweep-views", type=int, default=16, help="Views of the batch sweep.")
+    parser.add_argument("--device", default=None, help="cuda: add GPU rows where torch has one.")
+    parser.add_argument("--baseline", type=Path, default=None, help="Another checkout to time.")
+    parser.add_argument("--repeat", type=int, default=2, help="Runs of each way, best kept.")
+    parser.add_argument("--workdir", type=Path, default=None)
+    add_docs_flag(parser)
+    args = parser.parse_args()
+    work = Path(args.workdir or tempfile.mkdtemp(prefix="care-bench-encode-"))
+    work.mkdir(parents=True, exist_ok=True)
+    with recorded("encode", write=not args.no_docs):
+        load = os.getloadavg()[0]
+        t = time.perf_counter()
+        b32 = _weights(work, "vit-b32")
+        rec = _recording(work, args.views)
+        sweep = _recording(work, args.sweep_views)
+        print(
+            f"living room, 640x480 JPEG, {args.views} views; CLIP with random weights (ViT-B/32: "
+            f"14x19 cells of 448x608 input); inputs written in {time.perf_counter() - t:.0f} s"
+        )
+        devices: list[str | None] = [None]
+        if args.device == "cuda" and _cuda():
+            devices.append("cuda")
+        elif args.device == "cuda":
+            print("no GPU here: no cuda rows")
+        print()
+        print(
+            "| model | device | way | views | seconds | views/s | of the floor | CPU s "
+            "| views per CPU s | of the floor (CPU) | peak MiB |"
+        )
+        print("| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
+        for device in devices:
+            _compare("ViT-B/32", device, (rec, sweep), b32, work, args.baseline, args.repeat)
+            if args.large:
+                l14 = _weights(work, "vit-l14")
+                large = _recording(work, args.large_views)
+                short = _recording(work, max(1, args.large_views // 4))
+                _compare("ViT-L/14", device, (large, short), l14, work, None, 1)
+        res = _bare(sweep, b32, args.sweep_views, None, list(SWEEP))
+        print()
+        threads = res.get("threads", "?")
+        if "error" in res:
+            print(f"batch sweep failed: {res['error']}")
+        else:
+            print(f"bare forward by batch size (ViT-B/32, cpu, {args.sweep_views} views)")
+            print()
+            print("| batch | views/s | CPU s a view |")
+            print("| ---: | ---: | ---: |")
+            for row in res["rows"]:
+                rate = row["views"] / row["seconds"]
+                print(f"| {row['batch']} | {rate:.2f} | {row['cpu'] / row['views']:.2f} |")
+        print()
+        print(
+            f"best of {args.repeat} runs a way, in turn; seconds: ingest's whole command "
+            f"(program start, model load and the vocabulary's {VOCABULARY} prompts included), "
+            f"the bare forward's model calls alone; torch threads {threads} for the forward in "
+            f"both; shared machine: load average {load:.1f} at the start, "
+            f"{os.getloadavg()[0]:.1f} at the end"
+        )
+
+
+if __name__ == "__main__":
+    main()
