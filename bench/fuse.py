@@ -60,7 +60,7 @@ CELL = 0.05
 SIGMA_Z = GridConfig().sigma_z
 
 
-def _frame(rng: np.random.Generator, room: float = 5.0) -> Frame:
+def room_frame(rng: np.random.Generator, room: float = 5.0) -> Frame:
     """A camera 1.2-1.6 m up, pitched down 15-35 degrees, inside a box room with a ceiling."""
     yaw = rng.uniform(0, 2 * np.pi)
     pitch = rng.uniform(np.radians(15), np.radians(35))
@@ -120,7 +120,7 @@ def _target(name: str, value: str, target: str, met: bool) -> None:
     TARGETS[name] = (f"{value} (load {_load()})", target, met)
 
 
-def _features(rng: np.random.Generator, d: int) -> np.ndarray:
+def room_features(rng: np.random.Generator, d: int) -> np.ndarray:
     f = rng.normal(size=(FH, FW, d)).astype(np.float32)
     return f / np.linalg.norm(f, axis=-1, keepdims=True)
 
@@ -240,9 +240,9 @@ def bench_throughput(
     took 2.3x its CPU time in wall time, the vectorised pass 2.9x).
     """
     rng = np.random.default_rng(0)
-    frames = [_frame(rng) for _ in range(num_frames)]
-    feats = [_features(rng, d) for _ in range(num_frames)]
-    text = _features(rng, d).reshape(-1, d)[:100]
+    frames = [room_frame(rng) for _ in range(num_frames)]
+    feats = [room_features(rng, d) for _ in range(num_frames)]
+    text = room_features(rng, d).reshape(-1, d)[:100]
     _fuse_vectorised(frames[:1], feats[:1], text, 8)  # warm up
     print(
         f"\n## Grid fusion throughput (d={d}, {H}x{W} frames, {CELL} m cells, 100 classes, 1 thread)"
@@ -339,13 +339,13 @@ def _peak_child(num_frames: int, d: int, stride: int, queue) -> None:
     use_threads(Work.FUSE)
     keep_freed_memory()
     rng = np.random.default_rng(1)
-    text = _features(rng, d).reshape(-1, d)[:100]
+    text = room_features(rng, d).reshape(-1, d)[:100]
     index = CellIndex()
     sums = CandidateSums(d, text, 100.0)
     for _ in range(num_frames):  # frames made and dropped one at a time, as a store streams them
         s = view_samples(
-            _frame(rng),
-            _features(rng, d),
+            room_frame(rng),
+            room_features(rng, d),
             cell_size=CELL,
             stride=stride,
             z_min=-0.2,
@@ -383,12 +383,12 @@ def _write_store(
     from care_maps.core.store import EncoderInfo, StoreWriter
 
     rng = np.random.default_rng(seed)
-    text = _features(np.random.default_rng(99), d).reshape(-1, d)[:100]
+    text = room_features(np.random.default_rng(99), d).reshape(-1, d)[:100]
     names = tuple(f"class {i}" for i in range(100))
     how = {} if encoding is None else {"encoding": StoreEncoding(encoding)}
     with StoreWriter(path, EncoderInfo("bench", "1", d, names), **how) as writer:
         for _ in range(num_frames):
-            writer.add(_frame(rng, room), _features(rng, d).astype(np.float16))
+            writer.add(room_frame(rng, room), room_features(rng, d).astype(np.float16))
         writer.set_text(names, text)
         writer.commit({"source": "bench"})
     return path

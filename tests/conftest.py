@@ -20,6 +20,12 @@ def shared_data() -> Path:
     return path
 
 
+@pytest.fixture(scope="session")
+def livingroom_root(shared_data: Path) -> Path:
+    """The third-party living-room RGB-D frames (ICL-NUIM), the recordings' usual source."""
+    return shared_data / "rgbd" / "livingroom1_clean_micro"
+
+
 def _save_tiny_clip(out: Path, layers: int) -> Path:
     """A real CLIP (random weights, seed 0) written with ``save_pretrained``: model, a real
     byte-level BPE tokenizer over a small vocabulary, and an image processor."""

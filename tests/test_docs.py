@@ -191,7 +191,7 @@ def test_cli_reference_is_current() -> None:
 
 BENCH_SECTIONS = (
     "ingest", "encode", "world", "fuse", "scale", "query", "paths", "cold_query", "batch",
-    "dataset", "travel",
+    "dataset", "travel", "append",
 )  # fmt: skip
 """The sections of docs/benchmarks.md, each written by ``bench/<name>.py``."""
 

@@ -64,6 +64,26 @@ def sample_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
+def _care(*args: str | Path) -> None:
+    """One ``care`` command in a fresh process, which must succeed."""
+    done = subprocess.run(
+        [sys.executable, "-m", "care_maps.cli.main", *map(str, args)],
+        capture_output=True, text=True, timeout=300, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+
+
+def _views_without_errors(rrd: Path, shots: Path) -> dict[str, list[str]]:
+    """The viewer's report of ``rrd`` (view -> errors), every view free of errors and the
+    screenshot not blank."""
+    done = _check(rrd, "--shots", shots, "--json", shots / "report.json", timeout=300)
+    report = json.loads((shots / "report.json").read_text())[str(rrd)]
+    assert done.returncode == 0, done.stdout + done.stderr[-2000:]
+    assert not {view: errs for view, errs in report.items() if errs}
+    assert _not_blank(shots / f"{rrd.name.removesuffix('.rrd')}.png")
+    return report
+
+
 def _not_blank(png: Path) -> bool:
     """Something is drawn: the commonest colour (the background) covers under 99.5% of it."""
     from PIL import Image
@@ -111,18 +131,9 @@ def test_answer_recordings_render_without_errors(
     store = sample_run / "stores" / "scene_000"
     rrd = tmp_path / f"scene_000.{command}.rrd"
     extra = ["--visited", "0"] if command == "replan" else []
-    done = subprocess.run(
-        [sys.executable, "-m", "care_maps.cli.main", command, str(store), "sofa", "--map",
-         "instances", *extra, "--rrd", str(rrd)],
-        capture_output=True, text=True, timeout=300, check=False,
-    )  # fmt: skip
-    assert done.returncode == 0, done.stderr[-2000:]
-    done = _check(rrd, "--shots", tmp_path, "--json", tmp_path / "report.json", timeout=300)
-    report = json.loads((tmp_path / "report.json").read_text())[str(rrd)]
-    assert done.returncode == 0, done.stdout + done.stderr[-2000:]
+    _care(command, store, "sofa", "--map", "instances", *extra, "--rrd", rrd)
+    report = _views_without_errors(rrd, tmp_path)
     assert len(report) == 2, report
-    assert not {view: errs for view, errs in report.items() if errs}
-    assert _not_blank(tmp_path / f"scene_000.{command}.png")
 
 
 def test_checker_reports_a_view_error(viewer: None, tmp_path: Path) -> None:
@@ -148,3 +159,21 @@ def test_checker_reports_a_view_error(viewer: None, tmp_path: Path) -> None:
     assert done.returncode == 1
     errors = json.loads((tmp_path / "r.json").read_text())[str(rrd)]["no root"]
     assert any("pinhole" in e for e in errors)
+
+
+def test_a_store_of_two_runs_renders_without_errors(
+    viewer: None, tmp_path: Path, livingroom_root: Path
+) -> None:
+    """``care ingest --append --rrd``: the store's two runs, each on its own timeline (the
+    third-party living room written as a ROS 1 bag and an MCAP file by the real writers)."""
+    from tests.support.frames import load_livingroom
+    from tests.support.recordings import Container, robot_messages, write_bag
+
+    frames = load_livingroom(livingroom_root, 12)
+    first = write_bag(tmp_path / "day1.bag", robot_messages(frames[0:8]), Container.ROS1)
+    second = write_bag(tmp_path / "day2.mcap", robot_messages(frames[4:12]), Container.MCAP)
+    store, rrd = tmp_path / "store", tmp_path / "runs.rrd"
+    _care("ingest", first, "--out", store)
+    _care("ingest", second, "--out", store, "--append", "--rrd", rrd)
+    report = _views_without_errors(rrd, tmp_path)
+    assert len(report) >= MIN_VIEWS["ingest"], report

@@ -61,10 +61,11 @@ def _verify(path: Path) -> tuple[list[str], str]:
     problems = _store_problems(path)
     ok = f"{path}: ok ({len(tables)} tables verified)"
     if not problems:
-        from care_maps.cli.summary import geometry_line
+        from care_maps.cli.summary import geometry_line, runs_lines
 
         geometry = geometry_line(path)
         ok += "" if geometry is None else "\n" + geometry
+        ok += "".join("\n" + line for line in runs_lines(path))
     return problems, ok
 
 

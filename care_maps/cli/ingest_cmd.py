@@ -19,6 +19,7 @@ from care_maps.cli.choices import EncoderName, Perception
 from care_maps.cli.options import Options, config_options
 from care_maps.core.encoders.base import EncoderOptions
 from care_maps.ingest.pipeline import IngestConfig
+from care_maps.ingest.runs import RunOptions
 from care_maps.ingest.select import FrameSelection
 from care_maps.ingest.source import ReadOptions
 from care_maps.runtime.execution import Execution
@@ -64,6 +65,11 @@ read_options = config_options(
 )
 @read_options
 @config_options("selection", FrameSelection)
+@config_options(
+    "placement",
+    RunOptions,
+    extra={"append": {"rich_help_panel": "Runs"}, "world_transform": {"rich_help_panel": "Runs"}},
+)
 def ingest(
     recording: Annotated[list[Path], typer.Argument(help=_SOURCE_HELP)],
     out: Annotated[
@@ -78,11 +84,12 @@ def ingest(
     encoding: Options[EncoderOptions] = None,  # type: ignore[assignment]
     read: Options[ReadOptions] = None,  # type: ignore[assignment]
     selection: Options[FrameSelection] = None,  # type: ignore[assignment]
+    placement: Options[RunOptions] = None,  # type: ignore[assignment]
     run: Options[Execution] = None,  # type: ignore[assignment]
 ) -> None:
     """Read a robot recording or a dataset folder into a feature store (views, poses,
     features)."""
-    from care_maps.cli.summary import geometry_line, ingest_line
+    from care_maps.cli.summary import geometry_line, ingest_line, runs_lines
     from care_maps.ingest import ingest
 
     config = job.config(
@@ -90,8 +97,10 @@ def ingest(
         encoder_options=encoding.config(),
         select=selection.config(),
     )
-    path = ingest(_one_or_parts(recording), out, config, run=run.config()).path
-    for line in (ingest_line(path), geometry_line(path)):
+    path = ingest(
+        _one_or_parts(recording), out, config, run=run.config(), placement=placement.config()
+    ).path
+    for line in (ingest_line(path), geometry_line(path), *runs_lines(path)):
         if line is not None:
             typer.echo(line)
 

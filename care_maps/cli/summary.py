@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["frame_line", "geometry_line", "ingest_line", "store_lines"]
+__all__ = ["frame_line", "geometry_line", "ingest_line", "runs_lines", "store_lines"]
 
 
 def ingest_line(store: Path) -> str:
@@ -35,6 +35,38 @@ def geometry_line(store: Path) -> str | None:
     return f"{store}: {describe_verdict(found)}{kept}"
 
 
+def runs_lines(store: Path) -> list[str]:
+    """One line per exploration run of a store that holds several (none for one run): its
+    views, recording, frame and placement, and how it agreed with the runs before it."""
+    from care_maps.core.store import Store
+
+    runs = Store(store).meta.runs
+    lines = []
+    for k, run in enumerate(runs, 1):
+        views = run.view_ids
+        line = (
+            f"{store}: run {k} of {len(runs)}: views {views.start}-{views.stop - 1} from "
+            f"{run.source.name} in world frame {run.world_frame!r}"
+        )
+        if run.world_transform is not None:
+            placed = ",".join(f"{v:g}" for v in run.world_transform)
+            line += f", placed by --world-transform {placed}"
+        found = run.alignment
+        if found is not None:
+            share = f"{found.get('agree', 0):.0%} of reprojected depth over {found.get('pairs_judged', 0)} view pairs"
+            status = found.get("status")
+            if status == "agree":
+                line += f"; agrees with the earlier runs where they overlap: {share}"
+            elif status == "disagree":
+                line += f"; disagrees with the earlier runs ({share}), kept as given (--accept-geometry)"
+            else:
+                line += (
+                    f"; not checked against the earlier runs: {found.get('reason', 'no overlap')}"
+                )
+        lines.append(line)
+    return lines
+
+
 def frame_line(store: Path) -> str:
     """The frame ``map.yaml`` and goals are in, for the robot stack (``care frame`` says how
     to publish it where the recording's TF tree lacks it)."""
@@ -54,6 +86,7 @@ def store_lines(store: Path) -> list[str]:
     geometry = geometry_line(store)
     if geometry is not None:
         lines.append(geometry)
+    lines += runs_lines(store)
     lines.append(f"{store}: {opened.map_frame.describe()}")
     for table, what in (("cells", "grid cells"), ("instances", "instances")):
         path = opened.table_path(table)

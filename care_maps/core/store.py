@@ -23,7 +23,7 @@ import contextlib
 import dataclasses
 import json
 import os
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Collection, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -46,6 +46,7 @@ from care_maps.core.keys import (
     VOCABULARY_KEY,
 )
 from care_maps.core.mapframe import MapFrame
+from care_maps.core.outputs import MARKER as OUTPUT_MARKER
 from care_maps.core.outputs import (
     OutputKind,
     damaged,
@@ -71,17 +72,21 @@ __all__ = [
     "META_FILE",
     "META_VERSION",
     "SCHEMA_VERSION",
+    "STORE_OWN",
     "TEXT_SCHEMA",
     "VIEWS_SCHEMA",
     "VIEWS_SCHEMA_PNG",
+    "WRITER_FIELDS",
     "EncodedDepth",
     "EncoderInfo",
+    "RunRecord",
     "SourceFile",
     "SourceRecord",
     "Store",
     "StoreMeta",
     "StoreWriter",
     "append_rows",
+    "carried_meta",
     "damaged_table",
     "features_encoding",
     "group_rows",
@@ -93,6 +98,7 @@ __all__ = [
     "read_map_frame",
     "read_schema",
     "read_table",
+    "run_records",
     "source_recording",
     "store_identity",
     "views_encoding",
@@ -467,7 +473,10 @@ def read_table(path: Path, columns: Sequence[str] | None = None) -> pa.Table:
 
 
 def iter_batches(
-    path: Path, batch_size: int, columns: Sequence[str] | None = None
+    path: Path,
+    batch_size: int,
+    columns: Sequence[str] | None = None,
+    view_ids: Collection[int] | None = None,
 ) -> Iterator[pa.RecordBatch]:
     """A Parquet file's rows in batches, one row group in memory at a time.
 
@@ -475,11 +484,31 @@ def iter_batches(
     iterator ends (pyarrow 2x, measured: +1.4 MB a view over a 1,485-view store, 2 GB by
     the end), so streaming a large store through it grew without bound. Reading row group
     by row group frees each before the next.
+
+    ``view_ids``: only row groups whose ``view_id`` range (the footer's statistics) holds one
+    of them are read, so the views appended to a large store are read without the rest
+    (the rows of a group read are all yielded: the caller filters them).
     """
     pf = pq.ParquetFile(path, **CHECKED)
+    wanted = None if view_ids is None else np.unique(np.fromiter(view_ids, np.int64))
     for group in range(pf.num_row_groups):
+        if wanted is not None and not _holds_any(pf, group, wanted):
+            continue
         table = pf.read_row_group(group, columns=None if columns is None else list(columns))
         yield from table.to_batches(max_chunksize=batch_size)
+
+
+def _holds_any(pf: pq.ParquetFile, group: int, wanted: np.ndarray) -> bool:
+    """Whether row group ``group`` may hold a ``view_id`` of ``wanted`` (sorted): True where
+    the file has no statistics for it."""
+    names = pf.schema_arrow.names
+    if "view_id" not in names:
+        return True
+    stats = pf.metadata.row_group(group).column(names.index("view_id")).statistics
+    if stats is None or not stats.has_min_max:
+        return True
+    lo = int(np.searchsorted(wanted, int(stats.min)))
+    return lo < wanted.size and int(wanted[lo]) <= int(stats.max)
 
 
 _MAX_BUFFERED_VALUES = 1 << 26
@@ -490,6 +519,11 @@ bounds the memory (128 MiB of float16) and keeps the list column's int32 offsets
 META_FILE = "meta.json"
 """The store's metadata (:class:`StoreMeta`), written last: its presence marks a complete
 store."""
+
+STORE_OWN = frozenset(
+    {"views.parquet", "features.parquet", "text.parquet", META_FILE, OUTPUT_MARKER}
+)
+"""What ingest writes into a store; anything else in it was made from the store (maps)."""
 
 BATCH_SIZE = 8
 """Views handled at once where a stage batches them (read, projected, cropped, encoded)."""
@@ -547,6 +581,52 @@ def _source_record(source: Any) -> SourceRecord:
 
 
 @dataclass(frozen=True)
+class RunRecord:
+    """One exploration run of a store that holds several (``care ingest --append``): its
+    views, where it came from, the frame it was recorded in and how it was placed in the
+    store's, and what the checks found."""
+
+    first_view: int
+    """Its views are ``first_view .. first_view + num_views - 1``."""
+    num_views: int
+    source: SourceRecord = dataclasses.field(default_factory=SourceRecord)
+    fingerprint: str | None = None
+    """Hash of the run's recording and the options it was read with (its store's, alone)."""
+    request_fingerprint: str | None = None
+    world_frame: str | None = None
+    """The frame its recording's poses were in."""
+    camera_frame: str | None = None
+    world_transform: list[float] | None = None
+    """``x, y, z, qx, qy, qz, qw`` of its world frame in the store's, as given (None: the
+    same frame)."""
+    counts: dict[str, Any] = dataclasses.field(default_factory=dict)
+    geometry: dict[str, Any] | None = None
+    """The run's own consistency check (its views among themselves)."""
+    alignment: dict[str, Any] | None = None
+    """Its views against the earlier runs' where they overlap (None for the first run)."""
+
+    @property
+    def view_ids(self) -> range:
+        return range(self.first_view, self.first_view + self.num_views)
+
+    @classmethod
+    def from_json(cls, data: Any) -> RunRecord:
+        """A ``runs`` entry of ``meta.json`` (raises KeyError, TypeError or ValueError)."""
+        if not isinstance(data, dict):
+            msg = f"run {data!r} is not an object"
+            raise TypeError(msg)
+        known = {f.name for f in dataclasses.fields(cls)}
+        values = {k: v for k, v in data.items() if k in known}
+        values.update(
+            first_view=int(data["first_view"]),
+            num_views=int(data["num_views"]),
+            source=_source_record(data.get("source")),
+            counts=data.get("counts") or {},
+        )
+        return cls(**values)
+
+
+@dataclass(frozen=True)
 class StoreMeta:
     """``meta.json``: the one typed record of a store's metadata, read and written here only
     (:meth:`read`, :meth:`to_json`); versioned by :data:`META_VERSION`."""
@@ -583,6 +663,10 @@ class StoreMeta:
     """The ingest options that shape the store (not where its inputs and outputs lie)."""
     tables: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
     """Each table's size and BLAKE2b checksum at commit."""
+    runs: tuple[RunRecord, ...] = ()
+    """The exploration runs of a store that holds several, in view order (empty for one run,
+    and then not written); the fields above are the first run's, but for the counts (all
+    runs') and the fingerprint (of every run's)."""
     schema_version: int = SCHEMA_VERSION
     meta_version: int = META_VERSION
 
@@ -590,6 +674,11 @@ class StoreMeta:
         data = asdict(self)
         if not self.source.files:  # a recording in one file: no list of files
             del data["source"]["files"]
+        if not self.runs:  # a store of one run: no list of runs
+            del data["runs"]
+        for run, written in zip(self.runs, data.get("runs", ()), strict=True):
+            if not run.source.files:
+                del written["source"]["files"]
         data["encoder"] = None if self.encoder is None else {
             "name": self.encoder.name, "version": self.encoder.version, "dim": self.encoder.dim
         }  # fmt: skip
@@ -630,6 +719,7 @@ class StoreMeta:
                 counts=data.get("counts") or {},
                 config=data.get("config") or {},
                 tables=data.get("tables") or {},
+                runs=tuple(RunRecord.from_json(r) for r in data.get("runs") or ()),
                 meta_version=META_VERSION,
             )  # fmt: skip
             return cls(**values)
@@ -650,6 +740,36 @@ class StoreMeta:
             msg = f"{path}: not valid JSON ({err}); rebuild the store with {rebuild_hint(Path(store), 'meta')}"
             raise StoreError(msg) from err
         return cls.from_json(data, path)
+
+
+WRITER_FIELDS = ("num_views", "encoder", "tables", "schema_version", "meta_version")
+"""The fields of ``meta.json`` that :meth:`StoreWriter.commit` sets from what it wrote."""
+
+
+def carried_meta(meta: StoreMeta) -> dict[str, Any]:
+    """``meta`` as the JSON a new store written from this one's views (and more) commits:
+    all but the :data:`WRITER_FIELDS`."""
+    data = json.loads(meta.to_json())
+    return {k: v for k, v in data.items() if k not in WRITER_FIELDS}
+
+
+def run_records(meta: StoreMeta) -> list[RunRecord]:
+    """The exploration runs of a store: those recorded, or its one run (the whole store)."""
+    if meta.runs:
+        return list(meta.runs)
+    return [
+        RunRecord(
+            first_view=0,
+            num_views=meta.num_views,
+            source=meta.source,
+            fingerprint=meta.fingerprint,
+            request_fingerprint=meta.request_fingerprint,
+            world_frame=meta.world_frame,
+            camera_frame=meta.camera_frame,
+            counts=meta.counts,
+            geometry=meta.geometry,
+        )
+    ]
 
 
 def source_recording(store: Path, meta: StoreMeta | None = None) -> Path | None:
@@ -793,6 +913,28 @@ class StoreWriter:
             )
         return out
 
+    def copy_views(self, store: Store) -> None:
+        """Append every view and feature map of ``store`` as they are stored (their encoded
+        bytes copied a row group at a time, nothing decoded): the earlier runs of a store
+        that a run is appended to keep their view ids, and the new run's continue from them.
+        The stores must be in one encoding and of one encoder (checked by the caller)."""
+        self._flush()
+        for name, writer in (("views", self._views_writer), ("features", self._features_writer)):
+            path = store.table_path(name)
+            if writer is None or not path.is_file():
+                continue
+            with reading(path):
+                source = pq.ParquetFile(path)
+                if source.schema_arrow.remove_metadata() != writer.schema.remove_metadata():
+                    msg = f"{path}: another layout than the store being written; rebuild the store"
+                    raise StoreError(msg)
+                for group in range(source.num_row_groups):
+                    table = source.read_row_group(group).replace_schema_metadata(
+                        writer.schema.metadata
+                    )
+                    append_rows(writer, table)
+        self.num_views += store.num_views
+
     def set_text(self, names: Sequence[str], embeddings: np.ndarray) -> None:
         """Cache the encoder's class-name embeddings (n, d) in the store."""
         self._text = pa.table(
@@ -839,7 +981,9 @@ class StoreWriter:
             append_rows(self._features_writer, table)
             self._features.clear()
 
-    def commit(self, meta: dict[str, Any], *, replacing: Callable[[], None] | None = None) -> None:
+    def commit(
+        self, meta: dict[str, Any], *, replacing: Callable[[], object] | None = None
+    ) -> None:
         """Finish the tables, write ``meta.json`` last, and rename into place; ``replacing``
         is called once everything is written, just before the old store is replaced (a
         commit that fails earlier leaves the old store, and says nothing of replacing it)."""
@@ -1085,7 +1229,7 @@ class Store:
         suffix = encoding.image_suffix
         frame = self.map_frame if in_map else MapFrame.identity()
         to_map = None if frame.is_identity else frame.map_from_world
-        for batch in _batches(path, batch_size):
+        for batch in _batches(path, batch_size, view_ids=view_ids):
             if view_ids is not None:
                 batch = batch.filter(pa.array(np.isin(batch.column("view_id"), list(view_ids))))
             for row in batch.to_pylist():
@@ -1124,7 +1268,7 @@ class Store:
         column = f"depth_{encoding.image_suffix}"
         names = ["view_id", "width", "height", "depth_scale", "K", column]
         path = self.table_path("views")
-        for batch in _batches(path, BATCH_SIZE, columns=names):
+        for batch in _batches(path, BATCH_SIZE, columns=names, view_ids=view_ids):
             for row in batch.to_pylist():
                 if row["view_id"] in view_ids:
                     yield EncodedDepth(
@@ -1153,7 +1297,7 @@ class Store:
             schema = pq.read_schema(path)
         _check_version(schema, path)
         lists = features_encoding(schema) is StoreEncoding.PNG_LISTS
-        for batch in _batches(path, batch_size):
+        for batch in _batches(path, batch_size, view_ids=view_ids):
             if view_ids is not None:
                 batch = batch.filter(pa.array(np.isin(batch.column("view_id"), list(view_ids))))
             ids = batch.column("view_id").to_numpy()
@@ -1219,12 +1363,15 @@ class EncodedDepth:
 
 
 def _batches(
-    path: Path, batch_size: int, columns: Sequence[str] | None = None
+    path: Path,
+    batch_size: int,
+    columns: Sequence[str] | None = None,
+    view_ids: Collection[int] | None = None,
 ) -> Iterator[pa.RecordBatch]:
     """:func:`iter_batches` of ``path``, a damaged row group becoming one line (not a
     traceback)."""
     with reading(path):
-        it = iter_batches(path, batch_size, columns)
+        it = iter_batches(path, batch_size, columns, view_ids)
     while True:
         with reading(path):
             batch = next(it, None)

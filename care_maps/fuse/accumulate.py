@@ -93,6 +93,43 @@ class CandidateSums:
             # largest array, for a budget of exabytes): grow on demand instead
             self._tables = tuple(np.zeros((cap, w), t) for w, t in widths)
 
+    def state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The state of candidates ``0..size-1`` (views of the tables, not copies): what
+        :meth:`restored` continues from, so a grid adds views later without its earlier
+        views (:mod:`care_maps.fuse.grid_state`)."""
+        return tuple(table[: self.size] for table in self._tables)  # type: ignore[return-value]
+
+    @classmethod
+    def restored(
+        cls,
+        text: np.ndarray,
+        scale: float,
+        state: tuple[np.ndarray, np.ndarray, np.ndarray],
+        *,
+        limit: int | None = None,
+    ) -> CandidateSums:
+        """The sums whose :meth:`state` was ``state``, for the vocabulary embeddings ``text``
+        and logit scale ``scale`` it was made with: merging more samples into it gives what
+        merging every sample from the start gives, bit for bit (the same operations on the
+        same numbers, in the same order)."""
+        moments = state[0]
+        size = int(moments.shape[0])
+        sums = cls(
+            moments.shape[1] // 2,
+            text,
+            scale,
+            capacity=max(size, 1),
+            dtype=moments.dtype.type,
+            limit=None if limit is None else max(limit, size),
+        )
+        sums.ensure(size)
+        for table, saved in zip(sums._tables, state, strict=True):
+            if table.shape[1] != saved.shape[1] or table.dtype != saved.dtype:
+                msg = f"saved state of shape {saved.shape} {saved.dtype}, expected (N, {table.shape[1]}) {table.dtype}"
+                raise ValueError(msg)
+            table[:size] = saved
+        return sums
+
     @classmethod
     def bytes_per_candidate(cls, dim: int, num_classes: int, dtype: type = np.float32) -> int:
         """Streaming state per candidate: what a memory budget divides by."""

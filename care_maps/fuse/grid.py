@@ -50,16 +50,34 @@ from PIL import Image
 from tqdm import tqdm
 
 from care_maps.core.errors import FuseError
-from care_maps.core.keys import SCHEMA_VERSION_KEY
+from care_maps.core.keys import SCHEMA_VERSION_KEY, VOCABULARY_KEY
 from care_maps.core.maps import MapKind
-from care_maps.core.outputs import write_atomic
-from care_maps.core.store import SCHEMA_VERSION, Store, append_rows, open_writer, read_table
+from care_maps.core.outputs import damaged, write_atomic
+from care_maps.core.store import (
+    SCHEMA_VERSION,
+    Store,
+    append_rows,
+    as_numpy,
+    iter_batches,
+    open_writer,
+    read_schema,
+    read_table,
+    run_records,
+)
 from care_maps.fuse.accumulate import CandidateSums
 from care_maps.fuse.build import MapBuild, MapSpec, build_map
 from care_maps.fuse.cells import CellIndex, ViewSamples, pack_cells, unpack_cells, view_samples
 from care_maps.fuse.config import GridConfig
 from care_maps.fuse.frame import DECODERS, check_height_band
-from care_maps.fuse.keys import STORE_KEY, build_key
+from care_maps.fuse.grid_state import (
+    STATE_FILE,
+    GridState,
+    frame_of,
+    load_state,
+    save_state,
+    store_runs,
+)
+from care_maps.fuse.keys import STORE_KEY, build_key, config_key
 from care_maps.fuse.layout import CELLS_TABLE, GridLayout
 from care_maps.fuse.measures import MAX_TOP_CLASSES
 from care_maps.fuse.pixels import warm_up
@@ -125,6 +143,15 @@ class _CellLayers:
         self.rgb = np.empty((0, 3), np.uint8)
         self.num_pixels = np.empty(0, np.int64)
 
+    @classmethod
+    def restored(cls, z_max: np.ndarray, rgb: np.ndarray, num_pixels: np.ndarray) -> _CellLayers:
+        """The layers a grid saved (:mod:`care_maps.fuse.grid_state`), to add views to."""
+        layers = cls()
+        layers.z_max = np.array(z_max, np.float32)
+        layers.rgb = np.array(rgb, np.uint8).reshape(-1, 3)
+        layers.num_pixels = np.array(num_pixels, np.int64)
+        return layers
+
     def add(self, ids: np.ndarray, samples: ViewSamples) -> None:
         size = int(ids.max()) + 1 if ids.size else 0
         if size > self.z_max.size:
@@ -155,13 +182,30 @@ class _ViewsWriter:
 
     def add(self, view_id: int, ids: np.ndarray, samples: ViewSamples) -> None:
         """One row per sample of the view (``ids``: the samples' cells)."""
-        values = {"cell_id": ids, "weight": samples.weight, "num_pixels": samples.num_pixels}
+        self._put(
+            {
+                "view_id": np.full(ids.size, view_id, np.int32),
+                "cell_id": ids,
+                "weight": samples.weight,
+                "num_pixels": samples.num_pixels,
+            }
+        )
+
+    def copy(self, path: Path) -> None:
+        """Every row of the ``cell_views.parquet`` at ``path`` (a grid's earlier views, to
+        which more are added): the rows, and so the row groups, a build from every view
+        writes."""
+        for batch in iter_batches(path, VIEWS_GROUP_ROWS):
+            self._put({name: as_numpy(batch.column(name)) for name in self._columns})
+
+    def _put(self, values: dict[str, np.ndarray]) -> None:
+        size = len(values["cell_id"])
         done = 0
-        while done < ids.size:
-            take = min(ids.size - done, VIEWS_GROUP_ROWS - self._rows)
+        while done < size:
+            take = min(size - done, VIEWS_GROUP_ROWS - self._rows)
             rows = slice(self._rows, self._rows + take)
             for name, column in self._columns.items():
-                column[rows] = view_id if name == "view_id" else values[name][done : done + take]
+                column[rows] = values[name][done : done + take]
             self._rows += take
             done += take
             if self._rows == VIEWS_GROUP_ROWS:
@@ -183,6 +227,17 @@ class _ViewsWriter:
                 self._flush()
         finally:
             self._writer.close()
+
+
+@dataclass
+class _Growth:
+    """Where a grid that grows starts from: its saved cells and layers, its samples' table,
+    and the views to add."""
+
+    index: CellIndex
+    layers: _CellLayers
+    cell_views: Path
+    views: set[int]
 
 
 @dataclass
@@ -282,19 +337,27 @@ def _fuse_views(
     views_path: Path | None = None,
     views_metadata: dict[bytes, bytes] | None = None,
     index: CellIndex | None = None,
+    grow: _Growth | None = None,
 ) -> _FirstPass:
     """The streaming pass: every view's samples, those of cells ``0..capacity-1`` into
     ``sums``. Without an ``index`` (a build) cells are indexed in order of first appearance,
     the layers gathered and every sample listed in ``views_path``; with one (a recompute:
-    the map's cells) every sample's cell must be in it."""
+    the map's cells) every sample's cell must be in it. ``grow``: a build that continues a
+    grid's saved state (its index and layers, ``sums`` restored) with the views after it,
+    its samples listed after the earlier ones."""
     text = sums.text
     build = index is None
     index = CellIndex() if index is None else index
     layers = _CellLayers() if build else None
+    wanted = None
+    if grow is not None:
+        index, layers, wanted = grow.index, grow.layers, grow.views
     later: dict[int, list[int]] = {}
     views = None if views_path is None else _ViewsWriter(views_path, views_metadata or {})
     with nullcontext() if views is None else views as writer:
-        for view_id, samples in _view_samples(store, config, run, text):
+        if writer is not None and grow is not None:
+            writer.copy(grow.cell_views)
+        for view_id, samples in _view_samples(store, config, run, text, wanted):
             ids = index.lookup(samples.keys) if build else _known_cells(store, index, samples.keys)
             if ids.size and ids.max() >= capacity:
                 keep = np.flatnonzero(ids < capacity)
@@ -494,6 +557,7 @@ def _write_cells(
     n_cells = first.index.size
     layers = first.layers
     assert layers is not None  # a build's first pass gathers them
+    _keep_state(store, metadata, first, one_pass=n_cells <= capacity)
     writer: pq.ParquetWriter | None = None
     n_top = min(len(text), MAX_TOP_CLASSES)
     sidecar = SidecarWriter(sidecar_path(final), n_cells, text.shape[1], n_top, len(text), metadata)
@@ -517,6 +581,76 @@ def _write_cells(
         sidecar.abort()
         if writer is not None:
             writer.close()
+
+
+def _state_config(metadata: dict[bytes, bytes]) -> bytes:
+    """What a grid's state depends on beside its views: the config and the vocabulary."""
+    return metadata[config_key(MapKind.GRID)] + b"|" + metadata.get(VOCABULARY_KEY, b"")
+
+
+def _keep_state(
+    store: Store, metadata: dict[bytes, bytes], first: _FirstPass, *, one_pass: bool
+) -> None:
+    """Save the cells' streaming state beside the grid being written, so later views grow
+    it (:mod:`care_maps.fuse.grid_state`); only where it all fitted one pass (else any
+    earlier state goes: it belongs to another build)."""
+    path = store.path / STATE_FILE
+    if not one_pass or first.sums is None or first.layers is None:
+        path.unlink(missing_ok=True)
+        return
+    n = first.index.size
+    first.sums.ensure(n)  # a cell no sample reached still has its row
+    save_state(
+        path,
+        GridState(
+            build=metadata[build_key(MapKind.GRID)],
+            config=_state_config(metadata),
+            runs=store_runs(store),
+            num_views=store.num_views,
+            frame=frame_of(metadata[STORE_KEY]),
+            keys=first.index.keys_by_id(),
+            sums=first.sums.state(),
+            z_max=first.layers.z_max[:n],
+            rgb=first.layers.rgb[:n],
+            num_pixels=first.layers.num_pixels[:n],
+        ),
+    )
+
+
+def _growth(build: MapBuild, run: Execution, capacity: int) -> tuple[_Growth, GridState] | None:
+    """Where this build can start from a grid of the store's earlier views instead of from
+    nothing: its state saved for this config, vocabulary and map frame, beside the map it
+    belongs to, from runs the store's begin with (runs appended since); None otherwise (a
+    rebuild from every view, always right)."""
+    store = build.store
+    state = None if run.overwrite else load_state(store.path / STATE_FILE)
+    if state is None or state.keys.size > capacity:
+        return None
+    tables = [store.table_path(CELLS_TABLE), store.table_path(CELL_VIEWS_TABLE)]
+    if not all(p.is_file() for p in tables) or damaged(store.path, [STATE_FILE]):
+        return None
+    key = build_key(MapKind.GRID)
+    if any((read_schema(p).metadata or {}).get(key) != state.build for p in tables):
+        return None
+    if state.config != _state_config(build.metadata):
+        return None
+    if state.frame != frame_of(build.metadata[STORE_KEY]):
+        return None
+    runs, records = store_runs(store), run_records(store.meta)
+    done = len(state.runs)
+    if (
+        len(runs) <= done
+        or runs[:done] != state.runs
+        or records[done].first_view != state.num_views
+    ):
+        return None
+    growth = _Growth(
+        CellIndex.from_keys(state.keys),
+        _CellLayers.restored(state.z_max, state.rgb, state.num_pixels),
+        tables[1],
+        set(range(state.num_views, store.num_views)),
+    )
+    return growth, state
 
 
 GRID_MAP = MapSpec(MapKind.GRID, (CELL_VIEWS_TABLE, CELLS_TABLE))
@@ -563,10 +697,22 @@ def _fuse_grid(build: MapBuild, config: GridConfig, run: Execution) -> None:
     check_height_band(store, config.z_min, config.z_max, decoders)  # before any work
     dim = store.encoder.dim
     capacity = cells_per_pass(run, dim, len(text))
-    sums = CandidateSums(dim, text, config.logit_scale, limit=capacity)
+    # runs appended since the grid was built: its saved state takes the new views alone
+    grows = _growth(build, run, capacity)
+    if grows is None:
+        sums = CandidateSums(dim, text, config.logit_scale, limit=capacity)
+    else:
+        sums = CandidateSums.restored(text, config.logit_scale, grows[1].sums, limit=capacity)
     views = build.staged.path(CELL_VIEWS_TABLE)
     first = _fuse_views(
-        store, config, run, sums, capacity, views_path=views, views_metadata=build.metadata
+        store,
+        config,
+        run,
+        sums,
+        capacity,
+        views_path=views,
+        views_metadata=build.metadata,
+        grow=None if grows is None else grows[0],
     )
     del sums  # first.sums holds it, until _cell_columns lets it go
     if first.index.size == 0:

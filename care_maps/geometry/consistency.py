@@ -43,6 +43,7 @@ from care_maps.geometry.transforms import (
 __all__ = [
     "AGREE_ABSOLUTE_M",
     "AGREE_RELATIVE",
+    "MAX_CROSS_MOTION",
     "Agreement",
     "DepthSample",
     "Hypothesis",
@@ -56,6 +57,7 @@ __all__ = [
     "judge",
     "median_range",
     "pair_agreement",
+    "pick_cross_pairs",
     "pick_pairs",
     "reorder_quaternion",
     "subsample",
@@ -147,6 +149,31 @@ def pick_pairs(
         ]
         if moved:
             pairs.append((i, min(moved)[1]))
+    if len(pairs) > max_pairs:
+        keep = np.linspace(0, len(pairs) - 1, max_pairs).round().astype(int)
+        pairs = [pairs[k] for k in np.unique(keep)]
+    return pairs
+
+
+MAX_CROSS_MOTION = 2.0
+"""How far apart (in :func:`_motion`'s units: 0.6 m or 30 degrees) a view of one run and the
+nearest view of another may be for the pair to be judged: near enough that they overlap,
+whatever time passed between the runs."""
+
+
+def pick_cross_pairs(
+    first: Sequence[DepthSample], second: Sequence[DepthSample], max_pairs: int
+) -> list[tuple[int, int]]:
+    """Pairs ``(i, len(first) + j)`` joining each view of ``first`` to the view of ``second``
+    nearest it in pose (:func:`_motion`), where that is within :data:`MAX_CROSS_MOTION`: two
+    runs of one place overlap where the robot came back, not at any time offset, so pairs
+    are picked by place. Indices are into ``[*first, *second]``, evenly thinned to
+    ``max_pairs``."""
+    pairs = []
+    for i, sample in enumerate(first):
+        moved = [(_motion(sample.pose, other.pose), j) for j, other in enumerate(second)]
+        if moved and (near := min(moved))[0] <= MAX_CROSS_MOTION:
+            pairs.append((i, len(first) + near[1]))
     if len(pairs) > max_pairs:
         keep = np.linspace(0, len(pairs) - 1, max_pairs).round().astype(int)
         pairs = [pairs[k] for k in np.unique(keep)]

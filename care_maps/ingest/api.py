@@ -8,6 +8,7 @@ from care_maps.core.encoders import Encoder
 from care_maps.core.store import Store
 from care_maps.ingest.parts import Recording
 from care_maps.ingest.pipeline import IngestConfig, run_ingest
+from care_maps.ingest.runs import RunOptions
 from care_maps.runtime.execution import DEFAULT_EXECUTION, Execution
 
 __all__ = ["ingest"]
@@ -20,6 +21,7 @@ def ingest(
     *,
     run: Execution = DEFAULT_EXECUTION,
     encoder: Encoder | None = None,
+    placement: RunOptions | None = None,
 ) -> Store:
     """Ingest ``recording`` into the store ``out`` and open it.
 
@@ -30,6 +32,7 @@ def ingest(
     is made from (``config``, default :class:`IngestConfig`); ``run`` says how the job runs
     (``overwrite`` rebuilds a current store, ``progress`` shows a bar). An up-to-date store
     (same recording content and options) is returned without any work, or a model loaded.
-    ``encoder``: an already built encoder instance.
+    ``encoder``: an already built encoder instance. ``placement``: add the recording to
+    ``out`` as one more exploration run of the same place (:mod:`care_maps.ingest.runs`).
     """
-    return Store(run_ingest(recording, out, config, run=run, encoder=encoder))
+    return Store(run_ingest(recording, out, config, run=run, encoder=encoder, placement=placement))

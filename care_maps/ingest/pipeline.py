@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import hashlib
 import os
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import closing
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -38,14 +38,20 @@ from care_maps.core.fingerprint import fingerprint as content_fingerprint
 from care_maps.core.frames import DEFAULT_CAMERA_FRAME, DEFAULT_WORLD_FRAME, Frame
 from care_maps.core.notices import notice
 from care_maps.core.outputs import (
-    MARKER,
     OutputKind,
     check_file_output,
     check_output,
     damaged,
     output_lock,
 )
-from care_maps.core.store import META_FILE, SCHEMA_VERSION, Store, StoreWriter
+from care_maps.core.store import (
+    META_FILE,
+    SCHEMA_VERSION,
+    STORE_OWN,
+    Store,
+    StoreWriter,
+    run_records,
+)
 from care_maps.ingest.consistency import (
     GeometrySampler,
     check_geometry,
@@ -54,6 +60,15 @@ from care_maps.ingest.consistency import (
 )
 from care_maps.ingest.folders.frames import Frames, folder_identity, open_frames
 from care_maps.ingest.parts import Recording, recording_parts
+from care_maps.ingest.runs import (
+    RunOptions,
+    appended_meta,
+    carry_maps,
+    check_alignment,
+    check_same_encoding,
+    check_world_frame,
+    placed,
+)
 from care_maps.ingest.select import FrameSelection, FrameSelector
 from care_maps.ingest.source import ReadOptions, RecordingFrames
 from care_maps.runtime.execution import DEFAULT_EXECUTION, Execution
@@ -207,7 +222,15 @@ def _up_to_date(job: _Job, fp: str, key: str = "fingerprint") -> bool:
         return False
     # same inputs, and every table as it was committed (size and checksum): a damaged
     # store is rebuilt, not trusted
-    return getattr(meta, key) == fp and bool(meta.tables) and not damaged(out)
+    first = meta.runs[0] if meta.runs else meta
+    if getattr(first, key) != fp or not meta.tables or damaged(out):
+        return False
+    if meta.runs:  # re-running a script's first ingest keeps the runs appended after it
+        notice(
+            f"{out}: holds this recording and {len(meta.runs) - 1} more runs appended to it; "
+            "kept (pass --force to rebuild it from this recording alone)"
+        )
+    return True
 
 
 def _vocabulary(config: IngestConfig, label_names: tuple[str, ...]) -> list[str]:
@@ -218,8 +241,10 @@ def _vocabulary(config: IngestConfig, label_names: tuple[str, ...]) -> list[str]
     return list(vocabulary_option(config.vocabulary))
 
 
-def _open_logger(job: _Job, frames: Frames) -> Any:
-    """A Rerun logger writing to a temporary file that :meth:`keep` renames into place."""
+def _open_logger(job: _Job, frames: Frames, base: Store | None) -> Any:
+    """A Rerun logger writing to a temporary file that :meth:`keep` renames into place; for
+    a run appended to ``base``, the store's earlier runs logged first, each on its own
+    timeline, and the new run next (:mod:`care_maps.ingest.viz`)."""
     config = job.config
     if config.rrd is None:
         return None
@@ -227,13 +252,33 @@ def _open_logger(job: _Job, frames: Frames) -> Any:
 
     total = frames.total
     views = None if total is None else -(-total // config.select.every)
-    return IngestLogger(
+    earlier = [] if base is None else run_records(base.meta)
+    logger = IngestLogger(
         config.rrd,
         every=cloud_every(config.rrd_every, views),
         world_frame=frames.world_frame or DEFAULT_WORLD_FRAME,
         camera_frame=frames.camera_frame or DEFAULT_CAMERA_FRAME,
         scene=job.out.name,
+        runs=len(earlier) + 1,
     )
+    if base is not None:
+        try:
+            _log_store(logger, base)
+        except BaseException:
+            logger.close()
+            logger.discard()
+            raise
+        logger.start_run(len(earlier))
+    return logger
+
+
+def _log_store(logger: Any, store: Store) -> None:
+    """Every view of ``store``, run by run."""
+    starts = {run.first_view: k for k, run in enumerate(run_records(store.meta))}
+    for view_id, frame in store.iter_frames(extras=False, in_map=False):
+        if view_id in starts:
+            logger.start_run(starts[view_id])
+        logger.log(view_id, frame)
 
 
 @dataclass(frozen=True)
@@ -248,6 +293,9 @@ class _Job:
     run: Execution
     parts: tuple[Path, ...]
     """The recording's files (itself, if one)."""
+    placement: RunOptions = field(default_factory=RunOptions)
+    """Whether the recording is added to the store as one more run, and where its world
+    frame lies in the store's."""
 
     @property
     def source(self) -> Path | tuple[Path, ...]:
@@ -262,11 +310,15 @@ def run_ingest(
     *,
     run: Execution = DEFAULT_EXECUTION,
     encoder: Encoder | None = None,
+    placement: RunOptions | None = None,
 ) -> Path:
     """Build the store ``out`` from ``recording`` with ``config``; returns the store path.
 
     ``recording``: a recording, a dataset folder, or the files of one recording written in
     several (split bags or MCAP files, :mod:`care_maps.ingest.parts`), read as one.
+
+    ``placement``: add the recording to the store ``out`` as one more exploration run
+    (``append``), or place its world frame in the store's (:mod:`care_maps.ingest.runs`).
 
     ``encoder`` overrides ``config.encoder`` with an instance (e.g. one built in a test or
     shared across many recordings). Returns at once if the store is up to date (unless
@@ -274,7 +326,7 @@ def run_ingest(
     whoever calls it (the encoder's forward pass on :attr:`~care_maps.runtime.threads.Work.ENCODE`'s).
     """
     parts = recording_parts(recording)
-    job = _Job(parts[0], Path(out), config or IngestConfig(), run, parts)
+    job = _Job(parts[0], Path(out), config or IngestConfig(), run, parts, placement or RunOptions())
     with threads_for(Work.DEFAULT):
         return _run_ingest(job, encoder)
 
@@ -289,7 +341,12 @@ def _run_ingest(job: _Job, encoder: Encoder | None) -> Path:
     if config.rrd is not None:
         check_file_output(config.rrd, inputs=job.parts)
     source = _source_identity(job.parts, config.read)
+    transform = job.placement.world_transform
+    if transform is not None:  # the same recording placed elsewhere is another store
+        source = {**source, "world_transform": transform.as_json()}
     request = request_fingerprint(config, source) if encoder is None else None
+    if job.placement.append:
+        return _append(job, encoder, source, request)
     if request is not None and _up_to_date(job, request, "request_fingerprint"):
         return _log_missing_rrd(job)  # before building the encoder: no model is loaded
     # opening the recording checks its topics, camera info and pose source (a folder its
@@ -303,6 +360,34 @@ def _run_ingest(job: _Job, encoder: Encoder | None) -> Path:
             if _up_to_date(job, fp):
                 return _log_missing_rrd(job)
             _build(job, frames, encoder, source, fp, request)
+    return out
+
+
+def _append(
+    job: _Job, encoder: Encoder | None, source: dict[str, Any], request: str | None
+) -> Path:
+    """Add the recording to the store ``job.out`` as one more run (:mod:`care_maps.ingest.runs`);
+    a run the store holds already (same recording, options and placement) is not added again."""
+    config, out = job.config, job.out
+    where = " ".join(str(p) for p in job.parts)
+    if not (out / META_FILE).is_file():
+        msg = f"{out}: no store to append to; ingest the first run without --append."
+        raise IngestError(msg)
+    base = Store(out)
+    check_same_encoding(base, _recorded(config), where)
+    if request is not None and any(
+        r.request_fingerprint == request for r in run_records(base.meta)
+    ):
+        return _log_missing_rrd(job)
+    with open_frames(job.source, config.read) as frames:
+        if encoder is None and config.encoder is not None:
+            encoder = make_encoder(config.encoder, config.encoder_options)
+        with output_lock(out):
+            base = Store(out)  # as the lock found it
+            fp = fingerprint(config, encoder, source)
+            if any(r.fingerprint == fp for r in run_records(base.meta)):
+                return _log_missing_rrd(job)
+            _build(job, frames, encoder, source, fp, request, base=base)
     return out
 
 
@@ -321,10 +406,10 @@ def _log_missing_rrd(job: _Job) -> Path:
         world_frame=store.meta.world_frame or DEFAULT_WORLD_FRAME,
         camera_frame=store.meta.camera_frame or DEFAULT_CAMERA_FRAME,
         scene=job.out.name,
+        runs=len(run_records(store.meta)),
     )
     try:
-        for view_id, frame in store.iter_frames(extras=False, in_map=False):
-            logger.log(view_id, frame)
+        _log_store(logger, store)
     except BaseException:
         logger.close()
         logger.discard()
@@ -334,10 +419,6 @@ def _log_missing_rrd(job: _Job) -> Path:
     return job.out
 
 
-_STORE_OWN = frozenset({"views.parquet", "features.parquet", "text.parquet", META_FILE, MARKER})
-"""What ingest writes into a store; anything else in it was made from the store (maps)."""
-
-
 def _say_maps_go(out: Path, *, forced: bool) -> None:
     """As a rebuilt store replaces the old one, name the maps made from the old one: the
     new store replaces the directory whole, so they go with it (they describe other views).
@@ -345,12 +426,22 @@ def _say_maps_go(out: Path, *, forced: bool) -> None:
     keeps the old store and its maps) says nothing of them."""
     if not (out / META_FILE).is_file():
         return
-    made = sorted(p.name for p in out.iterdir() if p.name not in _STORE_OWN and p.name[0] != ".")
+    made = sorted(p.name for p in out.iterdir() if p.name not in STORE_OWN and p.name[0] != ".")
     why = "as asked (--force)" if forced else "for another recording or other ingest options"
     if made:
         notice(
             f"{out}: rebuilt {why}, so the maps made from the old store go with it "
             f"({', '.join(made)}); run `care fuse` again after"
+        )
+
+
+def _carry_maps(base: Store, tmp: Path) -> None:
+    """Before the store with one more run replaces ``base``: its maps carried over, to be
+    grown (the grid) or built again (:func:`care_maps.ingest.runs.carry_maps`)."""
+    if carry_maps(base.path, tmp):
+        notice(
+            f"{base.path}: one more run added; `care fuse grid` adds its views to the grid "
+            "kept from the earlier runs, the other maps are built again"
         )
 
 
@@ -361,7 +452,11 @@ def _build(
     source: dict[str, Any],
     fp: str,
     request: str | None,
+    *,
+    base: Store | None = None,
 ) -> None:
+    """Stream ``frames`` into a new store and commit it in place of ``job.out``; with a
+    ``base`` store (an appended run) its views first, as they are."""
     config = job.config
     # a recording's first file by time, once its files are open
     recording = job.recording if len(job.parts) == 1 else frames.path
@@ -371,7 +466,7 @@ def _build(
     info = encoder.info(vocab) if encoder is not None else None
     # the text side first: a missing text table or model fails before any frame is read
     text = encoder.encode_text(vocab) if encoder is not None and vocab else None
-    logger = _open_logger(job, frames)
+    logger = _open_logger(job, frames, base)
     bar = tqdm(
         total=frames.total,
         desc=f"ingest {recording.name}"
@@ -381,10 +476,12 @@ def _build(
     )
     try:
         with StoreWriter(job.out, info, encoding=config.store_encoding) as writer:
+            if base is not None:
+                writer.copy_views(base)
             selector = FrameSelector(config.select)
             sampler = GeometrySampler()
             _stream(
-                frames,
+                placed(iter(frames), job.placement.world_transform),
                 writer,
                 encoder,
                 config.encoder_options.batch_size,
@@ -410,9 +507,20 @@ def _build(
             if not verdict.passed:  # kept as given, as asked (--accept-geometry)
                 meta["geometry"]["accepted"] = True
             meta["counts"]["skipped"] = dict(sorted(selector.skipped.items()))
+            meta["request_fingerprint"] = request
+            if base is not None:  # one more run: checked against the store's, then recorded
+                label = str(where)
+                check_world_frame(base, frames.world_frame, job.placement.world_transform, label)
+                sample = [s for run in sampler.samples() for s in run]
+                alignment = check_alignment(base, sample, label, accept=config.read.accept_geometry)
+                meta = appended_meta(base, meta, writer.num_views, alignment, job.placement)
             writer.commit(
-                {**meta, "request_fingerprint": request},
-                replacing=lambda: _say_maps_go(job.out, forced=job.run.overwrite),
+                meta,
+                replacing=(
+                    (lambda: _say_maps_go(job.out, forced=job.run.overwrite))
+                    if base is None
+                    else (lambda: _carry_maps(base, writer.tmp))
+                ),
             )
     except BaseException:
         bar.leave = False  # the error is the one line left on the terminal
@@ -428,7 +536,7 @@ def _build(
 
 
 def _stream(
-    frames: Frames,
+    frames: Iterable[Frame],
     writer: StoreWriter,
     encoder: Encoder | None,
     batch_size: int,
@@ -466,7 +574,7 @@ def _stream(
 
 
 def _batches(
-    frames: Frames, selector: FrameSelector, bar: tqdm, size: int, depth: int
+    frames: Iterable[Frame], selector: FrameSelector, bar: tqdm, size: int, depth: int
 ) -> Iterator[list[Frame]]:
     """The frames ``selector`` keeps, in batches of ``size`` (the last one shorter), read
     ``depth`` frames ahead."""
@@ -503,6 +611,14 @@ def _files(job: _Job, frames: Frames) -> dict[str, Any]:
     }
 
 
+def _recorded(config: IngestConfig) -> dict[str, Any]:
+    """The ingest options ``meta.json`` records: what the store is made with."""
+    recorded = config_fields(config, _NOT_RECORDED)
+    for name in _READ_NOT_RECORDED:  # not what the store is (see there)
+        recorded["read"].pop(name, None)
+    return recorded
+
+
 def _meta(
     job: _Job,
     frames: Frames,
@@ -514,9 +630,7 @@ def _meta(
     config = job.config
     described = frames.describe()
     first = job.recording if len(job.parts) == 1 else frames.path
-    recorded = config_fields(config, _NOT_RECORDED)
-    for name in _READ_NOT_RECORDED:  # not what the store is (see there)
-        recorded["read"].pop(name, None)
+    recorded = _recorded(config)
     record = (
         None if encoder is None else EncoderRecord.of(encoder, config.encoder_options).as_json()
     )

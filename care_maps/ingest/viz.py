@@ -11,6 +11,11 @@ small graph, since the entity paths are the viewer's frames, not TF's.
 The back-projected points of every Nth frame go to their own entity per frame
 (``world/map/<n>``) so the 3D view builds the map up as time advances instead of replacing it;
 the trajectory is logged as the path so far at every frame.
+
+A store of several exploration runs (``care ingest --append``) is logged run by run: each run
+on a timeline of its own (``run 1``, ``run 2``, ...: runs days apart would leave one
+timeline empty between them), its trajectory its own entity (``world/trajectory/run_<k>``)
+in a colour of its own (:data:`RUN_COLOURS`), its clouds tinted towards it.
 """
 
 from __future__ import annotations
@@ -40,6 +45,7 @@ __all__ = [
     "DEPTH_SCALE_ENTITY",
     "MAP_ENTITY",
     "RGB_ENTITY",
+    "RUN_COLOURS",
     "TF_ENTITY",
     "TRAJECTORY_ENTITY",
     "IngestLogger",
@@ -68,6 +74,10 @@ CLOUD_EVERY = 10
 stays small)."""
 _POINT_STRIDE = 4
 """Pixels between back-projected points (16x fewer points than pixels)."""
+RUN_COLOURS = ((255, 170, 0), (0, 170, 255), (230, 60, 160), (90, 200, 80), (150, 110, 255))
+"""Trajectory colour of each run of a store of several (cycled); the first is the one run's."""
+RUN_TINT = 0.35
+"""Share of a run's colour mixed into its clouds' pixel colours (several runs only)."""
 _DEPTH_RANGE_M = (0.0, 6.0)
 """Colour range of the depth view; indoor RGB-D cameras see a few metres."""
 _DEPTH_COLORMAP: rr.components.ColormapLike = "turbo"
@@ -133,8 +143,13 @@ class IngestLogger:
         world_frame: str = WORLD_FRAME,
         camera_frame: str = CAMERA_FRAME,
         scene: str | None = None,
+        runs: int = 1,
     ) -> None:
         self.path = Path(rrd_path)
+        self.runs = max(1, int(runs))
+        """Runs the recording will hold: several are logged run by run (module docstring)."""
+        self.run = 0
+        """The run being logged (0-based; :meth:`start_run`)."""
         self.tmp = temporary(self.path)  # within the name limit however long the name
         self.scene = scene or self.path.name.split(".")[0]
         self.rec = open_scene_recording(self.tmp, self.scene)
@@ -172,12 +187,21 @@ class IngestLogger:
         rec.log(DEPTH_SCALE_ENTITY, _depth_scale(), static=True)
         self._static_done = True
 
+    def start_run(self, run: int) -> None:
+        """The frames logged next are run ``run``'s (0-based): its timeline, its trajectory."""
+        self.run = int(run)
+        self._positions = []
+
     def log(self, index: int, frame: Frame) -> None:
         """Log frame number ``index`` (0-based) of the run."""
         if not self._static_done:
             self._log_static(frame)
         rec = self.rec
-        set_stamp(rec, frame.stamp_ns)
+        if self.runs > 1:
+            rec.reset_time()
+            rec.set_time(f"run {self.run + 1}", timestamp=np.datetime64(frame.stamp_ns, "ns"))
+        else:
+            set_stamp(rec, frame.stamp_ns)
         T = np.asarray(frame.cam_to_world, np.float64)
         rec.log(CAMERA_ENTITY, rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]))
         rec.log(RGB_ENTITY, rr.EncodedImage(contents=jpeg(frame.rgb), media_type="image/jpeg"))
@@ -192,14 +216,18 @@ class IngestLogger:
             ),
         )
         self._positions.append(T[:3, 3].copy())
+        colour = RUN_COLOURS[self.run % len(RUN_COLOURS)]
         if len(self._positions) >= 2:  # the path so far, so any time shows where it has been
             rec.log(
-                TRAJECTORY_ENTITY,
-                rr.LineStrips3D([np.asarray(self._positions)], colors=[(255, 170, 0)]),
+                TRAJECTORY_ENTITY if self.runs == 1 else f"{TRAJECTORY_ENTITY}/run_{self.run + 1}",
+                rr.LineStrips3D([np.asarray(self._positions)], colors=[colour]),
             )
         if index % self.every == 0:
             points, pixels = backproject(frame.depth_m, frame.K, stride=_POINT_STRIDE)
             colours = frame.rgb[pixels[:, 1], pixels[:, 0]]
+            if self.runs > 1:
+                tint = np.asarray(colour, np.float32)
+                colours = ((1 - RUN_TINT) * colours + RUN_TINT * tint).astype(np.uint8)
             rec.log(
                 f"{MAP_ENTITY}/{index}",
                 rr.Points3D(transform_points(T, points), colors=colours, radii=0.015),

@@ -35,7 +35,7 @@ import argparse
 import math
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from enum import StrEnum
 from pathlib import Path
 from typing import Any
@@ -45,7 +45,7 @@ import numpy as np
 from care_maps.core.encoders import EncoderOptions, make_encoder
 from care_maps.core.encoders.base import RecordingContext
 from care_maps.core.maps import MapKind
-from care_maps.core.store import Store, StoreMeta, StoreWriter
+from care_maps.core.store import Store, StoreMeta, StoreWriter, carried_meta
 from care_maps.core.vocab import STRUCTURE_NAMES
 from care_maps.evaluate.job import EvalConfig, Scene, evaluate_scene
 from care_maps.evaluate.paired import compare, comparison_rng
@@ -194,11 +194,7 @@ def _with_views(
     encoder.prepare(RecordingContext(recording, tuple(old.meta.label_names)))
     features: np.ndarray | list[np.ndarray] = encoder.encode_views(frames) if frames else []
     names, text = old.text_embeddings()
-    meta = {
-        k: v
-        for k, v in asdict(StoreMeta.read(before)).items()
-        if k not in ("num_views", "encoder", "tables", "schema_version", "meta_version")
-    }
+    meta = carried_meta(StoreMeta.read(before))
     with StoreWriter(out, old.encoder) as writer:
         feats = old.iter_features()
         for (_, frame), (_, feature) in zip(old.iter_frames(in_map=False), feats, strict=True):

@@ -13,10 +13,5 @@ import pytest
 
 
 @pytest.fixture(scope="session")
-def livingroom_root(shared_data: Path) -> Path:
-    return shared_data / "rgbd" / "livingroom1_clean_micro"
-
-
-@pytest.fixture(scope="session")
 def slambook_root(shared_data: Path) -> Path:
     return shared_data / "rgbd" / "slambook_kinect5"

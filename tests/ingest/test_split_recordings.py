@@ -11,7 +11,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
 from care_maps.core.errors import IngestError
 from care_maps.core.store import Store
@@ -22,30 +21,15 @@ from tests.support.cli import InProcessCli
 from tests.support.encoders import TinyEncoder
 from tests.support.faults import assert_fault
 from tests.support.frames import load_livingroom
-from tests.support.messages import camera_info_msg, image_msg, tf_msg
-from tests.support.recordings import Container, Stamped, write_bag
+from tests.support.recordings import OPTICAL, Container, Stamped, robot_messages, write_bag
 
 pytestmark = pytest.mark.slow
 
-OPTICAL = "camera_color_optical_frame"
 FRAMES = 12
 """Views of the recording: the split falls between view 5 and view 6."""
 TF_LAG_NS = 45_000_000
 """How late each /tf message is logged after its stamp (more than a frame's 33 ms), so the
 transform that poses the first file's last view lies in the second file."""
-BASE_TO_OPTICAL_XYZ = (0.1, -0.02, 0.4)
-BASE_TO_OPTICAL_XYZW = tuple(Rotation.from_euler("xz", [-90, -90], degrees=True).as_quat())
-
-
-def _matrix(xyz: tuple[float, ...], xyzw: tuple[float, ...]) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_quat(xyzw).as_matrix()
-    T[:3, 3] = xyz
-    return T
-
-
-def _as_xyz_xyzw(T: np.ndarray) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    return tuple(T[:3, 3]), tuple(Rotation.from_matrix(T[:3, :3]).as_quat())
 
 
 def _messages(
@@ -53,26 +37,7 @@ def _messages(
 ) -> list[Stamped]:
     """The living room as a robot records it: map -> base_link on /tf (logged late),
     base_link -> camera on /tf_static, colour, depth and camera info at each view."""
-    frames = load_livingroom(root, FRAMES)
-    mount = _matrix(BASE_TO_OPTICAL_XYZ, BASE_TO_OPTICAL_XYZW)
-    t0 = frames[0].stamp_ns
-    msgs: list[Stamped] = [
-        ("/tf_static", t0, tf_msg(t0, "base_link", frame, *_as_xyz_xyzw(mount))),
-    ]
-    for f in frames:
-        t = f.stamp_ns
-        base = f.cam_to_world @ np.linalg.inv(mount)
-        info = camera_info_msg(t, f.K, f.width, f.height)
-        info.header.frame_id = frame
-        depth_mm = np.round(f.depth_m * 1000).astype(np.uint16)
-        msgs += [
-            ("/tf", t + TF_LAG_NS, tf_msg(t, "map", "base_link", *_as_xyz_xyzw(base))),
-            ("/camera/color/camera_info", t, info),
-            (rgb, t, image_msg(t, f.rgb, "rgb8", frame)),
-            ("/camera/depth/image_raw", t, image_msg(t, depth_mm, "16UC1", frame)),
-        ]
-    msgs.sort(key=lambda m: m[1])
-    return msgs
+    return robot_messages(load_livingroom(root, FRAMES), rgb=rgb, frame=frame, tf_lag_ns=TF_LAG_NS)
 
 
 def _cut(msgs: list[Stamped]) -> int:

@@ -17,6 +17,9 @@ from typing import Any, Final, TypeAlias
 import numpy as np
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
+from scipy.spatial.transform import Rotation
+
+from care_maps.core.frames import Frame
 
 from .frames import K_SMALL
 from .messages import (
@@ -237,3 +240,59 @@ def grey_bag(
         )
         messages.append(("/camera/depth/image_raw", t, image_msg(t, depth, "16UC1")))
     return write_bag(path, messages)
+
+
+OPTICAL: Final = "camera_color_optical_frame"
+"""The colour camera's optical frame, as realsense2_camera names it."""
+BASE_TO_OPTICAL: Final = (
+    (0.1, -0.02, 0.4),
+    tuple(Rotation.from_euler("xz", [-90, -90], degrees=True).as_quat()),
+)
+"""``base_link -> camera_color_optical_frame``: 0.4 m up, the optical axes turned from the body's."""
+
+
+def _matrix(xyz: Sequence[float], xyzw: Sequence[float]) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_quat(xyzw).as_matrix()
+    T[:3, 3] = xyz
+    return T
+
+
+def _xyz_xyzw(T: np.ndarray) -> tuple[Vector, Vector]:
+    x, y, z = T[:3, 3]
+    qx, qy, qz, qw = Rotation.from_matrix(T[:3, :3]).as_quat()
+    return (float(x), float(y), float(z)), (float(qx), float(qy), float(qz), float(qw))
+
+
+def robot_messages(
+    frames: Sequence[Frame],
+    *,
+    rgb: str = "/camera/color/image_raw",
+    frame: str = OPTICAL,
+    world: str = "map",
+    tf_lag_ns: int = 0,
+    world_from_frames: np.ndarray | None = None,
+) -> list[Stamped]:
+    """``frames`` as a robot records them, in log-time order: ``world -> base_link`` on /tf
+    (each logged ``tf_lag_ns`` after its stamp), ``base_link -> frame`` on /tf_static,
+    colour (rgb8), depth (16UC1 mm) and camera info at each view. ``world_from_frames``:
+    where the frames' own world lies in ``world`` (a run localised in another map);
+    identity if None."""
+    mount = _matrix(*BASE_TO_OPTICAL)
+    offset = np.eye(4) if world_from_frames is None else np.asarray(world_from_frames)
+    t0 = frames[0].stamp_ns
+    msgs: list[Stamped] = [("/tf_static", t0, tf_msg(t0, "base_link", frame, *_xyz_xyzw(mount)))]
+    for f in frames:
+        t = f.stamp_ns
+        base = offset @ f.cam_to_world @ np.linalg.inv(mount)
+        info = camera_info_msg(t, f.K, f.width, f.height)
+        info.header.frame_id = frame
+        depth_mm = np.round(f.depth_m * 1000).astype(np.uint16)
+        msgs += [
+            ("/tf", t + tf_lag_ns, tf_msg(t, world, "base_link", *_xyz_xyzw(base))),
+            ("/camera/color/camera_info", t, info),
+            (rgb, t, image_msg(t, f.rgb, "rgb8", frame)),
+            ("/camera/depth/image_raw", t, image_msg(t, depth_mm, "16UC1", frame)),
+        ]
+    msgs.sort(key=lambda m: m[1])
+    return msgs
