@@ -15,10 +15,13 @@ proposes, at most ``--views``):
 
 Each set of views is rendered by the world's renderer at the recording's resolution,
 encoded by the same perception model (stamps after the recording's, so its per-view draws
-are fresh), added to the recording's views in a new store (:class:`care_maps.core.store.StoreWriter`)
-and fused again. Every store is evaluated on the same grid queries (class protocol, per room,
-``care eval``'s success rule): the first attempt (max confidence) and two attempts of max
-confidence. Comparisons are paired over the same queries with scenes as the units (queries
+are fresh) and appended to a copy of the "before" store as one more run
+(:func:`care_maps.ingest.runs.append_frames`, what ``care ingest --append`` does with a
+recording), and the grid grows by the new views alone (:mod:`care_maps.fuse.grid_state`),
+in the map frame the views were chosen in: the loop a robot closes. Every store is evaluated
+on the same grid queries (class protocol, per room, ``care eval``'s success rule, walks from
+the recording's first pose): the first attempt (max confidence), two attempts of max
+confidence, and their SPL (:mod:`care_maps.evaluate.spl`). Comparisons are paired over the same queries with scenes as the units (queries
 of one scene share a map): the scene-level sign-flip test of
 :mod:`care_maps.evaluate.scene_test`, its inverted 95% interval, Holm over the scene p-values of
 the five comparisons of a table, and the equivalence test within
@@ -33,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import shutil
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -44,8 +48,10 @@ import numpy as np
 
 from care_maps.core.encoders import EncoderOptions, make_encoder
 from care_maps.core.encoders.base import RecordingContext
+from care_maps.core.errors import CareError
 from care_maps.core.maps import MapKind
-from care_maps.core.store import Store, StoreMeta, StoreWriter, carried_meta
+from care_maps.core.outputs import remove_path
+from care_maps.core.store import Store
 from care_maps.core.vocab import STRUCTURE_NAMES
 from care_maps.evaluate.job import EvalConfig, Scene, evaluate_scene
 from care_maps.evaluate.paired import compare, comparison_rng
@@ -56,8 +62,10 @@ from care_maps.evaluate.scene_test import (
     EXACT_MAX_SCENES,
     N_SIGN_FLIPS,
 )
+from care_maps.evaluate.spl import episode_paths, spl
 from care_maps.fuse.grid import GridConfig, build_grid
 from care_maps.ingest.pipeline import IngestConfig, run_ingest
+from care_maps.ingest.runs import append_frames
 from care_maps.query.confidence import log_confidence
 from care_maps.query.explore import (
     ExploreConfig,
@@ -181,8 +189,11 @@ def _record(out: Path, index: int, config: ExperimentConfig) -> tuple[Path, Scen
 def _with_views(
     before: Path, out: Path, recording: Path, renderer: Renderer, views: list[Viewpoint]
 ) -> None:
-    """A copy of store ``before`` at ``out`` with ``views`` rendered and encoded added."""
-    old = Store(before)
+    """A copy of store ``before`` (with its grid) at ``out``, ``views`` rendered, encoded and
+    appended to it as one more run."""
+    remove_path(out)
+    shutil.copytree(before, out)
+    old = Store(out)
     world_from_map = np.linalg.inv(old.map_frame.map_from_world)
     stamps = old.views(["stamp_ns"]).column("stamp_ns").to_numpy()
     step = round(1e9 / RenderConfig.fps)
@@ -193,20 +204,20 @@ def _with_views(
     encoder = make_encoder("labels", EncoderOptions())
     encoder.prepare(RecordingContext(recording, tuple(old.meta.label_names)))
     features: np.ndarray | list[np.ndarray] = encoder.encode_views(frames) if frames else []
-    names, text = old.text_embeddings()
-    meta = carried_meta(StoreMeta.read(before))
-    with StoreWriter(out, old.encoder) as writer:
-        feats = old.iter_features()
-        for (_, frame), (_, feature) in zip(old.iter_frames(in_map=False), feats, strict=True):
-            writer.add(frame, np.asarray(feature, np.float32))
-        for frame, feature in zip(frames, features, strict=True):
-            writer.add(frame, feature)
-        writer.set_text(names, text)
-        writer.commit(meta)
+    append_frames(out, frames, features, name=out.name, fingerprint=f"{out.name}-{len(frames)}")
 
 
-def _outcomes(store: Path, name: str, recording: Path) -> dict[tuple, tuple[bool, bool]]:
-    """(scene, room, class) -> (first attempt succeeded, two attempts of max confidence)."""
+def _appended(store: Path) -> bool:
+    """Whether ``store`` holds its new views already (a run appended to the recording's)."""
+    try:
+        return len(Store(store).meta.runs) == 2
+    except CareError:
+        return False
+
+
+def _outcomes(store: Path, name: str, recording: Path) -> dict[tuple, tuple[float, float, float]]:
+    """(scene, room, class) -> (first attempt succeeded, two attempts of max confidence
+    succeeded, their SPL)."""
     config = EvalConfig(
         maps=(MapKind.GRID,),
         strategies=(StrategyName.NO_REPLAN, StrategyName.MAX_CONFIDENCE),
@@ -216,6 +227,7 @@ def _outcomes(store: Path, name: str, recording: Path) -> dict[tuple, tuple[bool
     )
     rows = evaluate_scene(Scene(name, store, recording), config).to_pylist()
     out: dict[tuple, list[bool]] = {}
+    walks: dict[tuple, list[tuple[bool, float, float, float]]] = {}
     for r in rows:
         key = (r["scene"], r["unit"], r["query"])
         got = out.setdefault(key, [False, False])
@@ -223,7 +235,22 @@ def _outcomes(store: Path, name: str, recording: Path) -> dict[tuple, tuple[bool
             got[0] |= bool(r["success"])
         else:
             got[1] |= bool(r["success"])
-    return {k: (a, b) for k, (a, b) in out.items()}
+            walks.setdefault(key, []).append(
+                (bool(r["success"]), r["distance"], r["walked"], r["shortest"])
+            )
+    return {k: (float(a), float(b), _spl(walks.get(k, []))) for k, (a, b) in out.items()}
+
+
+def _spl(attempts: Sequence[tuple[bool, float, float, float]]) -> float:
+    """SPL of one episode's attempts ``(success, leg, walked so far, shortest)``: solved at a
+    goal the robot reached, over the path it walked (:func:`care_maps.evaluate.spl.spl`)."""
+    if not attempts:
+        return float("nan")
+    success, leg, walked, shortest = (
+        np.array(column, np.float64) for column in zip(*attempts, strict=True)
+    )
+    _, solved = episode_paths(leg[None], success[None], np.ones((1, len(leg)), bool))
+    return float(spl(solved, shortest[:1], walked[-1:])[0])
 
 
 def _scene(out: Path, index: int, config: ExperimentConfig) -> tuple[dict, dict]:
@@ -255,9 +282,9 @@ def _scene(out: Path, index: int, config: ExperimentConfig) -> tuple[dict, dict]
     outcomes = {Condition.BEFORE: _outcomes(before, name, recording)}
     for condition, views in chosen.items():
         store = stores / f"{condition}-{config.views}"
-        if not (store / "cells.parquet").is_file():
+        if not _appended(store):  # a re-run resumes where the views were added
             _with_views(before, store, recording, renderer, views)
-            build_grid(store, grid, run=run)
+        build_grid(store, grid, run=run)  # grown by the new views (current: nothing to do)
         outcomes[condition] = _outcomes(store, name, recording)
     return outcomes, {c: len(v) for c, v in chosen.items()}
 
@@ -291,6 +318,10 @@ def comparison_rows(
                 "hi": 100 * res.hi,
                 "only_a": res.only_a,
                 "only_b": res.only_b,
+                "binary": bool(
+                    np.isin(outcomes[a], (0.0, 1.0)).all()
+                    and np.isin(outcomes[b], (0.0, 1.0)).all()
+                ),
                 "scenes": test.scenes,
                 "effective_scenes": test.effective,
                 "scene_p": test.p_value,
@@ -319,9 +350,10 @@ def comparison_lines(rows: Sequence[dict[str, Any]]) -> list[str]:
             if r["family_can_reject"]
             else ("–", "–")
         )
+        only = f"{r['only_a']:.0f} / {r['only_b']:.0f}" if r.get("binary", True) else "–"
         lines.append(
             f"| {r['comparison']} | {r['rate_a']:.1f} | {r['rate_b']:.1f} "
-            f"| {difference_text(r)} | {r['only_a']:.0f} / {r['only_b']:.0f} | {scene_p} "
+            f"| {difference_text(r)} | {only} | {scene_p} "
             f"| {holm_p} | {equivalence} | {r['reading']} |"
         )
     return lines
@@ -358,9 +390,18 @@ def run_experiment(out: Path, config: ExperimentConfig | None = None) -> str:
         f"at ±{100 * EQUIVALENCE_MARGIN:.0f} points, Holm alike. A: the first condition named.",
         "",
     ]
-    for column, title in ((0, "first attempt"), (1, "two attempts, max confidence")):
+    tables = (
+        (0, "first attempt"),
+        (1, "two attempts, max confidence"),
+        (2, "SPL of two attempts, max confidence (points of SPL)"),
+    )
+    for column, title in tables:
         result = {c: np.array([outcomes[c][k][column] for k in keys], float) for c in Condition}
-        rows = comparison_rows(result, scene, seed=config.seed)
+        known = np.all([np.isfinite(v) for v in result.values()], axis=0)  # SPL: walks known
+        if not known.all():
+            title += f" ({int(known.sum())} queries with a known walk)"
+        result = {c: v[known] for c, v in result.items()}
+        rows = comparison_rows(result, scene[known], seed=config.seed)
         lines += [f"## {title}", *comparison_lines(rows), ""]
     lines.append(f"run time: {time.perf_counter() - start:.0f} s")
     return "\n".join(lines)
