@@ -111,9 +111,26 @@ def _one_or_parts(paths: list[Path]) -> Path | list[Path]:
 
 
 @read_options
+@config_options(
+    "placement",
+    RunOptions,
+    only=("world_transform",),
+    extra={"world_transform": {"rich_help_panel": "Runs"}},
+)
 def topics(
     recording: Annotated[list[Path], typer.Argument(help=_SOURCE_HELP)],
     read: Options[ReadOptions] = None,  # type: ignore[assignment]
+    placement: Options[RunOptions] = None,  # type: ignore[assignment]
+    store: Annotated[
+        Path | None,
+        typer.Option(
+            "--store",
+            help="A store to append the recording to: also say what `care ingest REC --out "
+            "STORE --append` would find of its first views (its world frame, its overlap "
+            "with the store's runs).",
+            rich_help_panel="Runs",
+        ),
+    ] = None,
     stamps: Annotated[
         bool,
         typer.Option(
@@ -149,12 +166,21 @@ def topics(
     width = max((len(n) for n in listed), default=0)
     for info in listed.values():
         typer.echo(f"{info.name:<{width}}  {info.msgtype:<36} {info.count:>7}")
-    from care_maps.ingest.consistency import topics_lines
+    from care_maps.ingest.consistency import TOPICS_VIEWS, sample_frames, topics_lines
+    from care_maps.ingest.runs import append_lines, placed
 
+    runs = placement.config()
     try:
         with RecordingFrames(source, options) as frames:
             chosen = frames.describe()
-            geometry = topics_lines(frames.where, frames, options)
+            sampler = sample_frames(placed(iter(frames), runs.world_transform), TOPICS_VIEWS)
+            geometry = topics_lines(frames.where, frames, options, sampler)
+            if store is not None:
+                sample = [s for run in sampler.samples() for s in run]
+                geometry += append_lines(
+                    store, sample, frames.world_frame, runs, frames.where,
+                    accept=options.accept_geometry,
+                )  # fmt: skip
     except CareError as err:
         typer.echo(f"auto-detection: {err}")
         raise typer.Exit(1) from err

@@ -39,6 +39,7 @@ def runs_lines(store: Path) -> list[str]:
     """One line per exploration run of a store that holds several (none for one run): its
     views, recording, frame and placement, and how it agreed with the runs before it."""
     from care_maps.core.store import Store
+    from care_maps.ingest.runs import describe_alignment
 
     runs = Store(store).meta.runs
     lines = []
@@ -51,18 +52,8 @@ def runs_lines(store: Path) -> list[str]:
         if run.world_transform is not None:
             placed = ",".join(f"{v:g}" for v in run.world_transform)
             line += f", placed by --world-transform {placed}"
-        found = run.alignment
-        if found is not None:
-            share = f"{found.get('agree', 0):.0%} of reprojected depth over {found.get('pairs_judged', 0)} view pairs"
-            status = found.get("status")
-            if status == "agree":
-                line += f"; agrees with the earlier runs where they overlap: {share}"
-            elif status == "disagree":
-                line += f"; disagrees with the earlier runs ({share}), kept as given (--accept-geometry)"
-            else:
-                line += (
-                    f"; not checked against the earlier runs: {found.get('reason', 'no overlap')}"
-                )
+        if run.alignment is not None:
+            line += f"; {describe_alignment(run.alignment)}"
         lines.append(line)
     return lines
 

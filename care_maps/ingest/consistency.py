@@ -231,10 +231,12 @@ def _fix(verdict: Verdict, reading: SourceReading, K: np.ndarray | None) -> str:
     return f"the focal length looks {f:.2g} times the one read: pass --intrinsics {fx:.1f},{fy:.1f},{cx:g},{cy:g} (or the camera's calibration)"
 
 
-def topics_lines(path: Path | str, frames: Any, options: Any) -> list[str]:
+def topics_lines(
+    path: Path | str, frames: Any, options: Any, sampler: GeometrySampler | None = None
+) -> list[str]:
     """``care topics``' check: the first :data:`TOPICS_VIEWS` views judged, before any
-    encoding, and what ingest would say of them."""
-    sampler = sample_frames(frames, TOPICS_VIEWS)
+    encoding, and what ingest would say of them (``sampler``: those views, sampled already)."""
+    sampler = sampler or sample_frames(frames, TOPICS_VIEWS)
     reading = source_reading(path, frames, options)
     verdict = check_geometry(sampler, reading)
     found = describe_verdict(verdict).removeprefix("geometry ")

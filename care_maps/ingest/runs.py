@@ -76,11 +76,13 @@ __all__ = [
     "RunOptions",
     "WorldTransform",
     "append_frames",
+    "append_lines",
     "appended_meta",
     "carry_maps",
     "check_alignment",
     "check_same_encoding",
     "check_world_frame",
+    "describe_alignment",
     "placed",
     "summed_counts",
 ]
@@ -353,3 +355,35 @@ def append_frames(
         unchecked = {"status": "unchecked", "reason": "views made for the store, not recorded"}
         meta = appended_meta(base, run, writer.num_views, unchecked, RunOptions())
         writer.commit(meta, replacing=lambda: carry_maps(base.path, writer.tmp))
+
+
+def describe_alignment(found: dict[str, Any]) -> str:
+    """How a run's views agreed with the earlier runs' (:func:`check_alignment`'s record)."""
+    share = f"{found.get('agree', 0):.0%} of reprojected depth over {found.get('pairs_judged', 0)} view pairs"
+    status = found.get("status")
+    if status == "agree":
+        return f"agrees with the earlier runs where they overlap: {share}"
+    if status == "disagree":
+        return f"disagrees with the earlier runs ({share}), kept as given (--accept-geometry)"
+    return f"not checked against the earlier runs: {found.get('reason', 'no overlap')}"
+
+
+def append_lines(
+    store: Path,
+    sample: Sequence[DepthSample],
+    world_frame: str | None,
+    options: RunOptions,
+    where: str,
+    *,
+    accept: bool,
+) -> list[str]:
+    """``care topics REC --store STORE``: what ``care ingest REC --out STORE --append``
+    would say of the recording's first views (``sample``, placed by ``options``)."""
+    opened = Store(store)
+    runs = len(run_records(opened.meta))
+    try:
+        check_world_frame(opened, world_frame, options.world_transform, where)
+        found = check_alignment(opened, sample, where, accept=accept)
+    except IngestError as err:
+        return [f"ingest --append would refuse: {err}"]
+    return [f"  {'runs':<12} run {runs + 1} of {store}: {describe_alignment(found)}"]

@@ -218,3 +218,21 @@ def test_the_rerun_file_shows_each_run_on_its_own_timeline(
     code, _, err = run_cli("ingest", runs["second"], "--out", store, "--append", "--rrd", again)
     assert code == 0, err
     assert rrd_entity_counts(again) == counts
+
+
+def test_topics_says_what_an_append_would_find(
+    runs: dict, tmp_path: Path, run_cli: InProcessCli
+) -> None:
+    store = run_ingest(runs["first"], tmp_path / "store")
+    code, out, err = run_cli("topics", runs["second"], "--store", store)
+    assert code == 0, err
+    assert f"run 2 of {store}: agrees with the earlier runs where they overlap" in out
+    code, out, _ = run_cli("topics", runs["shifted"], "--store", store)
+    assert f"ingest --append would refuse: {runs['shifted']}: its views disagree" in out
+    text = _placement_text(_shift())
+    code, out, err = run_cli("topics", runs["shifted"], "--store", store, "--world-transform", text)
+    assert code == 0, err
+    assert f"run 2 of {store}: agrees" in out
+    code, out, _ = run_cli("topics", runs["odom"], "--store", store)
+    assert "ingest --append would refuse" in out
+    assert "world frame 'odom'" in out
