@@ -328,7 +328,7 @@ def carry_maps(old: Path, new: Path) -> list[str]:
 def append_frames(
     store: Path,
     frames: Sequence[Frame],
-    features: Sequence[np.ndarray] | None,
+    features: Sequence[np.ndarray] | np.ndarray | None,
     *,
     name: str,
     fingerprint: str,
