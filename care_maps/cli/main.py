@@ -30,6 +30,7 @@ import typer
 from care_maps.cli import INTERRUPTED as _INTERRUPTED
 from care_maps.cli import stop_while_loading
 from care_maps.cli.options import finite_numbers
+from care_maps.cli.values import plain_values
 from care_maps.core.errors import CareError
 from care_maps.core.notices import print_notices
 from care_maps.runtime.malloc import keep_freed_memory
@@ -102,7 +103,7 @@ def _stop_now(signum: int, frame: object) -> None:
     os._exit(exit_code(_signum()))
 
 
-__all__ = ["app", "main", "one_line"]
+__all__ = ["app", "build_command", "main", "one_line"]
 
 app = typer.Typer(
     name="care",
@@ -173,6 +174,16 @@ def _plain_help(typer_app: typer.Typer) -> None:
     for group in typer_app.registered_groups:
         if group.typer_instance is not None:
             _plain_help(group.typer_instance)
+
+
+def build_command() -> Any:
+    """The click command of :data:`app` (the commands registered so far) as a run parses
+    it: plain values converted without pydantic (:mod:`care_maps.cli.values`), and NaN
+    and infinities refused for every option."""
+    command = typer.main.get_command(app)
+    plain_values(command)
+    finite_numbers(command)
+    return command
 
 
 def _first_line(text: str) -> str:
@@ -354,9 +365,7 @@ def _main() -> None:
             Work.DEFAULT
         )  # thread pools sized by kind of work (see care_maps.runtime.threads)
         _register(_command(sys.argv[1:]))
-        command = typer.main.get_command(app)
-        finite_numbers(command)  # NaN and infinities are usage errors, for every option
-        code = command(standalone_mode=False)
+        code = build_command()(standalone_mode=False)
         if code == _INTERRUPTED:  # typer turns Ctrl-C into exit code 130, silently
             raise KeyboardInterrupt
         sys.exit(code if isinstance(code, int) else 0)
