@@ -136,6 +136,10 @@ def _path(info: Any, value: Any) -> Any:
         value = Path(value)
     if not isinstance(value, Path):
         return _TYPERS
-    if info.readable and value.exists() and not os.access(value, os.R_OK):
+    try:
+        value.stat()
+    except OSError:  # missing, or a name too long to look up: typer's own test
+        return value
+    if info.readable and not os.access(value, os.R_OK):
         return _TYPERS  # typer's "not readable" error
     return value

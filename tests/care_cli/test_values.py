@@ -23,7 +23,7 @@ from care_maps.cli.values import plain_values
 _TEXT = ("abc", "", "Chair", " 7")
 _INTS = ("0", "7", "-3", "-0", "007", "+4", "1_000", "1.5", "2.0", " 7", "x", "9" * 25)
 _FLOATS = ("0.5", "2", "1e-3", "-1.25", "-0", "nan", "inf", "-inf", ".5", "1.", "1_0", "x")
-_PATHS = ("/tmp", "/nonexistent/x", "", "-", "relative/dir", "/etc/shadow")
+_PATHS = ("/tmp", "/nonexistent/x", "", "-", "relative/dir", "/etc/shadow", "/tmp/" + "n" * 300)
 
 
 def _samples(annotation: Any, default: Any) -> list[Any]:
