@@ -42,7 +42,7 @@ args = sys.argv[1:]
 def once():
     with contextlib.redirect_stdout(io.StringIO()):
         try:
-            cli.app(args, standalone_mode=False)
+            cli.build_command()(args, standalone_mode=False)  # as `care` parses them
         except SystemExit:
             pass
 once()  # the imports and the kernels' loading: start-up, not work

@@ -30,6 +30,7 @@ import typer
 from care_maps.cli import INTERRUPTED as _INTERRUPTED
 from care_maps.cli import stop_while_loading
 from care_maps.cli.options import finite_numbers
+from care_maps.cli.values import plain_values
 from care_maps.core.errors import CareError
 from care_maps.core.notices import print_notices
 from care_maps.runtime.malloc import keep_freed_memory
@@ -49,10 +50,11 @@ _SAID = threading.Event()
 _stopped_by: int | None = None
 """The signal that interrupted this run (the first one), which sets its line and exit code."""
 _PROGRAM = (__name__ == "__main__" or sys.argv[0].rsplit("/", 1)[-1] == "care") and (
-    __import__("multiprocessing").parent_process() is None
+    "multiprocessing" not in sys.modules or sys.modules["multiprocessing"].parent_process() is None
 )
 """Whether this process is the ``care`` program: not a caller of :func:`main` (a test), nor
-one of its worker processes (which leave the interruption to the program)."""
+one of its worker processes (which leave the interruption to the program). A spawned
+worker has imported multiprocessing before this module; the program need not (0.004 s)."""
 _PID = os.getpid()
 """The program's process (a forked worker inherits the handlers, not the role)."""
 _watchdog: threading.Timer | None = None
@@ -102,24 +104,32 @@ def _stop_now(signum: int, frame: object) -> None:
     os._exit(exit_code(_signum()))
 
 
-__all__ = ["app", "main", "one_line"]
-
-app = typer.Typer(
-    name="care",
-    help="CARe maps: recordings in, open-vocabulary maps, queries and context-aware replanning "
-    "out. Add --debug to any command to see the full traceback of an unexpected error.",
-    no_args_is_help=True,
-    pretty_exceptions_enable=False,
-    add_completion=False,
-    rich_markup_mode=None,
-)
+__all__ = ["app", "build_command", "main", "one_line"]
 
 
-@app.callback()
+def _program() -> typer.Typer:
+    """The ``care`` group, no command registered yet."""
+    program = typer.Typer(
+        name="care",
+        help="CARe maps: recordings in, open-vocabulary maps, queries and context-aware "
+        "replanning out. Add --debug to any command to see the full traceback of an "
+        "unexpected error.",
+        no_args_is_help=True,
+        pretty_exceptions_enable=False,
+        add_completion=False,
+        rich_markup_mode=None,
+    )
+    program.callback()(_group)
+    return program
+
+
 def _group() -> None:
     # a callback keeps `care` a group of commands when a run registers one command alone
     # (typer runs a lone command as the program itself, without its name)
     pass
+
+
+app = _program()
 
 
 COMMAND_MODULES: dict[str, str] = {
@@ -157,6 +167,87 @@ def _register(command: str | None = None) -> None:
     _plain_help(app)
 
 
+def _listing() -> typer.Typer | None:
+    """The ``care`` group as ``care --help`` (or a usage error naming no command) lists it:
+    each command's help read from its module's source, no command module imported (their
+    stages' configs cost 0.2 s of imports, for a list of names). The source is read, not
+    copied: ``register`` adds each command as ``app.command("name")(function)`` (the
+    function's docstring is its help) or a group as ``app.add_typer(group, name="name")``
+    (``group = typer.Typer(help=...)``). None where a module registers otherwise: every
+    module is then imported. ``tests/care_cli/test_registration.py`` checks the list is
+    the one the registered commands give."""
+    import ast
+    import importlib.util
+
+    commands: list[tuple[str, str]] = []
+    groups: list[tuple[str, str]] = []
+    for module in dict.fromkeys(COMMAND_MODULES.values()):
+        spec = importlib.util.find_spec(f"care_maps.cli.{module}")
+        if spec is None or spec.origin is None:
+            return None
+        found = _registered_in(ast.parse(Path(spec.origin).read_text("utf-8")))
+        if found is None:
+            return None
+        commands += found[0]
+        groups += found[1]
+    listing = _program()
+    for name, help_ in commands:
+        listing.command(name, help=help_)(_group)
+    for name, help_ in groups:
+        listing.add_typer(typer.Typer(help=help_, rich_markup_mode=None), name=name)
+    _plain_help(listing)
+    return listing
+
+
+def _registered_in(tree: Any) -> tuple[list[tuple[str, str]], list[tuple[str, str]]] | None:
+    """(commands, groups), each (name, help), that a command module's ``register`` adds,
+    read from the module's syntax tree; None for any other form of registration."""
+    import ast
+
+    functions = {n.name: n for n in tree.body if isinstance(n, ast.FunctionDef)}
+    assigned = {
+        n.targets[0].id: n.value
+        for n in tree.body
+        if isinstance(n, ast.Assign) and len(n.targets) == 1 and isinstance(n.targets[0], ast.Name)
+    }
+
+    def text(node: ast.AST | None) -> str | None:
+        if isinstance(node, ast.Constant) and isinstance(node.value, str):
+            return node.value
+        return None
+
+    def keyword(call: ast.AST | None, name: str) -> str | None:
+        if not isinstance(call, ast.Call):
+            return None
+        return next((text(k.value) for k in call.keywords if k.arg == name), None)
+
+    commands, groups = [], []
+    for stmt in functions["register"].body if "register" in functions else [None]:
+        if isinstance(stmt, ast.Expr) and text(stmt.value) is not None:
+            continue  # its docstring
+        call = stmt.value if isinstance(stmt, ast.Expr) else None
+        if not isinstance(call, ast.Call) or len(call.args) != 1:
+            return None
+        (arg,) = call.args
+        made = call.func
+        if (
+            isinstance(made, ast.Call)
+            and ast.unparse(made.func) == "app.command"
+            and len(made.args) == 1
+            and text(made.args[0]) is not None
+            and isinstance(arg, ast.Name)
+            and arg.id in functions
+        ):
+            commands.append((text(made.args[0]) or "", ast.get_docstring(functions[arg.id]) or ""))
+            continue
+        name = keyword(call, "name")
+        help_ = keyword(assigned.get(arg.id), "help") if isinstance(arg, ast.Name) else None
+        if ast.unparse(made) != "app.add_typer" or name is None or help_ is None:
+            return None
+        groups.append((name, help_))
+    return commands, groups
+
+
 def _command(argv: list[str]) -> str | None:
     """The command named on a command line (its first word that is not an option)."""
     return next((arg for arg in argv if not arg.startswith("-")), None)
@@ -173,6 +264,16 @@ def _plain_help(typer_app: typer.Typer) -> None:
     for group in typer_app.registered_groups:
         if group.typer_instance is not None:
             _plain_help(group.typer_instance)
+
+
+def build_command(program: typer.Typer | None = None) -> Any:
+    """The click command of ``program`` (default :data:`app`, the commands registered so
+    far) as a run parses it: plain values converted without pydantic
+    (:mod:`care_maps.cli.values`), and NaN and infinities refused for every option."""
+    command = typer.main.get_command(program or app)
+    plain_values(command)
+    finite_numbers(command)
+    return command
 
 
 def _first_line(text: str) -> str:
@@ -353,10 +454,11 @@ def _main() -> None:
         use_threads(
             Work.DEFAULT
         )  # thread pools sized by kind of work (see care_maps.runtime.threads)
-        _register(_command(sys.argv[1:]))
-        command = typer.main.get_command(app)
-        finite_numbers(command)  # NaN and infinities are usage errors, for every option
-        code = command(standalone_mode=False)
+        named = _command(sys.argv[1:])
+        listing = None if named in COMMAND_MODULES else _listing()
+        if listing is None:
+            _register(named)
+        code = build_command(listing or app)(standalone_mode=False)
         if code == _INTERRUPTED:  # typer turns Ctrl-C into exit code 130, silently
             raise KeyboardInterrupt
         sys.exit(code if isinstance(code, int) else 0)

@@ -20,6 +20,7 @@ PNG depth costs 6.9 ms to write and 3.3 ms to read, its zstd frame 1.0 ms and 0.
 bytes at 1.09x; a JPEG 2.8 ms to encode, nothing when the recording's own bytes are kept.
 
 Codecs are pyarrow's (zstd) and Pillow's (PNG, JPEG): no library beyond the store's own.
+Pillow is imported by the functions that use it (0.01 s): a query reads no image.
 """
 
 from __future__ import annotations
@@ -29,7 +30,6 @@ from enum import StrEnum
 
 import numpy as np
 import pyarrow as pa
-from PIL import Image
 
 __all__ = [
     "JPEG_QUALITY",
@@ -91,6 +91,8 @@ def decode_u16(data: bytes, width: int, height: int) -> np.ndarray:
 
 def encode_png(image: np.ndarray) -> bytes:
     """Lossless PNG bytes of a uint8 (H, W[, 3]) or uint16 (H, W) image."""
+    from PIL import Image
+
     buf = io.BytesIO()
     Image.fromarray(image).save(buf, format="PNG", compress_level=1)
     return buf.getvalue()
@@ -98,6 +100,8 @@ def encode_png(image: np.ndarray) -> bytes:
 
 def decode_png(data: bytes) -> np.ndarray:
     """Inverse of :func:`encode_png` (16-bit PNGs come back as uint16)."""
+    from PIL import Image
+
     img = Image.open(io.BytesIO(data))
     arr = np.asarray(img)
     return arr.astype(np.uint16, copy=False) if img.mode.startswith("I") else arr
@@ -105,6 +109,8 @@ def decode_png(data: bytes) -> np.ndarray:
 
 def encode_jpeg(rgb: np.ndarray) -> bytes:
     """JPEG bytes of an (H, W, 3) ``uint8`` image, as the store encodes colour itself."""
+    from PIL import Image
+
     buf = io.BytesIO()
     Image.fromarray(rgb).save(buf, format="JPEG", quality=JPEG_QUALITY, subsampling=0)
     return buf.getvalue()
@@ -113,6 +119,8 @@ def encode_jpeg(rgb: np.ndarray) -> bytes:
 def decode_jpeg(data: bytes) -> np.ndarray:
     """(H, W, 3) ``uint8`` RGB of JPEG bytes: Pillow's decoding, the one ingest decodes a
     recording's JPEG messages with, so kept bytes give back the very pixels encoded from."""
+    from PIL import Image
+
     img = Image.open(io.BytesIO(data))
     # convert() copies even an RGB image (a sixth of the decode at 640x480)
     return np.asarray(img if img.mode == "RGB" else img.convert("RGB"))
@@ -120,6 +128,8 @@ def decode_jpeg(data: bytes) -> np.ndarray:
 
 def jpeg_size(data: bytes) -> tuple[int, int] | None:
     """(width, height) of JPEG bytes from their header alone; None when they are not JPEG."""
+    from PIL import Image
+
     try:
         with Image.open(io.BytesIO(data)) as img:
             return (int(img.width), int(img.height)) if img.format == "JPEG" else None

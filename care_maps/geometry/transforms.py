@@ -13,6 +13,7 @@ __all__ = [
     "matrix_to_quaternion",
     "project",
     "quaternion_to_matrix",
+    "rotation_quaternion",
     "transform_points",
 ]
 
@@ -53,12 +54,53 @@ def quaternion_to_matrix(q: np.ndarray) -> np.ndarray:
 
 def matrix_to_quaternion(R: np.ndarray) -> np.ndarray:
     """(..., 3, 3) rotation matrices to (..., 4) xyzw quaternions with w >= 0."""
-    from scipy.spatial.transform import Rotation
-
     R = np.asarray(R, dtype=np.float64)
-    q = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_quat()
+    q = rotation_quaternion(R.reshape(-1, 3, 3))
     q = np.where(q[:, 3:4] < 0, -q, q)
     return q.reshape(*R.shape[:-2], 4)
+
+
+def rotation_quaternion(R: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) rotation matrices to (N, 4) xyzw quaternions, bit for bit scipy's
+    ``Rotation.from_matrix(R).as_quat()`` (1.17; ``tests/geometry/test_transforms.py``
+    checks it against scipy): its checks, SVD orthogonalisation of a matrix that is not
+    orthogonal within 1e-12, and Markley's choice of the largest of the diagonal and the
+    trace, in the same floating-point operations. Here rather than scipy's because
+    ``scipy.spatial.transform`` imports most of scipy (0.2 s), which a query would pay at
+    every start for a handful of goal poses.
+    """
+    m = np.array(R, dtype=np.float64).reshape(-1, 3, 3)
+    dets = np.linalg.det(m)
+    if np.any(dets <= 0):
+        ind = int(np.where(dets <= 0)[0][0])
+        msg = (
+            "Non-positive determinant (left-handed or null coordinate frame) in rotation "
+            f"matrix {ind}: {m[ind]}."
+        )
+        raise ValueError(msg)
+    gramians = m @ np.transpose(m, (0, 2, 1))
+    bent = np.where(~np.all(np.isclose(gramians, np.eye(3), atol=1e-12), axis=(1, 2)))[0]
+    if len(bent):
+        u, _, vt = np.linalg.svd(m[bent, :, :])
+        m[bent, :, :] = u @ vt
+    trace = m[:, 0, 0] + m[:, 1, 1] + m[:, 2, 2]
+    decision = np.stack([m[:, 0, 0], m[:, 1, 1], m[:, 2, 2], trace], axis=1)
+    choice = np.argmax(decision, axis=1)  # the first of equal maxima, as scipy's loop
+    q = np.empty((len(m), 4))
+    for i in range(3):
+        j, k = (i + 1) % 3, (i + 2) % 3
+        at = choice == i
+        q[at, i] = 1 - trace[at] + 2 * m[at, i, i]
+        q[at, j] = m[at, j, i] + m[at, i, j]
+        q[at, k] = m[at, k, i] + m[at, i, k]
+        q[at, 3] = m[at, k, j] - m[at, j, k]
+    at = choice == 3
+    q[at, 0] = m[at, 2, 1] - m[at, 1, 2]
+    q[at, 1] = m[at, 0, 2] - m[at, 2, 0]
+    q[at, 2] = m[at, 1, 0] - m[at, 0, 1]
+    q[at, 3] = 1 + trace[at]
+    norm = np.sqrt(q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1] + q[:, 2] * q[:, 2] + q[:, 3] * q[:, 3])
+    return q / norm[:, None]
 
 
 def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:

@@ -11,13 +11,15 @@ from __future__ import annotations
 import io
 import re
 import struct
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
-from PIL import Image, UnidentifiedImageError
 
 from care_maps.core.errors import IngestError
 from care_maps.ingest.undistort import Distortion, parse_distortion
+
+if TYPE_CHECKING:
+    from PIL import Image
 
 __all__ = [
     "COLOUR_ENCODINGS",
@@ -101,6 +103,8 @@ def _is_compressed(msg: Any) -> bool:
 
 
 def _open_compressed(data: bytes, topic: str, fmt: str) -> Image.Image:
+    from PIL import Image, UnidentifiedImageError  # here: a query or --help decodes nothing
+
     try:
         img = Image.open(io.BytesIO(data))
         img.load()

@@ -4,15 +4,17 @@ ROS 2 recordings (MCAP, rosbag2) use the Humble store; ROS 1 bags the Noetic sto
 lacks ``tf2_msgs/msg/TFMessage`` (ROS 1 TF moved to tf2_msgs in Indigo, but rosbags only
 ships the ``tf`` package's definition), so we register it here once. Types a recording
 carries that a store does not know are added from the recording's own definitions by the
-readers (:func:`register_msgdef`).
+readers (:func:`register_msgdef`). rosbags is imported when a store is first asked for
+(0.01 s): the CLI's start and a query read no recording.
 """
 
 from __future__ import annotations
 
 from functools import cache
+from typing import TYPE_CHECKING
 
-from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
-from rosbags.typesys.store import Typestore
+if TYPE_CHECKING:
+    from rosbags.typesys.store import Typestore
 
 __all__ = ["register_msgdef", "ros1_typestore", "ros2_typestore"]
 
@@ -22,12 +24,16 @@ _TF_MESSAGE_MSG = "geometry_msgs/TransformStamped[] transforms\n"
 @cache
 def ros2_typestore() -> Typestore:
     """ROS 2 Humble message types (shared, extended in place by :func:`register_msgdef`)."""
+    from rosbags.typesys import Stores, get_typestore
+
     return get_typestore(Stores.ROS2_HUMBLE)
 
 
 @cache
 def ros1_typestore() -> Typestore:
     """ROS 1 Noetic message types plus ``tf2_msgs/msg/TFMessage``."""
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
     store = get_typestore(Stores.ROS1_NOETIC)
     if "tf2_msgs/msg/TFMessage" not in store.fielddefs:
         store.register(get_types_from_msg(_TF_MESSAGE_MSG, "tf2_msgs/msg/TFMessage"))
@@ -40,6 +46,8 @@ def register_msgdef(store: Typestore, msgtype: str, msgdef: str, fmt: str = "msg
     Returns False when the definition cannot be parsed; the topic is then listed but its
     messages cannot be decoded (which is fine unless ingest needs that topic).
     """
+    from rosbags.typesys import get_types_from_idl, get_types_from_msg
+
     if msgtype in store.fielddefs:
         return True
     try:

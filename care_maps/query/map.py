@@ -63,11 +63,24 @@ def list_column(table: pa.Table, name: str, dtype: type = np.float32) -> np.ndar
     col = table.column(name).combine_chunks()
     if len(col) == 0:
         return np.zeros((0, 0), dtype=dtype)
-    flat: np.ndarray = as_numpy(col.flatten()).astype(dtype, copy=False)
+    flat: np.ndarray = as_numpy(_values(col)).astype(dtype, copy=False)
     if flat.size % len(col):
         msg = f"column {name!r}: rows have different lengths; the map table is malformed, rebuild it with `care fuse`"
         raise QueryError(msg)
     return flat.reshape(len(col), -1)
+
+
+def _values(col: pa.Array) -> pa.Array:
+    """The values of a list column's rows, in order: its child array sliced to them.
+    ``flatten()`` gives the same, through pyarrow's compute module (0.03 s to import at a
+    query's start); it is kept for a column with null rows, which it skips."""
+    if col.null_count:
+        return col.flatten()
+    if pa.types.is_fixed_size_list(col.type):
+        size = col.type.list_size
+        return col.values.slice(col.offset * size, len(col) * size)
+    offsets = as_numpy(col.offsets)
+    return col.values.slice(int(offsets[0]), int(offsets[-1] - offsets[0]))
 
 
 def _ragged(table: pa.Table, name: str) -> tuple[np.ndarray, np.ndarray]:

@@ -13,9 +13,11 @@ approach points keep) can follow, from a start to the goal's approach point:
 - a start that is not itself on such a cell (a hand-held camera above a table, a pose by a
   wall) joins the nearest one within :attr:`PathConfig.start_reach`, in a straight line.
 
-Distances come from one single-source Dijkstra over that graph (scipy's
-``csgraph.dijkstra``), so every candidate of a query costs one search, and a roadmap keeps
-its last searches: a second query or a batch from the same place pays a look-up. A goal
+Distances come from one single-source search over that graph (scipy's ``csgraph.dijkstra``,
+or on a grid of up to :data:`_NUMPY_CELLS` cells its very answer computed in NumPy, without
+scipy's import: :meth:`Roadmap.nearest_first`), so every candidate of a query costs one
+search, and a roadmap keeps its last searches: a second query or a batch from the same
+place pays a look-up. A goal
 the search does not reach, or that is the object itself (no approach point), is
 unreachable: its distance is ``inf``. A path is the list of cells back from a goal to the
 start, as ``nav_msgs/Path`` JSON (:func:`nav_path`) in the goals' frame; :func:`walk`
@@ -42,7 +44,7 @@ import numpy.typing as npt
 
 from care_maps.core.errors import QueryError
 from care_maps.fuse.layout import GridLayout
-from care_maps.query.goals import FreeSpace, Goal, GoalMaker, stamped_poses
+from care_maps.query.goals import FreeSpace, Goal, GoalMaker, squared_distances, stamped_poses
 
 __all__ = [
     "Leg",
@@ -57,6 +59,12 @@ __all__ = [
 
 _STEPS = ((1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1))
 """The 8 moves from a cell, (dx, dy) in cells: four straight, then four diagonal."""
+_NUMPY_CELLS = 250_000
+"""Grids up to this many cells are searched in NumPy (:meth:`Roadmap.nearest_first`: 5 ms
+at a room's 24k cells, 0.05 s at 90k, against scipy's 0.15 s import); larger ones by scipy's
+Dijkstra (0.2 s at 1M cells, where the NumPy bands take 0.7 s)."""
+TIED = -2
+"""A cell before which :meth:`Roadmap.nearest_first` cannot tell scipy's choice."""
 _KEPT_SEARCHES = 2
 """Searches a roadmap keeps (12 bytes a cell each: 24 MB at 1M cells): the start of a query
 and of its walk's first leg, a batch's start."""
@@ -103,22 +111,16 @@ class Roadmap:
 
     @classmethod
     def from_free_space(cls, space: FreeSpace, clearance: float) -> Roadmap:
-        """Free cells outside the obstacles grown by the robot's radius: a dilation by the
-        disc of offsets nearer than :func:`passable_squared_distance`, the same cells a
-        whole-grid distance transform keeps (OpenCV's dilation: some 1 ms at 1M cells
-        against 0.2 s for scipy's transform)."""
+        """Free cells outside the obstacles grown by the robot's radius: those at least
+        :func:`passable_squared_distance` from every obstacle cell, the same cells a
+        whole-grid distance transform keeps. The transform stops at that distance
+        (:func:`care_maps.query.goals.squared_distances`): a few passes over the grid, some
+        10 ms at 1M cells, and neither scipy nor OpenCV to import at a query's start."""
         k = passable_squared_distance(clearance, space.layout.cell_size)
         if k == 0 or not space.blocked.any():
             return cls(space.layout, space.free.copy())
-        import cv2  # at first use: keeps `import care_maps.query.paths` light
-
-        r = math.isqrt(k - 1)
-        i, j = np.mgrid[-r : r + 1, -r : r + 1]
-        disc = (i * i + j * j < k).astype(np.uint8)
-        near = cv2.dilate(
-            space.blocked.astype(np.uint8), disc, borderType=cv2.BORDER_CONSTANT, borderValue=0
-        )
-        return cls(space.layout, space.free & ~near.astype(bool))
+        near = squared_distances(space.blocked, below=k) < k
+        return cls(space.layout, space.free & ~near)
 
     @classmethod
     def for_goals(cls, goals: GoalMaker) -> Roadmap | None:
@@ -129,11 +131,9 @@ class Roadmap:
         return cls.from_free_space(goals.free_space, goals.config.clearance)
 
     @cached_property
-    def graph(self):
-        """The moves as a CSR matrix over every cell (flat index ``ix * ny + iy``): an entry
-        (a, b) is the length (m) of the step from cell a to neighbour b, both passable."""
-        from scipy.sparse import csr_matrix
-
+    def moves(self) -> np.ndarray:
+        """(nx, ny, 8) bool: whether the robot may step from a cell along each of
+        :data:`_STEPS` (both cells passable, and no corner cut)."""
         nx, ny = self.layout.shape
         ok = np.pad(self.passable, 1)
         centre = ok[1:-1, 1:-1]
@@ -143,11 +143,26 @@ class Roadmap:
             if dx and dy:  # no corner cutting: both cells beside the diagonal passable
                 moves[..., d] &= ok[1 + dx : 1 + dx + nx, 1 : 1 + ny]
                 moves[..., d] &= ok[1 : 1 + nx, 1 + dy : 1 + dy + ny]
+        return moves
+
+    @property
+    def steps(self) -> tuple[np.ndarray, np.ndarray]:
+        """The flat-index offset and the length (m) of each of :data:`_STEPS`."""
+        ny, size = self.layout.shape[1], self.layout.cell_size
+        offset = np.array([dx * ny + dy for dx, dy in _STEPS])
+        return offset, np.array([size * math.hypot(dx, dy) for dx, dy in _STEPS])
+
+    @cached_property
+    def graph(self):
+        """The moves as a CSR matrix over every cell (flat index ``ix * ny + iy``): an entry
+        (a, b) is the length (m) of the step from cell a to neighbour b, both passable."""
+        from scipy.sparse import csr_matrix
+
+        nx, ny = self.layout.shape
+        moves = self.moves
         flat = np.flatnonzero(moves)  # row-major: sorted by cell, as CSR wants
         cell, step = np.divmod(flat, len(_STEPS))
-        offset = np.array([dx * ny + dy for dx, dy in _STEPS])
-        size = self.layout.cell_size
-        length = np.array([size * math.hypot(dx, dy) for dx, dy in _STEPS])
+        offset, length = self.steps
         indptr = np.zeros(nx * ny + 1, np.int32)
         np.cumsum(moves.sum(axis=2, dtype=np.int32).reshape(-1), out=indptr[1:])
         indices = (cell + offset[step]).astype(np.int32)
@@ -202,16 +217,94 @@ class Roadmap:
         return {}
 
     def _search(self, start: tuple[float, float], reach: float) -> Travel:
-        """One Dijkstra over :attr:`graph` from the cell ``start`` enters at."""
+        """One search from the cell ``start`` enters at: :meth:`nearest_first` on a grid
+        of up to :data:`_NUMPY_CELLS` cells, scipy's Dijkstra over :attr:`graph` above."""
         source = self.entry(start, reach)
         n = self.passable.size
         if source is None:
             return Travel(self, start, None, np.full(n, np.inf), np.full(n, -1, np.int32))
+        if n <= _NUMPY_CELLS:
+            dist, pred = self.nearest_first(source)
+        else:
+            dist, pred = self.dijkstra(source)
+        lead = float(np.hypot(*(self.centres([source])[0] - start)))
+        return Travel(self, start, source, dist + lead, pred)
+
+    def dijkstra(self, source: int) -> tuple[np.ndarray, np.ndarray]:
+        """scipy's Dijkstra over :attr:`graph` from cell ``source``: (nx * ny,) metres
+        and the cell before each on its path (-9999: none)."""
         from scipy.sparse.csgraph import dijkstra
 
         dist, pred = dijkstra(self.graph, indices=source, return_predecessors=True)
-        lead = float(np.hypot(*(self.centres([source])[0] - start)))
-        return Travel(self, start, source, dist + lead, pred)
+        return dist, pred
+
+    def nearest_first(self, source: int) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`dijkstra`'s answer in NumPy, without importing scipy (0.15 s at every
+        query's start, where a room's search takes a few milliseconds): the same
+        metres bit for bit, the same cell before each, except :data:`TIED` where two
+        cells before it tie (:meth:`Travel.waypoints` asks :meth:`dijkstra` there).
+
+        Cells are settled a band at a time, nearest first: every open cell nearer than the
+        nearest one plus the shortest step is final (no step from inside the band can lower
+        another), and the band's steps are taken at once. Each distance is then the least
+        ``d(u) + step`` over the cells ``u`` before it, summed as scipy sums it, so the
+        distances are scipy's whatever the order. The cell before each is the one scipy's
+        search reaches it from: the first cell settled among those giving its distance,
+        i.e. the nearest of them; only when two of them are equally near does the order of
+        scipy's heap decide, and that cell is left :data:`TIED` (a few in a thousand).
+        ``tests/query/test_paths.py`` checks both against scipy on many floors.
+        """
+        n = self.passable.size
+        moves = self.moves.reshape(n, len(_STEPS))
+        offset, length = self.steps
+        shortest = float(length.min())
+        dist = np.full(n, np.inf)
+        dist[source] = 0.0
+        settled = np.zeros(n, bool)
+        last = np.zeros(n, np.int64)  # for dropping repeats from the open cells
+        open_ = np.array([source], np.int64)
+        while len(open_):
+            near = dist[open_]
+            band = near < near.min() + shortest
+            now, open_ = open_[band], open_[~band]
+            settled[now] = True
+            cell, step = np.nonzero(moves[now])
+            src = now[cell]
+            dst = src + offset[step]
+            new = dist[src] + length[step]
+            better = ~settled[dst] & (new < dist[dst])
+            dst, new = dst[better], new[better]
+            np.minimum.at(dist, dst, new)
+            open_ = np.concatenate([open_, dst])
+            last[open_] = np.arange(len(open_))
+            open_ = open_[last[open_] == np.arange(len(open_))]
+        return dist, self._predecessors(dist, source)
+
+    def _predecessors(self, dist: np.ndarray, source: int) -> np.ndarray:
+        """The cell before each on its path: the nearest of the cells ``u`` with
+        ``dist[u] + step == dist[cell]`` (:data:`TIED` when two are equally near)."""
+        n = self.passable.size
+        moves = self.moves.reshape(n, len(_STEPS))
+        offset, length = self.steps
+        pred = np.full(n, -9999, np.int32)
+        cells = np.flatnonzero(np.isfinite(dist))
+        cells = cells[cells != source]
+        best = np.full(len(cells), np.inf)
+        before = np.full(len(cells), -9999, np.int64)
+        tied = np.zeros(len(cells), bool)
+        for k in range(len(_STEPS)):
+            u = cells - offset[k]  # a step k from u lands on the cell
+            inside = (u >= 0) & (u < n)
+            u = np.where(inside, u, 0)
+            gives = inside & moves[u, k] & (dist[u] + length[k] == dist[cells])
+            du = np.where(gives, dist[u], np.inf)
+            tied |= gives & (du == best)
+            nearer = du < best
+            tied &= ~nearer
+            best = np.where(nearer, du, best)
+            before = np.where(nearer, u, before)
+        pred[cells] = np.where(tied, TIED, before)
+        return pred
 
 
 @dataclass(frozen=True)
@@ -226,7 +319,8 @@ class Travel:
     distance: np.ndarray
     """(nx * ny,) metres from the start to each cell's centre (inf: unreachable)."""
     predecessor: np.ndarray
-    """(nx * ny,) the cell before each on its shortest path (negative: none)."""
+    """(nx * ny,) the cell before each on its shortest path (-9999 or -1: none;
+    :data:`TIED`: scipy's heap decides, :meth:`waypoints` asks it)."""
 
     def cell(self, xy: tuple[float, float]) -> int | None:
         """Flat index of the cell holding ``xy``; None outside the grid."""
@@ -252,6 +346,12 @@ class Travel:
         out[inside] = self.distance[cx[inside] * ny + cy[inside]]
         return out
 
+    @cached_property
+    def _scipys_predecessor(self) -> np.ndarray:
+        """The cell before each, by scipy's Dijkstra (asked only for a :data:`TIED` one)."""
+        assert self.source is not None
+        return self.roadmap.dijkstra(self.source)[1]
+
     def waypoints(self, goal: Goal) -> np.ndarray | None:
         """(M, 2) map (x, y) from the start to ``goal``'s approach point: the start, the
         centre of each cell on the way, the goal (None: unreachable)."""
@@ -259,7 +359,10 @@ class Travel:
             return None
         cells = [self.cell(goal.position[:2])]
         while cells[-1] != self.source:
-            cells.append(int(self.predecessor[cells[-1]]))
+            before = int(self.predecessor[cells[-1]])
+            if before == TIED:
+                before = int(self._scipys_predecessor[cells[-1]])
+            cells.append(before)
         centres = self.roadmap.centres(np.array(cells[::-1]))
         return centres if np.allclose(centres[0], self.start) else np.vstack([self.start, centres])
 

@@ -27,6 +27,7 @@ import numpy as np
 
 from care_maps.core.frames import check_frame_id
 from care_maps.core.mapframe import MapFrame
+from care_maps.geometry.transforms import rotation_quaternion
 
 __all__ = [
     "MAP_FRAME_ID",
@@ -78,9 +79,7 @@ def frame_plan(frame: MapFrame, world_frame: str, name: str | None = None) -> Fr
 
 
 def _translation_quaternion(matrix: np.ndarray) -> tuple[list[float], list[float]]:
-    from scipy.spatial.transform import Rotation
-
-    xyzw = Rotation.from_matrix(matrix[:3, :3]).as_quat()
+    xyzw = rotation_quaternion(matrix[:3, :3])[0]
     return [float(v) for v in matrix[:3, 3]], [float(v) for v in xyzw]
 
 

@@ -3,7 +3,9 @@ registers it, so the index must name exactly what each module registers."""
 
 from __future__ import annotations
 
+import contextlib
 import importlib
+import io
 import pkgutil
 import subprocess
 import sys
@@ -11,6 +13,7 @@ import sys
 import typer
 
 import care_maps.cli
+from care_maps.cli import main as cli
 from care_maps.cli.main import COMMAND_MODULES
 
 
@@ -59,3 +62,37 @@ def test_help_lists_every_command() -> None:
     ).stdout
     listed = {line.split()[0] for line in out.split("Commands:")[1].splitlines() if line.strip()}
     assert listed == set(COMMAND_MODULES)
+
+
+def _help(program: typer.Typer) -> str:
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.suppress(SystemExit):
+        cli.build_command(program)(["--help"], prog_name="care", standalone_mode=False)
+    return out.getvalue()
+
+
+def test_the_listing_is_the_registered_commands_help() -> None:
+    """``care --help`` lists the commands from their modules' source, without importing
+    them: the same text as the registered commands give."""
+    listing = cli._listing()
+    assert listing is not None  # every module registers in the form the listing reads
+    cli._register()
+    assert _help(listing) == _help(cli.app)
+    assert "Commands:" in _help(listing)
+
+
+def test_help_imports_no_command_module() -> None:
+    code = (
+        "import sys\n"
+        "from care_maps.cli import main as cli\n"
+        "sys.argv = ['care', '--help']\n"
+        "try:\n"
+        "    cli.main()\n"
+        "except SystemExit:\n"
+        "    pass\n"
+        "print(sorted(m for m in sys.modules if m.endswith('_cmd') or m.endswith('pipeline')))\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    ).stdout
+    assert out.strip().splitlines()[-1] == "[]"

@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from care_maps.core.errors import QueryError
 from care_maps.fuse.layout import GridLayout
-from care_maps.query.goals import FreeSpace, Goal, GoalConfig, GoalMaker
+from care_maps.query.goals import FreeSpace, Goal, GoalConfig, GoalMaker, squared_distances
 from care_maps.query.map import CandidateMap
 
 CELL = 0.1
@@ -154,3 +154,21 @@ def test_clearance_around_a_goal_is_the_whole_grids(density: float) -> None:
         got = space.approach(target, config)
         want = _whole_grid_approach(space, target, config)
         assert got == want, (target, config)
+
+
+def test_squared_distances_are_scipys_transform() -> None:
+    """Clearances are the roots of scipy's squared distances bit for bit, on grids of every
+    shape and density (a lone obstacle, a crowded floor); with ``below``, exactly which
+    cells lie nearer than it."""
+    from scipy import ndimage
+
+    rng = np.random.default_rng(0)
+    for _ in range(1500):
+        nx, ny = (int(n) for n in rng.integers(1, 70, 2))
+        blocked = rng.random((nx, ny)) < rng.choice([0.001, 0.01, 0.05, 0.2, 0.6, 0.95])
+        blocked[rng.integers(nx), rng.integers(ny)] = True
+        ours = squared_distances(blocked)
+        theirs = ndimage.distance_transform_edt(~blocked)
+        assert np.array_equal(np.sqrt(ours.astype(np.float64)), theirs)
+        below = int(rng.integers(1, 60))
+        assert np.array_equal(squared_distances(blocked, below=below) < below, ours < below)

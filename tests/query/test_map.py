@@ -141,3 +141,18 @@ def test_confidence_of_a_sure_candidate_is_at_most_one(tmp_path, kind) -> None:
     reference = softmax(100.0 * feats @ text.T.astype(np.float64), axis=1).T
     assert conf.max() <= 1.0
     np.testing.assert_allclose(conf, reference, rtol=1e-3, atol=1e-6)
+
+
+def test_list_values_are_flattens() -> None:
+    """A list column's values are read without pyarrow's compute module, as ``flatten()``
+    gives them: fixed-size and variable lists, sliced, empty."""
+    from care_maps.query.map import _values
+
+    for whole in (
+        pa.array([[1, 2], [3, 4], [5, 6]], pa.list_(pa.float32(), 2)),
+        pa.array([[1, 2], [3], [5, 6, 7]], pa.list_(pa.int32())),
+        pa.array([[1, 2], [3], [5, 6, 7]], pa.large_list(pa.int32())),
+        pa.array([[1, 2], None, [5]], pa.list_(pa.int32())),
+    ):
+        for col in (whole, whole.slice(1), whole.slice(1, 1), whole.slice(0, 0)):
+            assert _values(col).equals(col.flatten())

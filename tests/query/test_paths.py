@@ -19,10 +19,13 @@ from scipy import ndimage
 from care_maps.core.errors import QueryError
 from care_maps.core.keys import GOAL_FRAME_KEY
 from care_maps.fuse.layout import GridLayout
+from care_maps.query import paths
 from care_maps.query.goals import FreeSpace, Goal, GoalConfig, GoalMaker
 from care_maps.query.paths import (
+    TIED,
     PathConfig,
     Roadmap,
+    Travel,
     nav_path,
     passable_squared_distance,
     path_length,
@@ -503,3 +506,65 @@ def test_cli_query_and_replan_draw_each_attempts_way(tmp_path: Path, run_cli) ->
     code, _, err = run_cli("query", store, "--batch", tmp_path / "x.txt", "--rrd", "a.rrd")
     assert code == 1
     assert "--rrd" in err
+
+
+def _floor(rng: np.random.Generator, shape: tuple[int, int]) -> np.ndarray:
+    """A random floor: scattered obstacles, walls with doors, and rooms left closed."""
+    obstacle = rng.random(shape) < rng.choice([0.0, 0.02, 0.08, 0.2, 0.35])
+    for _ in range(int(rng.integers(0, 4))):
+        at = int(rng.integers(0, shape[0]))
+        obstacle[at, :] = True
+        door = int(rng.integers(0, shape[1]))
+        obstacle[at, door : door + int(rng.integers(0, 5))] = False
+    return obstacle
+
+
+def test_nearest_first_is_scipys_dijkstra() -> None:
+    """The NumPy search gives scipy's distances bit for bit and scipy's cell before each
+    wherever it does not say TIED; a path through a TIED cell is scipy's too (asked of
+    scipy), on floors of every shape, density and clearance, from starts all over them."""
+    rng = np.random.default_rng(0)
+    tied = 0
+    for _ in range(150):
+        shape = (int(rng.integers(1, 45)), int(rng.integers(1, 45)))
+        space = _space(_floor(rng, shape), cell=float(rng.choice([0.05, 0.1, 0.037])))
+        roadmap = Roadmap.from_free_space(space, float(rng.choice([0.0, 0.1, 0.2])))
+        cells = np.flatnonzero(roadmap.passable)
+        for source in rng.choice(cells, min(3, len(cells)), replace=False):
+            dist, pred = roadmap.nearest_first(int(source))
+            want_dist, want_pred = roadmap.dijkstra(int(source))
+            assert np.array_equal(dist.view(np.int64), want_dist.view(np.int64))
+            known = pred != TIED
+            assert np.array_equal(pred[known], want_pred[known])
+            tied += int((~known).sum())
+            start = tuple(roadmap.centres([int(source)])[0])
+            travel = roadmap.travel(start, reach=0.0)
+            for cell in np.flatnonzero(~known)[:5]:
+                goal = _goal_at(space, divmod(int(cell), shape[1]))
+                _scipys_path_is_taken(roadmap, travel, goal, want_pred)
+    assert tied > 0  # the ties scipy's heap decides were met, and asked of it
+
+
+def _scipys_path_is_taken(
+    roadmap: Roadmap, travel: Travel, goal: Goal, want_pred: np.ndarray
+) -> None:
+    """The way to ``goal`` is the one scipy's cells-before give (cell centres; the start
+    is the source's own centre here)."""
+    cell = travel.cell(goal.position[:2])
+    cells = [cell]
+    while cells[-1] != travel.source:
+        cells.append(int(want_pred[cells[-1]]))
+    want = roadmap.centres(np.array(cells[::-1]))
+    assert np.array_equal(travel.waypoints(goal), want)
+
+
+def test_large_grids_are_searched_by_scipy(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Above the NumPy search's size, scipy's Dijkstra answers (and the same)."""
+    space = _space(_rooms())
+    roadmap = Roadmap.from_free_space(space, 0.0)
+    start = _centre(space, (3, 3))
+    numpy_travel = roadmap.travel(start, reach=0.0)
+    monkeypatch.setattr(paths, "_NUMPY_CELLS", 0)
+    scipy_travel = Roadmap.from_free_space(space, 0.0).travel(start, reach=0.0)
+    assert np.array_equal(numpy_travel.distance, scipy_travel.distance)
+    assert not (scipy_travel.predecessor == TIED).any()

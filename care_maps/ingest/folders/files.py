@@ -12,15 +12,17 @@ import re
 from collections.abc import Iterable
 from decimal import Decimal, InvalidOperation
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from PIL import Image, UnidentifiedImageError
 
 from care_maps.core.errors import IngestError
 from care_maps.geometry.transforms import quaternion_to_matrix
 from care_maps.ingest.conventions import QuaternionOrder
 from care_maps.ingest.intrinsics import NAMED_CAMERAS, CameraIntrinsics, NamedCamera
+
+if TYPE_CHECKING:
+    from PIL import Image
 
 __all__ = [
     "DEPTH_MILLIMETRES",
@@ -75,6 +77,8 @@ def image_files(
 
 
 def _open(path: Path) -> Image.Image:
+    from PIL import Image, UnidentifiedImageError  # at first image: not at the CLI's start
+
     if not path.is_file():
         msg = f"{path}: no such image; the dataset folder is incomplete (re-copy it)."
         raise IngestError(msg)

@@ -46,7 +46,6 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
-from PIL import Image
 
 from care_maps.core.errors import IngestError
 from care_maps.core.frames import Frame
@@ -138,6 +137,8 @@ def colour_in_depth_camera(
     rows = (v >= -0.5) & (v <= colour_h - 0.5)
     columns = (u >= -0.5) & (u <= colour_w - 0.5)
     inside = rows[:, None] & columns[None, :]
+    from PIL import Image  # at first image: not at the CLI's start
+
     image = Image.fromarray(rgb)
     block = max(1, int(min(scale)))
     if block > 1:
