@@ -14,6 +14,14 @@ download), each way in a fresh process with its own peak memory (``bench/rss.py`
   recording, resized and normalised beforehand and untimed, in batches of the same size with
   the same threads (``Work.ENCODE``: every core). Its views/s is the floor ingest is held to.
 
+The cheaper way to run the same checkpoint, ``--precision bfloat16``
+(:class:`care_maps.core.encoders.base.Precision`), is timed both ways too: its ``care ingest``
+(against float32's floor) in the table above, and, on the sweep's views, its bare forward
+and its crops (``encode_crops``: a quadrant or the centre of each view, what instance maps
+with ``features=crops`` encode) against float32's in one process, with its fidelity: the
+cosine of each cell's (crop's) feature with float32's, and the share of cells (crops) whose
+best class of the vocabulary is float32's.
+
 Also the bare forward's views/s by batch size (what the default batch is chosen from), a
 ViT-L/14 row with ``--large`` (too slow for 2 cores at 200 views: ``--large-views``, default
 8), a GPU row with ``--device cuda`` where torch sees one (else a note), and ``--baseline
@@ -117,6 +125,68 @@ print(json.dumps({"rows": rows, "threads": threads, "peak_mb": peak_rss_mb()}))
 """
 
 
+_PRECISION = r"""
+import json, sys, time
+from pathlib import Path
+case = json.loads(sys.argv[1])
+from care_maps.runtime.threads import Work, use_threads
+use_threads(Work.ENCODE)
+import numpy as np
+from care_maps.core.encoders import EncoderOptions, Precision, make_encoder
+from care_maps.core.vocab import vocabulary_option
+from care_maps.ingest.folders.frames import open_frames
+from care_maps.ingest.source import ReadOptions
+
+with open_frames(Path(case["rec"]), ReadOptions()) as stream:
+    frames = [f for _, f in zip(range(case["views"]), stream)]
+h, w = frames[0].height, frames[0].width
+boxes = [(0, h // 2, 0, w // 2), (0, h // 2, w // 2, w), (h // 2, h, 0, w // 2),
+         (h // 2, h, w // 2, w), (h // 4, 3 * h // 4, w // 4, 3 * w // 4)]
+crops = [f.rgb[a:b, c:d] for f in frames for a, b, c, d in boxes]
+out = {"views": len(frames), "crops": len(crops)}
+names = list(vocabulary_option(case["vocabulary"]))
+encoders = {}
+for precision in Precision:
+    options = EncoderOptions(weights=case["weights"], device=case["device"], precision=precision)
+    encoders[precision] = make_encoder("clip", options)
+    encoders[precision].encode_prepared(encoders[precision].prepare_views(frames[:8]))  # warm
+    encoders[precision].encode_crops(crops[:8])
+text = encoders[Precision.FLOAT32].encode_text(names)  # the text side is float32 at any precision
+for turn in range(case["turns"]):  # in turn, each precision's least time kept
+    for precision, encoder in encoders.items():
+        prepared = encoder.prepare_views(frames)
+        t = time.perf_counter()
+        dense = encoder.encode_prepared(prepared)
+        dense_s = time.perf_counter() - t
+        t = time.perf_counter()
+        crop = encoder.encode_crops(crops)
+        crop_s = time.perf_counter() - t
+        best = out.get(str(precision), {"dense_s": dense_s, "crop_s": crop_s})
+        out[str(precision)] = {"dense": dense, "crop": crop,
+                               "dense_s": min(dense_s, best["dense_s"]),
+                               "crop_s": min(crop_s, best["crop_s"])}
+
+def fidelity(a, b):
+    a = a.reshape(-1, a.shape[-1]).astype(np.float64)
+    b = b.reshape(-1, b.shape[-1]).astype(np.float64)
+    cos = (a * b).sum(1) / (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1))
+    top = (np.argmax(a @ text.T, 1) == np.argmax(b @ text.T, 1)).mean()
+    return {"cos_mean": float(cos.mean()), "cos_min": float(cos.min()), "top1": float(top)}
+
+full = out.pop(str(Precision.FLOAT32))
+rows = []
+for precision in Precision:
+    res = full if precision is Precision.FLOAT32 else out.pop(str(precision))
+    rows.append({
+        "precision": str(precision),
+        "dense_s": res["dense_s"], "crop_s": res["crop_s"],
+        "dense": fidelity(full["dense"], res["dense"]),
+        "crop": fidelity(full["crop"], res["crop"]),
+    })
+print(json.dumps({**out, "rows": rows}))
+"""
+
+
 def _living_room(views: int) -> Iterator:
     """``views`` living-room frames with their poses (past the 211 recorded, they start
     again, the clock going on)."""
@@ -172,9 +242,16 @@ def _child(script: str, case: dict, cwd: Path) -> dict:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
-def _ingest(rec: Path, weights: Path, out: Path, device: str | None, cwd: Path = ROOT) -> dict:
+def _ingest(
+    rec: Path,
+    weights: Path,
+    out: Path,
+    device: str | None,
+    cwd: Path = ROOT,
+    extra: tuple[str, ...] = (),
+) -> dict:
     args = [str(rec), "--out", str(out), "--encoder", "clip", "--weights", str(weights),
-            "--vocabulary", VOCABULARY, "--force"]  # fmt: skip
+            "--vocabulary", VOCABULARY, "--force", *extra]  # fmt: skip
     if device:
         args += ["--device", device]
     return _child(_INGEST, {"args": args, "out": str(out)}, cwd)
@@ -184,6 +261,43 @@ def _bare(rec: Path, weights: Path, views: int, device: str | None, sizes: list[
     case = {"rec": str(rec), "weights": str(weights), "views": views, "device": device,
             "sizes": sizes}  # fmt: skip
     return _child(_BARE, case, ROOT)
+
+
+def _precisions(rec: Path, weights: Path, views: int, device: str | None) -> dict:
+    case = {"rec": str(rec), "weights": str(weights), "views": views, "device": device,
+            "vocabulary": VOCABULARY, "turns": 2}  # fmt: skip
+    return _child(_PRECISION, case, ROOT)
+
+
+def _precision_table(res: dict, model: str, device: str | None) -> None:
+    """Each precision's bare forward against float32's, dense maps and crops: speed-up, and
+    fidelity (cosine of each cell's or crop's feature with float32's, mean and least; the
+    share of cells or crops whose best class of the vocabulary is float32's)."""
+    print()
+    if "error" in res:
+        print(f"precisions failed: {res['error']}")
+        return
+    print(
+        f"precision against float32 ({model}, {device or 'cpu'}, {res['views']} living-room "
+        f"views and {res['crops']} crops of them, a quadrant or the centre; top-1: the best "
+        f"of the {VOCABULARY} classes, as float32 has it; each time the least of 2 turns)"
+    )
+    print()
+    print(
+        "| precision | dense views/s | speed-up | cosine mean | cosine least | top-1 agreement "
+        "| crops/s | speed-up | cosine mean | cosine least | top-1 agreement |"
+    )
+    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
+    full = res["rows"][0]
+    for row in res["rows"]:
+        dense, crop = row["dense"], row["crop"]
+        print(
+            f"| {row['precision']} | {res['views'] / row['dense_s']:.2f} "
+            f"| x{full['dense_s'] / row['dense_s']:.2f} | {dense['cos_mean']:.5f} "
+            f"| {dense['cos_min']:.5f} | {100 * dense['top1']:.1f}% "
+            f"| {res['crops'] / row['crop_s']:.1f} | x{full['crop_s'] / row['crop_s']:.2f} "
+            f"| {crop['cos_mean']:.5f} | {crop['cos_min']:.5f} | {100 * crop['top1']:.1f}% |"
+        )
 
 
 def _cuda() -> bool:
@@ -239,31 +353,39 @@ def _compare(
     work: Path,
     baseline: Path | None,
     repeat: int,
+    *,
+    cheaper: bool = False,
 ) -> None:
     """The bare forward and ``care ingest`` (and the baseline checkout's) on the long of
     ``recs``, and ingest on the short one, one after another ``repeat`` times, each way's
-    best run."""
+    best run; ``cheaper``: ingest at ``--precision bfloat16`` too."""
     from care_maps.core.store import BATCH_SIZE
 
     label = device or "cpu"
     rec, short = recs
     views = int(rec.stem.rsplit("_", 1)[-1])
     ways = {"ingest": ROOT, **({"before": baseline} if baseline is not None else {})}
+    if cheaper:
+        ways["bfloat16"] = ROOT
     runs: dict[str, list[dict]] = {"bare": []}
     for _ in range(repeat):
         res = _bare(rec, weights, views, device, [BATCH_SIZE])
         runs["bare"].append(res if "error" in res else {**res, **res["rows"][0]})
         for way, checkout in ways.items():
             store = work / f"store-{way}"
-            runs.setdefault(way, []).append(_ingest(rec, weights, store, device, checkout))
+            extra = ("--precision", way) if way == "bfloat16" else ()
+            runs.setdefault(way, []).append(_ingest(rec, weights, store, device, checkout, extra))
             runs.setdefault(f"{way}-short", []).append(
-                _ingest(short, weights, store, device, checkout)
+                _ingest(short, weights, store, device, checkout, extra)
             )
     floor = _best(runs["bare"])
     _row(model, label, "bare forward (the floor)", floor, None)
     floor = None if "error" in floor else floor
     for way, checkout in ways.items():
-        name = "`care ingest --encoder clip`" if way == "ingest" else f"the same from {checkout}"
+        name = {
+            "ingest": "`care ingest --encoder clip`",
+            "bfloat16": "the same `--precision bfloat16` (floor: float32's)",
+        }.get(way, f"the same from {checkout}")
         long, cut = _best(runs[way]), _best(runs[f"{way}-short"])
         _row(model, label, name, long, floor)
         _row(model, label, f"{name}: views past the first {cut.get('views', '?')}",
@@ -275,7 +397,9 @@ def main() -> None:
     parser.add_argument("--views", type=int, default=200, help="Views a way (default 200).")
     parser.add_argument("--large", action="store_true", help="Add ViT-L/14 rows.")
     parser.add_argument("--large-views", type=int, default=8, help="Views of the ViT-L/14 rows.")
-    parser.add_argument("--sweep-views", type=int, default=16, help="Views of the batch sweep.")
+    parser.add_argument(
+        "--sweep-views", type=int, default=16, help="Views of the batch sweep and precisions."
+    )
     parser.add_argument("--device", default=None, help="cuda: add GPU rows where torch has one.")
     parser.add_argument("--baseline", type=Path, default=None, help="Another checkout to time.")
     parser.add_argument("--repeat", type=int, default=2, help="Runs of each way, best kept.")
@@ -306,12 +430,16 @@ def main() -> None:
         )
         print("| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
         for device in devices:
-            _compare("ViT-B/32", device, (rec, sweep), b32, work, args.baseline, args.repeat)
+            _compare("ViT-B/32", device, (rec, sweep), b32, work, args.baseline, args.repeat,
+                     cheaper=True)  # fmt: skip
             if args.large:
                 l14 = _weights(work, "vit-l14")
                 large = _recording(work, args.large_views)
                 short = _recording(work, max(1, args.large_views // 4))
                 _compare("ViT-L/14", device, (large, short), l14, work, None, 1)
+        for device in devices:
+            res = _precisions(sweep, b32, args.sweep_views, device)
+            _precision_table(res, "ViT-B/32", device)
         res = _bare(sweep, b32, args.sweep_views, None, list(SWEEP))
         print()
         threads = res.get("threads", "?")

@@ -21,7 +21,7 @@ import hashlib
 import os
 from collections.abc import Iterable, Iterator
 from contextlib import closing
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +31,7 @@ from tqdm import tqdm
 from care_maps.core.checks import check_numbers
 from care_maps.core.codecs import StoreEncoding
 from care_maps.core.encoders import Encoder, EncoderOptions, RecordingContext, make_encoder
+from care_maps.core.encoders.base import recorded_options
 from care_maps.core.encoders.record import RECORD_KEY, EncoderRecord
 from care_maps.core.errors import IngestError, StoreError
 from care_maps.core.fingerprint import config_fields, content_digest
@@ -73,7 +74,7 @@ from care_maps.ingest.select import FrameSelection, FrameSelector
 from care_maps.ingest.source import ReadOptions, RecordingFrames
 from care_maps.runtime.execution import DEFAULT_EXECUTION, Execution
 from care_maps.runtime.readahead import read_ahead
-from care_maps.runtime.threads import Work, threads_for
+from care_maps.runtime.threads import Work, stage_threads, threads_for
 
 __all__ = ["INGEST_VERSION", "IngestConfig", "fingerprint", "request_fingerprint", "run_ingest"]
 
@@ -154,7 +155,7 @@ def _source_identity(parts: tuple[Path, ...], read: ReadOptions) -> dict[str, An
 def _digest(config: IngestConfig, source: dict[str, Any], encoder_key: dict[str, Any]) -> str:
     """sha256 of what every store depends on (inputs and options, not where outputs go) and
     ``encoder_key``: what identifies the encoder."""
-    options = asdict(config.encoder_options)
+    options = recorded_options(config.encoder_options)
     options.pop("device", None)
     options.pop("batch_size", None)
     return content_fingerprint(
@@ -554,10 +555,7 @@ def _stream(
     thread encodes the images. So the next batch is read and prepared while this one is in
     the model (``--read-ahead 0``: all in one thread, the same store)."""
     batches = _batches(frames, selector, bar, max(1, batch_size), depth)
-    prepared = (
-        (batch, None if encoder is None else encoder.prepare_views(batch)) for batch in batches
-    )
-    with closing(read_ahead(prepared, min(depth, 1))) as ahead:
+    with closing(read_ahead(_prepared(batches, encoder), min(depth, 1))) as ahead:
         for batch, inputs in ahead:
             features = None
             if encoder is not None:
@@ -571,6 +569,23 @@ def _stream(
                     logger.log(writer.num_views, frame)
                 sampler.add(frame)
                 writer.add(frame, None if features is None else np.asarray(features[i]))
+
+
+def _prepared(
+    batches: Iterator[list[Frame]], encoder: Encoder | None
+) -> Iterator[tuple[list[Frame], Any]]:
+    """Each batch with the model's inputs made from it (:meth:`Encoder.prepare_views`), on
+    one thread of torch's (:func:`care_maps.runtime.threads.stage_threads`): the forward
+    pass it overlaps has the cores."""
+    started = False
+    for batch in batches:
+        if encoder is None:
+            yield batch, None
+            continue
+        if not started:  # in the thread that prepares, before its first torch operation
+            stage_threads(Work.DEFAULT)
+            started = True
+        yield batch, encoder.prepare_views(batch)
 
 
 def _batches(
@@ -616,6 +631,7 @@ def _recorded(config: IngestConfig) -> dict[str, Any]:
     recorded = config_fields(config, _NOT_RECORDED)
     for name in _READ_NOT_RECORDED:  # not what the store is (see there)
         recorded["read"].pop(name, None)
+    recorded["encoder_options"] = recorded_options(config.encoder_options)
     return recorded
 
 

@@ -44,6 +44,7 @@ __all__ = [
     "PINNED",
     "THREADS",
     "Work",
+    "stage_threads",
     "sync_torch",
     "thread_count",
     "threads_for",
@@ -176,6 +177,21 @@ def use_threads(work: Work) -> int:
     """Set this process's torch and BLAS pools for ``work``; returns the thread count."""
     n = thread_count(work)
     _set(n)
+    return n
+
+
+def stage_threads(work: Work) -> int:
+    """Size torch's pool for the calling thread alone, a stage's own thread, to ``work``'s
+    count; returns it. torch keeps a thread's count from its first parallel operation (set
+    then by the process's latest :func:`use_threads` or :func:`threads_for`), so a stage that
+    starts while another thread runs a model under :attr:`Work.ENCODE` would run its own
+    array work on every core too: on 2 cores ingest's resizing of the next batch then made
+    a second team of torch threads fighting the forward pass's for the same cores. A thread
+    calls this before its first torch operation; other threads keep their counts."""
+    n = thread_count(work)
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        torch.set_num_threads(n)
     return n
 
 

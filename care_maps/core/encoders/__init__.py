@@ -21,7 +21,13 @@ import importlib.metadata
 from collections.abc import Callable, Iterator, Mapping
 from typing import cast
 
-from care_maps.core.encoders.base import Encoder, EncoderOptions, RecordingContext, l2_normalise
+from care_maps.core.encoders.base import (
+    Encoder,
+    EncoderOptions,
+    Precision,
+    RecordingContext,
+    l2_normalise,
+)
 from care_maps.core.errors import EncoderError
 
 __all__ = [
@@ -30,6 +36,7 @@ __all__ = [
     "Encoder",
     "EncoderOptions",
     "EncoderRegistry",
+    "Precision",
     "RecordingContext",
     "l2_normalise",
     "make_encoder",
@@ -95,7 +102,13 @@ ENCODERS = EncoderRegistry()
 
 
 def make_encoder(name: str, options: EncoderOptions | None = None) -> Encoder:
-    """Instantiate the encoder registered as ``name``."""
+    """Instantiate the encoder registered as ``name``; a precision it does not run in is
+    one error naming the option, before any model is loaded."""
+    options = options or EncoderOptions()
+    found = ENCODERS.load(name)
+    if options.precision not in found.precisions:
+        runs = ", ".join(sorted(found.precisions))
+        msg = f"--precision {options.precision}: encoder {name!r} runs in {runs} only"
+        raise EncoderError(msg)
     # a registered encoder class takes one EncoderOptions (the base declares no __init__)
-    cls = cast("Callable[[EncoderOptions], Encoder]", ENCODERS.load(name))
-    return cls(options or EncoderOptions())
+    return cast("Callable[[EncoderOptions], Encoder]", found)(options)

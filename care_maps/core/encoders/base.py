@@ -10,12 +10,14 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from enum import StrEnum
 from pathlib import Path
 from typing import Any, cast
 
 import numpy as np
 
 from care_maps.core.errors import EncoderError
+from care_maps.core.fingerprint import config_fields
 from care_maps.core.frames import Frame
 from care_maps.core.store import BATCH_SIZE, EncoderInfo
 
@@ -24,8 +26,10 @@ __all__ = [
     "DEFAULT_PERCEPTION",
     "Encoder",
     "EncoderOptions",
+    "Precision",
     "RecordingContext",
     "l2_normalise",
+    "recorded_options",
 ]
 
 CLIP_LOGIT_SCALE = 100.0
@@ -36,6 +40,19 @@ softmax(s * f . t) that the maps use by default and the sample world is measured
 DEFAULT_PERCEPTION = "default"
 """The ``labels`` encoder's perception preset when none is given (the sample world's
 :class:`care_maps.world.perception.model.PerceptionPreset` lists them)."""
+
+
+class Precision(StrEnum):
+    """Number format an encoder's image side computes in: the same checkpoint run cheaper.
+    ``bench/encode.py`` measures each against full precision (speed, and the cosine and
+    top-1 class agreement of dense features and crops)."""
+
+    FLOAT32 = "float32"
+    """Full precision, the checkpoint's own."""
+    BFLOAT16 = "bfloat16"
+    """The vision tower's matrix products in bfloat16 (``torch.autocast``), where the CPU
+    (AVX-512 BF16) or GPU has it; features are normalised in float32. The text side stays
+    full precision, so class names and free-text queries embed as in a float32 store."""
 
 
 @dataclass(frozen=True)
@@ -54,6 +71,23 @@ class EncoderOptions:
     """Perception-model preset of the ``labels`` encoder (``default`` or ``ideal``)."""
     seed: int = 0
     """Seed of any randomness in the encoder (the labels model's biases and noise)."""
+    precision: Precision = Precision.FLOAT32
+    """Number format of the encoder's image side: bfloat16 (clip) runs the same checkpoint
+    faster, near full precision (docs/benchmarks.md, "Encoder at ingest")."""
+
+
+RECORDED_WHEN_SET = ("precision",)
+"""Fields of :class:`EncoderOptions` a store records (in its fingerprint, its ``meta.json``
+config and its encoder record) only when they differ from their defaults: fields added after
+stores were made, so that those stores keep their bytes and stay current."""
+
+
+def recorded_options(options: EncoderOptions) -> dict[str, Any]:
+    """``options`` as the plain values a store records, without the fields of
+    :data:`RECORDED_WHEN_SET` at their defaults."""
+    default = EncoderOptions()
+    unset = [n for n in RECORDED_WHEN_SET if getattr(options, n) == getattr(default, n)]
+    return config_fields(options, unset)
 
 
 @dataclass(frozen=True)
@@ -72,6 +106,8 @@ class Encoder(ABC):
     version: str = "0"
     dim: int = 0
     supports_crops: bool = False
+    precisions: frozenset[Precision] = frozenset({Precision.FLOAT32})
+    """The :class:`Precision` values the encoder runs in; :func:`make_encoder` refuses others."""
 
     @classmethod
     def for_text(cls, options: EncoderOptions) -> Encoder:

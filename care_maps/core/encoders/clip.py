@@ -35,12 +35,13 @@ tensor itself. :func:`_pooled` accepts both.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple, cast
 
 import numpy as np
 
-from care_maps.core.encoders.base import Encoder, EncoderOptions
+from care_maps.core.encoders.base import Encoder, EncoderOptions, Precision
 from care_maps.core.errors import EncoderError
 from care_maps.core.frames import Frame
 
@@ -75,6 +76,7 @@ class ClipEncoder(Encoder):
 
     name = "clip"
     supports_crops = True
+    precisions = frozenset({Precision.FLOAT32, Precision.BFLOAT16})
 
     def __init__(
         self,
@@ -86,6 +88,9 @@ class ClipEncoder(Encoder):
         import torch
 
         self._setup(options, prompt)
+        self.precision = Precision(options.precision)
+        if self.precision is Precision.BFLOAT16:
+            _check_bfloat16(self.device)
         self.model, self.tokenizer, self.processor = _load(self.weights)
         self.model.to(self.device).eval()
         vision = self.model.config.vision_config
@@ -127,6 +132,7 @@ class ClipEncoder(Encoder):
         self.model, self.tokenizer = _load_text(self.weights)
         self.model.to(self.device).eval()
         self.processor = None
+        self.precision = Precision.FLOAT32  # the text side is full precision at every setting
         self.max_tokens = int(self.model.config.max_position_embeddings)
         self.dim = int(self.model.config.projection_dim)
         return self
@@ -194,15 +200,16 @@ class ClipEncoder(Encoder):
 
         vision = self.model.vision_model
         with torch.no_grad():
-            hidden = vision.embeddings(pixels, interpolate_pos_encoding=True)
-            hidden = vision.pre_layrnorm(hidden)
-            *layers, last = vision.encoder.layers
-            for layer in layers:
-                hidden = layer(hidden, None)
-            attn = last.self_attn
-            values = attn.out_proj(attn.v_proj(last.layer_norm1(hidden[:, 1:])))
-            feats = self.model.visual_projection(vision.post_layernorm(values))
-            feats = F.normalize(feats, dim=-1)
+            with self._image_precision():
+                hidden = vision.embeddings(pixels, interpolate_pos_encoding=True)
+                hidden = vision.pre_layrnorm(hidden)
+                *layers, last = vision.encoder.layers
+                for layer in layers:
+                    hidden = layer(hidden, None)
+                attn = last.self_attn
+                values = attn.out_proj(attn.v_proj(last.layer_norm1(hidden[:, 1:])))
+                feats = self.model.visual_projection(vision.post_layernorm(values))
+            feats = F.normalize(feats.float(), dim=-1)
         return feats.reshape(len(pixels), fh, fw, self.dim).float().cpu().numpy()
 
     def encode_crops(self, crops: Sequence[np.ndarray]) -> np.ndarray:
@@ -219,38 +226,85 @@ class ClipEncoder(Encoder):
                 raise EncoderError(msg)
             pixels = self.processor(images=batch, return_tensors="pt")["pixel_values"]
             with torch.no_grad():
-                emb = _pooled(self.model.get_image_features(pixel_values=pixels.to(self.device)))
-                out.append(F.normalize(emb, dim=-1).float().cpu().numpy())
+                with self._image_precision():
+                    emb = _pooled(
+                        self.model.get_image_features(pixel_values=pixels.to(self.device))
+                    )
+                out.append(F.normalize(emb.float(), dim=-1).cpu().numpy())
         return np.concatenate(out)
+
+    def _image_precision(self) -> AbstractContextManager[Any]:
+        """The context the vision tower runs in: bfloat16 autocast (its matrix products in
+        bfloat16, weights kept float32) for :attr:`Precision.BFLOAT16`, else none at all."""
+        if self.precision is Precision.FLOAT32:
+            return nullcontext()
+        import torch
+
+        return torch.autocast(device_type=self.device.type, dtype=torch.bfloat16)
 
     # -- text side --------------------------------------------------------------------------
 
     def encode_text(self, names: Sequence[str]) -> np.ndarray:
-        """(n, d) float32 L2-normalised embeddings of the prompted class names."""
+        """(n, d) float32 L2-normalised embeddings of the prompted class names.
+
+        A vocabulary longer than one batch is embedded in batches of prompts of similar
+        token length, each padded to its longest prompt: the text tower's cost is its padded
+        tokens (ScanNet200's 200 prompts, on one thread: 4.3 s instead of 5.8). A vocabulary
+        of one batch is embedded as given, in one call."""
+        prompts = [self.prompt.format(n.replace("_", " ").strip()) for n in names]
+        size = max(self.batch_size, 64)
+        order = np.arange(len(prompts))
+        if len(prompts) > size:
+            lengths = [len(ids) for ids in self.tokenizer(prompts, truncation=True,
+                       max_length=self.max_tokens)["input_ids"]]  # fmt: skip
+            order = np.argsort(lengths, kind="stable")
+        out = np.zeros((len(prompts), self.dim), np.float32)
+        for i in range(0, len(prompts), size):
+            rows = order[i : i + size]
+            out[rows] = self._text_batch([prompts[j] for j in rows])
+        return out
+
+    def _text_batch(self, prompts: list[str]) -> np.ndarray:
+        """(n, d) unit embeddings of one batch of prompts, padded to its longest."""
         import torch
         import torch.nn.functional as F
 
-        prompts = [self.prompt.format(n.replace("_", " ").strip()) for n in names]
-        out = [np.zeros((0, self.dim), np.float32)]
-        for i in range(0, len(prompts), max(self.batch_size, 64)):
-            tokens = self.tokenizer(
-                prompts[i : i + max(self.batch_size, 64)],
-                padding=True,
-                truncation=True,
-                max_length=self.max_tokens,
-                return_tensors="pt",
-            )
-            inputs = {
-                "input_ids": tokens["input_ids"].to(self.device),
-                "attention_mask": tokens["attention_mask"].to(self.device),
-            }
-            with torch.no_grad():
-                if self.processor is None:  # the text tower alone (for_text)
-                    emb = self.model(**inputs).text_embeds
-                else:
-                    emb = _pooled(self.model.get_text_features(**inputs))
-                out.append(F.normalize(emb, dim=-1).float().cpu().numpy())
-        return np.concatenate(out)
+        tokens = self.tokenizer(
+            prompts,
+            padding=True,
+            truncation=True,
+            max_length=self.max_tokens,
+            return_tensors="pt",
+        )
+        inputs = {
+            "input_ids": tokens["input_ids"].to(self.device),
+            "attention_mask": tokens["attention_mask"].to(self.device),
+        }
+        with torch.no_grad():
+            if self.processor is None:  # the text tower alone (for_text)
+                emb = self.model(**inputs).text_embeds
+            else:
+                emb = _pooled(self.model.get_text_features(**inputs))
+            return F.normalize(emb, dim=-1).float().cpu().numpy()
+
+
+def _check_bfloat16(device: Any) -> None:
+    """Refuse bfloat16 where the device computes it only by emulation (slower than float32,
+    which defeats its purpose): a CPU without AVX-512 (oneDNN's test), a GPU without it."""
+    import torch
+
+    if device.type == "cuda":
+        supported = bool(torch.cuda.is_bf16_supported())
+    elif device.type == "cpu":
+        supported = bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
+    else:
+        supported = True  # another backend: autocast refuses for itself
+    if not supported:
+        msg = (
+            f"--precision bfloat16: this {device.type.upper()} has no bfloat16 arithmetic; "
+            "use --precision float32"
+        )
+        raise EncoderError(msg)
 
 
 def _pooled(output: Any) -> Any:

@@ -23,7 +23,13 @@ from typing import Any
 
 import numpy as np
 
-from care_maps.core.encoders.base import DEFAULT_PERCEPTION, Encoder, EncoderOptions
+from care_maps.core.encoders.base import (
+    DEFAULT_PERCEPTION,
+    RECORDED_WHEN_SET,
+    Encoder,
+    EncoderOptions,
+    Precision,
+)
 from care_maps.core.errors import EncoderError, StoreError
 from care_maps.core.store import BATCH_SIZE, StoreMeta
 
@@ -74,6 +80,8 @@ class EncoderRecord:
     """Absolute path of the precomputed encoder's class-name embeddings (``<stem>.text.parquet``)."""
     perception: str = DEFAULT_PERCEPTION
     seed: int = 0
+    precision: Precision = Precision.FLOAT32
+    """The image side's number format: crops for instance maps are encoded in it too."""
 
     @classmethod
     def of(cls, encoder: Encoder, options: EncoderOptions) -> EncoderRecord:
@@ -98,10 +106,21 @@ class EncoderRecord:
             text_file=text_file,
             perception=options.perception,
             seed=int(options.seed),
+            precision=Precision(options.precision),
         )
 
     def as_json(self) -> dict[str, Any]:
-        return asdict(self)
+        """The record as ``meta.json`` keeps it: the options of
+        :data:`care_maps.core.encoders.base.RECORDED_WHEN_SET` only where set, so a store
+        made before they existed reads back as it was written."""
+        record = asdict(self)
+        default = EncoderRecord(self.name, self.version, self.dim)
+        for name in RECORDED_WHEN_SET:
+            if getattr(self, name) == getattr(default, name):
+                record.pop(name)
+            else:
+                record[name] = str(record[name])
+        return record
 
     @classmethod
     def from_json(cls, data: Any, where: Path) -> EncoderRecord:
@@ -109,7 +128,13 @@ class EncoderRecord:
         if not isinstance(data, dict) or not {"name", "version", "dim"} <= set(data):
             msg = f"{where}: the encoder record is malformed; re-run `care ingest --force`"
             raise EncoderError(msg)
-        return cls(**{k: v for k, v in data.items() if k in names})
+        known = {k: v for k, v in data.items() if k in names}
+        try:
+            precision = Precision(known.get("precision", Precision.FLOAT32))
+        except ValueError:
+            msg = f"{where}: the encoder record's precision {known['precision']!r} is unknown; re-run `care ingest --force`"
+            raise EncoderError(msg) from None
+        return cls(**{**known, "precision": precision})
 
     def options(self, *, batch_size: int = BATCH_SIZE) -> EncoderOptions:
         return EncoderOptions(
@@ -118,6 +143,7 @@ class EncoderRecord:
             precomputed=Path(self.precomputed) if self.precomputed else None,
             perception=self.perception,
             seed=self.seed,
+            precision=self.precision,
         )
 
     def with_weights(self, weights: Path | None) -> EncoderRecord:
