@@ -15,6 +15,7 @@ import typer
 import care_maps.cli
 from care_maps.cli import main as cli
 from care_maps.cli.main import COMMAND_MODULES
+from tests.support.cli import after_care
 
 
 def _names(module: str) -> set[str]:
@@ -37,20 +38,11 @@ def test_the_index_names_what_each_module_registers() -> None:
 
 
 def test_one_command_imports_its_own_module_alone() -> None:
-    code = (
-        "import sys\n"
-        "from care_maps.cli import main as cli\n"
-        "sys.argv = ['care', 'query', '--help']\n"
-        "try:\n"
-        "    cli.main()\n"
-        "except SystemExit:\n"
-        "    pass\n"
-        "print(sorted(m for m in sys.modules if m.startswith('care_maps.cli.') and m.endswith('_cmd')))\n"
+    found = after_care(
+        ["query", "--help"],
+        "sorted(m for m in sys.modules if m.startswith('care_maps.cli.') and m.endswith('_cmd'))",
     )
-    out = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, check=True
-    ).stdout
-    assert out.strip().splitlines()[-1] == "['care_maps.cli.query_cmd']"
+    assert found == "['care_maps.cli.query_cmd']"
 
 
 def test_help_lists_every_command() -> None:
@@ -87,17 +79,8 @@ def test_the_listing_is_the_registered_commands_help() -> None:
 
 
 def test_help_imports_no_command_module() -> None:
-    code = (
-        "import sys\n"
-        "from care_maps.cli import main as cli\n"
-        "sys.argv = ['care', '--help']\n"
-        "try:\n"
-        "    cli.main()\n"
-        "except SystemExit:\n"
-        "    pass\n"
-        "print(sorted(m for m in sys.modules if m.endswith('_cmd') or m.endswith('pipeline')))\n"
+    found = after_care(
+        ["--help"],
+        "sorted(m for m in sys.modules if m.endswith('_cmd') or m.endswith('pipeline'))",
     )
-    out = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, check=True
-    ).stdout
-    assert out.strip().splitlines()[-1] == "[]"
+    assert found == "[]"

@@ -7,8 +7,6 @@ imports no pydantic."""
 from __future__ import annotations
 
 import enum
-import subprocess
-import sys
 import typing
 from collections.abc import Iterator
 from pathlib import Path
@@ -19,6 +17,7 @@ import typer
 
 from care_maps.cli import main as cli
 from care_maps.cli.values import plain_values
+from tests.support.cli import after_care
 
 _TEXT = ("abc", "", "Chair", " 7")
 _INTS = ("0", "7", "-3", "-0", "007", "+4", "1_000", "1.5", "2.0", " 7", "x", "9" * 25)
@@ -84,17 +83,4 @@ def test_plain_values_are_typers() -> None:
 
 @pytest.mark.parametrize("argv", [["query", "STORE", "chair", "--map", "grid"], ["--help"]])
 def test_a_run_imports_no_pydantic(argv: list[str], tmp_path: Path) -> None:
-    code = (
-        "import sys\n"
-        "from care_maps.cli import main as cli\n"
-        f"sys.argv = ['care', *{argv!r}]\n"
-        "try:\n"
-        "    cli.main()\n"
-        "except SystemExit:\n"
-        "    pass\n"
-        "print('pydantic' in sys.modules)\n"
-    )
-    out = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path
-    ).stdout
-    assert out.strip().splitlines()[-1] == "False"
+    assert after_care(argv, "'pydantic' in sys.modules", cwd=tmp_path) == "False"

@@ -118,3 +118,23 @@ def care_popen(*args: object) -> subprocess.Popen[str]:
         text=True,
         preexec_fn=as_a_terminal_job,
     )
+
+
+def after_care(argv: list[str], expression: str, cwd: Path | None = None) -> str:
+    """``repr`` of ``expression`` (Python, ``sys`` in scope) evaluated in a fresh interpreter
+    after ``care ARGV`` ran there through ``care_maps.cli.main.main``: what a command
+    imported, for the start-up tests."""
+    code = (
+        "import sys\n"
+        "from care_maps.cli import main as cli\n"
+        f"sys.argv = ['care', *{argv!r}]\n"
+        "try:\n"
+        "    cli.main()\n"
+        "except SystemExit:\n"
+        "    pass\n"
+        f"print(repr({expression}))\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=cwd
+    )
+    return done.stdout.strip().splitlines()[-1]
