@@ -49,7 +49,7 @@ import pyarrow.parquet as pq
 from PIL import Image
 from tqdm import tqdm
 
-from care_maps.core.errors import FuseError
+from care_maps.core.errors import FuseError, StoreError
 from care_maps.core.keys import SCHEMA_VERSION_KEY, VOCABULARY_KEY
 from care_maps.core.maps import MapKind
 from care_maps.core.outputs import damaged, write_atomic
@@ -627,10 +627,13 @@ def _growth(build: MapBuild, run: Execution, capacity: int) -> tuple[_Growth, Gr
     if state is None or state.keys.size > capacity:
         return None
     tables = [store.table_path(CELLS_TABLE), store.table_path(CELL_VIEWS_TABLE)]
-    if not all(p.is_file() for p in tables) or damaged(store.path, [STATE_FILE]):
-        return None
+    if not all(p.is_file() for p in tables) or damaged(store.path, [p.name for p in tables]):
+        return None  # a damaged map is rebuilt from every view
     key = build_key(MapKind.GRID)
-    if any((read_schema(p).metadata or {}).get(key) != state.build for p in tables):
+    try:
+        if any((read_schema(p).metadata or {}).get(key) != state.build for p in tables):
+            return None
+    except StoreError:  # a table no reader takes: rebuilt
         return None
     if state.config != _state_config(build.metadata):
         return None

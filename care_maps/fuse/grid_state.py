@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from care_maps.core.outputs import record_table, write_atomic
+from care_maps.core.outputs import write_atomic
 from care_maps.core.store import Store, run_records
 
 __all__ = ["STATE_FILE", "GridState", "frame_of", "load_state", "save_state", "store_runs"]
@@ -71,8 +71,9 @@ stamps each member with the time it was written)."""
 
 def save_state(path: Path, state: GridState) -> None:
     """Write ``state`` to ``path`` atomically, an ``.npz`` file ``np.load`` reads (one
-    ``.npy`` member per array, stored, dated :data:`ZIP_TIME`), and list it in the store's
-    marker."""
+    ``.npy`` member per array, stored, dated :data:`ZIP_TIME`). Not listed in the store's
+    marker: it is a cache, not a map (``care check`` has nothing to say of it), and each
+    member's CRC-32, checked as it is read, finds it damaged (:func:`load_state`)."""
     arrays = {
         "build": np.frombuffer(state.build, np.uint8),
         "config": np.frombuffer(state.config, np.uint8),
@@ -96,12 +97,12 @@ def save_state(path: Path, state: GridState) -> None:
                     np.lib.format.write_array(out, np.asanyarray(array), allow_pickle=False)
 
     write_atomic(path, write)
-    record_table(path)
 
 
 def load_state(path: Path) -> GridState | None:
-    """The state saved at ``path``; None when there is none or it cannot be read (the map
-    is then built from every view, which is always right)."""
+    """The state saved at ``path``; None when there is none or it cannot be read, a member
+    whose CRC-32 does not match included (the map is then built from every view, which is
+    always right)."""
     if not path.is_file():
         return None
     try:
