@@ -99,6 +99,7 @@ __all__ = [
     "read_schema",
     "read_table",
     "run_records",
+    "source_record",
     "source_recording",
     "store_identity",
     "views_encoding",
@@ -566,7 +567,7 @@ class SourceRecord:
         return Path(os.path.normpath(Path(store).absolute() / self.path))
 
 
-def _source_record(source: Any) -> SourceRecord:
+def source_record(source: Any) -> SourceRecord:
     """``meta.json``'s ``source``, typed (raises KeyError, TypeError or ValueError)."""
     if not isinstance(source, dict):
         return SourceRecord()
@@ -620,7 +621,7 @@ class RunRecord:
         values.update(
             first_view=int(data["first_view"]),
             num_views=int(data["num_views"]),
-            source=_source_record(data.get("source")),
+            source=source_record(data.get("source")),
             counts=data.get("counts") or {},
         )
         return cls(**values)
@@ -712,7 +713,7 @@ class StoreMeta:
             values.update(
                 num_views=int(data["num_views"]),
                 encoder=None if not enc else EncoderInfo(enc["name"], enc["version"], int(enc["dim"])),
-                source=_source_record(source),
+                source=source_record(source),
                 label_names=tuple(data.get("label_names") or ()),
                 vocabulary=tuple(data.get("vocabulary") or ()),
                 topics=data.get("topics") or {},

@@ -31,7 +31,7 @@ from tqdm import tqdm
 from care_maps.core.checks import check_numbers
 from care_maps.core.codecs import StoreEncoding
 from care_maps.core.encoders import Encoder, EncoderOptions, RecordingContext, make_encoder
-from care_maps.core.encoders.base import recorded_options
+from care_maps.core.encoders.base import feature_options, recorded_options
 from care_maps.core.encoders.record import RECORD_KEY, EncoderRecord
 from care_maps.core.errors import IngestError, StoreError
 from care_maps.core.fingerprint import config_fields, content_digest
@@ -155,9 +155,7 @@ def _source_identity(parts: tuple[Path, ...], read: ReadOptions) -> dict[str, An
 def _digest(config: IngestConfig, source: dict[str, Any], encoder_key: dict[str, Any]) -> str:
     """sha256 of what every store depends on (inputs and options, not where outputs go) and
     ``encoder_key``: what identifies the encoder."""
-    options = recorded_options(config.encoder_options)
-    options.pop("device", None)
-    options.pop("batch_size", None)
+    options = feature_options(config.encoder_options)
     return content_fingerprint(
         {
             "ingest_version": INGEST_VERSION,

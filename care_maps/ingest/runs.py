@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from care_maps.core.encoders.base import HOW_OPTIONS
 from care_maps.core.errors import IngestError
 from care_maps.core.fingerprint import fingerprint
 from care_maps.core.frames import Frame
@@ -56,6 +57,7 @@ from care_maps.core.store import (
     map_frame_owner,
     map_frame_record,
     run_records,
+    source_record,
     store_identity,
 )
 from care_maps.geometry.consistency import (
@@ -83,6 +85,7 @@ __all__ = [
     "check_same_encoding",
     "check_world_frame",
     "describe_alignment",
+    "link_or_copy",
     "placed",
     "summed_counts",
 ]
@@ -163,6 +166,16 @@ def check_same_encoding(store: Store, recorded: dict[str, Any], where: str) -> N
     for name in SHARED_CONFIG:
         ours, theirs = store.meta.config.get(name), recorded.get(name)
         if ours != theirs:
+            if isinstance(ours, dict) and isinstance(theirs, dict):  # the encoder's options
+                differ = [
+                    k
+                    for k in sorted({*ours, *theirs} - set(HOW_OPTIONS))
+                    if ours.get(k) != theirs.get(k)
+                ]
+                if not differ:  # how the model runs (device, batch size) may differ
+                    continue
+                name = differ[0]
+                ours, theirs = ours.get(name), theirs.get(name)
             option = f"--{name.replace('_', '-')}"
             msg = (
                 f"{where}: cannot be appended to {store.path}: its {name} would be {theirs!r}, "
@@ -260,9 +273,7 @@ def appended_meta(
     added = RunRecord(
         first_view=base.num_views,
         num_views=num_views - base.num_views,
-        source=StoreMeta.from_json(
-            {**json.loads(base.meta.to_json()), "source": run["source"]}, base.path
-        ).source,
+        source=source_record(run["source"]),
         fingerprint=run["fingerprint"],
         request_fingerprint=run.get("request_fingerprint"),
         world_frame=run.get("world_frame"),
@@ -288,7 +299,7 @@ def appended_meta(
     }
 
 
-def _link(src: str, dst: str) -> None:
+def link_or_copy(src: str, dst: str) -> None:
     """``dst`` a hard link to ``src`` (the maps are replaced by renames, never changed in
     place), or a copy where the file system has no links."""
     try:
@@ -307,9 +318,9 @@ def carry_maps(old: Path, new: Path) -> list[str]:
     names = sorted(p.name for p in old.iterdir() if p.name not in STORE_OWN and p.name[0] != ".")
     for name in names:
         if (old / name).is_dir():
-            shutil.copytree(old / name, new / name, copy_function=_link)
+            shutil.copytree(old / name, new / name, copy_function=link_or_copy)
         else:
-            _link(str(old / name), str(new / name))
+            link_or_copy(str(old / name), str(new / name))
     recorded = (read_marker(old) or {}).get("tables", {})
     write_marker(
         new,

@@ -65,7 +65,7 @@ from care_maps.evaluate.scene_test import (
 from care_maps.evaluate.spl import episode_paths, spl
 from care_maps.fuse.grid import GridConfig, build_grid
 from care_maps.ingest.pipeline import IngestConfig, run_ingest
-from care_maps.ingest.runs import append_frames
+from care_maps.ingest.runs import append_frames, link_or_copy
 from care_maps.query.confidence import log_confidence
 from care_maps.query.explore import (
     ExploreConfig,
@@ -192,7 +192,8 @@ def _with_views(
     """A copy of store ``before`` (with its grid) at ``out``, ``views`` rendered, encoded and
     appended to it as one more run."""
     remove_path(out)
-    shutil.copytree(before, out)
+    # linked, not copied: every later write to a store is a new file renamed into place
+    shutil.copytree(before, out, copy_function=link_or_copy)
     old = Store(out)
     world_from_map = np.linalg.inv(old.map_frame.map_from_world)
     stamps = old.views(["stamp_ns"]).column("stamp_ns").to_numpy()

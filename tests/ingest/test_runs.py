@@ -236,3 +236,19 @@ def test_topics_says_what_an_append_would_find(
     code, out, _ = run_cli("topics", runs["odom"], "--store", store)
     assert "ingest --append would refuse" in out
     assert "world frame 'odom'" in out
+
+
+def test_an_encoder_option_that_differs_is_named_and_how_it_runs_may_differ(
+    runs: dict, tmp_path: Path
+) -> None:
+    from care_maps.core.encoders import EncoderOptions
+
+    store = run_ingest(runs["first"], tmp_path / "store")
+    seeded = IngestConfig(encoder_options=EncoderOptions(seed=5))
+    with pytest.raises(
+        IngestError, match=r"its seed would be 5, the store's is 0; pass the store's --seed"
+    ):
+        run_ingest(runs["second"], store, seeded, placement=RunOptions(append=True))
+    batched = IngestConfig(encoder_options=EncoderOptions(batch_size=3))  # how, not what
+    run_ingest(runs["second"], store, batched, placement=RunOptions(append=True))
+    assert len(Store(store).meta.runs) == 2

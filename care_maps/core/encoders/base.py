@@ -82,6 +82,16 @@ config and its encoder record) only when they differ from their defaults: fields
 stores were made, so that those stores keep their bytes and stay current."""
 
 
+HOW_OPTIONS = ("device", "batch_size")
+"""Fields of :class:`EncoderOptions` that say how the model runs, not what features it makes:
+left out of a store's fingerprint, and free to differ between the runs of one store."""
+
+
+def feature_options(options: EncoderOptions) -> dict[str, Any]:
+    """:func:`recorded_options` without :data:`HOW_OPTIONS`: what the features depend on."""
+    return {k: v for k, v in recorded_options(options).items() if k not in HOW_OPTIONS}
+
+
 def recorded_options(options: EncoderOptions) -> dict[str, Any]:
     """``options`` as the plain values a store records, without the fields of
     :data:`RECORDED_WHEN_SET` at their defaults."""
