@@ -22,11 +22,22 @@ with ``features=crops`` encode) against float32's in one process, with its fidel
 cosine of each cell's (crop's) feature with float32's, and the share of cells (crops) whose
 best class of the vocabulary is float32's.
 
-Also the bare forward's views/s by batch size (what the default batch is chosen from), a
-ViT-L/14 row with ``--large`` (too slow for 2 cores at 200 views: ``--large-views``, default
-8), a GPU row with ``--device cuda`` where torch sees one (else a note), and ``--baseline
-DIR``: the same ``care ingest`` from another checkout of the project (``git archive HEAD |
-tar -x -C DIR``), to measure a change against what it replaces in the same run.
+The crops of instance maps: ``care fuse instances --features crops`` on the 200-view store
+as a whole command, against ``--features masked`` on it (the same map without a model: what
+the crops add is the difference) and against the bare ``encode_crops`` of the very crops the
+command encodes (recorded by a build of its own with a stand-in model, then timed in the same
+calls on the same threads).
+
+Also the bare forward's views/s by batch size (what the default batch is chosen from),
+ViT-L/14 rows with ``--large`` (too slow for 2 cores at 200 views: ``--large-views``, default
+8; its precision table too), a GPU row with ``--device cuda`` where torch sees one (else a
+note), and ``--baseline DIR``: the same ``care ingest`` from another checkout of the project
+(``git archive HEAD | tar -x -C DIR``), to measure a change against what it replaces in the
+same run.
+
+The random checkpoints' tokenizer makes each word of the bundled vocabularies' prompts one
+token, as CLIP's does (:mod:`care_maps.core.encoders.random_clip`), so the vocabulary's text
+costs what it costs a user's checkpoint.
 
     python bench/encode.py [--views 200] [--large] [--device cuda] [--baseline DIR]
 """
@@ -187,6 +198,65 @@ print(json.dumps({**out, "rows": rows}))
 """
 
 
+_FUSE = r"""
+import json, resource, sys, time
+t0 = time.perf_counter()
+case = json.loads(sys.argv[1])
+sys.argv = ["bench-care", "fuse", "instances", *case["args"]]
+import care_maps
+from care_maps.cli.main import main
+try:
+    main()
+except SystemExit as done:
+    if done.code:
+        raise
+seconds = time.perf_counter() - t0
+from bench.rss import peak_rss_mb
+use = resource.getrusage(resource.RUSAGE_SELF)
+print(json.dumps({"seconds": seconds, "cpu": use.ru_utime + use.ru_stime, "peak_mb": peak_rss_mb()}))
+"""
+
+_BARE_CROPS = r"""
+import json, resource, sys, time
+from pathlib import Path
+case = json.loads(sys.argv[1])
+from care_maps.runtime.threads import Work, threads_for, use_threads
+use_threads(Work.FUSE)  # what `care fuse instances` runs under; the model: Work.ENCODE's
+import numpy as np
+from care_maps.core.encoders.record import encoder_for_store
+from care_maps.fuse.config import InstanceConfig, InstanceFeatures
+from care_maps.fuse.instances import build_instances
+from care_maps.runtime.execution import Execution
+from bench.rss import peak_rss_mb
+
+class Recorder:  # the store's model, its crops kept (each call: one batch of store views)
+    def __init__(self, real):
+        self.real, self.calls = real, []
+    def __getattr__(self, name):
+        return getattr(self.real, name)
+    def encode_crops(self, crops):
+        self.calls.append([np.array(c) for c in crops])
+        return np.ones((len(crops), self.real.dim), np.float32)
+
+store = Path(case["store"])
+real = encoder_for_store(store)
+recorder = Recorder(real)
+config = InstanceConfig(features=InstanceFeatures.CROPS)
+build_instances(store, config, run=Execution(progress=False, overwrite=True), encoder=recorder)
+with threads_for(Work.ENCODE):
+    real.encode_crops(recorder.calls[0][:2])  # first call, untimed
+    use = resource.getrusage(resource.RUSAGE_SELF)
+    c0, t = use.ru_utime + use.ru_stime, time.perf_counter()
+    for crops in recorder.calls:  # as crop_features calls it
+        real.encode_crops(crops)
+    seconds = time.perf_counter() - t
+    use = resource.getrusage(resource.RUSAGE_SELF)
+crops = sum(len(c) for c in recorder.calls)
+print(json.dumps({"seconds": seconds, "cpu": use.ru_utime + use.ru_stime - c0, "crops": crops,
+                  "peak_mb": peak_rss_mb()}))
+"""
+
+
 def _living_room(views: int) -> Iterator:
     """``views`` living-room frames with their poses (past the 211 recorded, they start
     again, the clock going on)."""
@@ -267,6 +337,58 @@ def _precisions(rec: Path, weights: Path, views: int, device: str | None) -> dic
     case = {"rec": str(rec), "weights": str(weights), "views": views, "device": device,
             "vocabulary": VOCABULARY, "turns": 2}  # fmt: skip
     return _child(_PRECISION, case, ROOT)
+
+
+def _fuse(store: Path, features: str) -> dict:
+    args = [str(store), "--features", features, "--overwrite"]
+    return _child(_FUSE, {"args": args}, ROOT)
+
+
+def _crops(store: Path, repeat: int) -> None:
+    """``care fuse instances --features crops`` on ``store`` (a whole command, fresh process)
+    against ``--features masked`` (the same map, no model: what the crops add is the
+    difference) and against the bare ``encode_crops`` of the very crops it encodes (recorded
+    from a build of its own, then timed in the same calls, on the same threads)."""
+    runs: dict[str, list[dict]] = {"crops": [], "masked": [], "bare": []}
+    for _ in range(repeat):
+        runs["bare"].append(_child(_BARE_CROPS, {"store": str(store)}, ROOT))
+        runs["crops"].append(_fuse(store, "crops"))
+        runs["masked"].append(_fuse(store, "masked"))
+    bare, crops, masked = (_best(runs[k]) for k in ("bare", "crops", "masked"))
+    print()
+    failed = [r["error"] for r in (bare, crops, masked) if "error" in r]
+    if failed:
+        print(f"crops of care fuse instances failed: {failed[0]}")
+        return
+    n = bare["crops"]
+    views = json.loads((store / "meta.json").read_text())["num_views"]
+    added = {"seconds": crops["seconds"] - masked["seconds"], "cpu": crops["cpu"] - masked["cpu"]}
+    print(
+        f"crops of `care fuse instances` (ViT-B/32, cpu, the {views}-view store of `care "
+        f"ingest` above; geometric proposals, up to 5 views an instance: {n} crops; "
+        f"best of {repeat}; the whole commands include program start and, with crops, "
+        f"the model's load)"
+    )
+    print()
+    print(
+        "| way | crops | seconds | crops/s | of the floor | CPU s | of the floor (CPU) | peak MiB |"
+    )
+    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
+    rows = (
+        ("bare `encode_crops` of the same crops (the floor)", bare, False),
+        ("`care fuse instances --features crops`, whole command", crops, False),
+        ("the same `--features masked` (no model)", masked, None),
+        ("what the crops add (the difference)", {**added, "peak_mb": crops["peak_mb"]}, True),
+    )
+    for way, res, of in rows:
+        count = "" if of is None else f"{n}"
+        rate = "" if of is None else f"{n / res['seconds']:.1f}"
+        wall = f"{bare['seconds'] / res['seconds']:.2f}" if of else ""
+        cpu = f"{bare['cpu'] / res['cpu']:.2f}" if of else ""
+        print(
+            f"| {way} | {count} | {res['seconds']:.1f} | {rate} | {wall} "
+            f"| {res['cpu']:.0f} | {cpu} | {res['peak_mb']:,.0f} |"
+        )
 
 
 def _precision_table(res: dict, model: str, device: str | None) -> None:
@@ -376,7 +498,7 @@ def _compare(
             extra = ("--precision", way) if way == "bfloat16" else ()
             runs.setdefault(way, []).append(_ingest(rec, weights, store, device, checkout, extra))
             runs.setdefault(f"{way}-short", []).append(
-                _ingest(short, weights, store, device, checkout, extra)
+                _ingest(short, weights, work / f"store-{way}-short", device, checkout, extra)
             )
     floor = _best(runs["bare"])
     _row(model, label, "bare forward (the floor)", floor, None)
@@ -437,9 +559,14 @@ def main() -> None:
                 large = _recording(work, args.large_views)
                 short = _recording(work, max(1, args.large_views // 4))
                 _compare("ViT-L/14", device, (large, short), l14, work, None, 1)
+        _crops(work / "store-ingest", args.repeat)
         for device in devices:
             res = _precisions(sweep, b32, args.sweep_views, device)
             _precision_table(res, "ViT-B/32", device)
+            if args.large:
+                res = _precisions(_recording(work, args.large_views), _weights(work, "vit-l14"),
+                                  args.large_views, device)  # fmt: skip
+                _precision_table(res, "ViT-L/14", device)
         res = _bare(sweep, b32, args.sweep_views, None, list(SWEEP))
         print()
         threads = res.get("threads", "?")

@@ -220,10 +220,30 @@ def stop_pool(pool: ProcessPoolExecutor, grace: float = WORKER_GRACE_S) -> None:
     and what it was staging stays as a temporary named for its dead process, swept by the
     next run there."""
     processes = _workers(pool)
+    processes += [p for p in _started() if p not in processes]  # started, not yet recorded
+    queues = _queues(pool)  # held until the workers have ended (see _queues)
     _signal_workers(processes)
     with contextlib.suppress(RuntimeError):
         pool.shutdown(wait=False, cancel_futures=True)
     _await_workers(processes, grace)
+    del queues
+
+
+def _started() -> list[Any]:
+    """The workers this process started (read from a signal handler too: never raises)."""
+    try:
+        return list(_STARTED)
+    except RuntimeError:  # changed while read
+        return []
+
+
+def _queues(pool: ProcessPoolExecutor) -> tuple[Any, ...]:
+    """The pool's call and result queues. A worker still starting has yet to open their
+    semaphores (by name, from its start-up data), and a queue freed unlinks its semaphores:
+    dropped by the pool's shutdown, they were freed under the worker, which printed a
+    ``SemLock._rebuild`` traceback (one stop in four on a loaded machine). Held, they stay
+    until the workers have ended."""
+    return tuple(getattr(pool, name, None) for name in ("_call_queue", "_result_queue"))
 
 
 def stop_workers(*, grace: float | None = None) -> None:

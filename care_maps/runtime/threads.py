@@ -10,8 +10,9 @@ views in separate processes. So every kind of work (:class:`Work`) has a thread 
 (:data:`THREADS`), and every entry point sets it:
 
 - the ``care`` program: :func:`use_threads` for each command's kind of work (``main``
-  sets :attr:`Work.DEFAULT` before any command runs; ``care ingest``'s encoder runs under
-  :attr:`Work.ENCODE`);
+  sets :attr:`Work.DEFAULT` before any command runs; a model runs under
+  :attr:`Work.ENCODE`: ``care ingest``'s forward pass and its vocabulary's text, the crops
+  of ``care fuse instances --features crops``);
 - Ray and process-pool workers: :func:`threads_for` around the task (``care_maps.evaluate.job``);
 - benchmarks: :func:`use_threads` in ``main``, so their "one core" is true for BLAS too.
 

@@ -381,6 +381,35 @@ def test_build_instances_crops(room: Path) -> None:
         )
 
 
+class _CountedCrops(ColourCropEncoder):
+    """Notes the torch threads each call of the model runs on."""
+
+    def __init__(self) -> None:
+        self.threads: list[int] = []
+
+    def encode_crops(self, crops: Sequence[np.ndarray]) -> np.ndarray:
+        import torch
+
+        self.threads.append(torch.get_num_threads())
+        return super().encode_crops(crops)
+
+
+def test_crops_are_encoded_on_the_encoders_threads(room: Path) -> None:
+    """The fusion runs on one thread; the crops' model on every core ingest's forward pass
+    has (``Work.ENCODE``), and the fusion's one thread is back after it."""
+    import torch
+
+    from care_maps.runtime.threads import Work, thread_count, threads_for
+
+    config = InstanceConfig(**{**CONFIG.__dict__, "proposals": "labels", "features": "crops"})
+    encoder = _CountedCrops()
+    with threads_for(Work.FUSE):
+        build_instances(room, config, run=REBUILD, encoder=encoder)
+        assert torch.get_num_threads() == 1
+    assert encoder.threads
+    assert set(encoder.threads) == {thread_count(Work.ENCODE)}
+
+
 class _FailingCrops(ColourCropEncoder):
     def encode_crops(self, crops: Sequence[np.ndarray]) -> np.ndarray:
         raise FuseError("the crop model failed")

@@ -108,3 +108,36 @@ def test_the_next_batch_is_prepared_during_the_forward_pass(tmp_path: Path) -> N
     expected = TinyEncoder().encode_views(frames).astype(np.float16)
     features = dict(Store(tmp_path / "store").iter_features())
     np.testing.assert_array_equal(np.stack([features[i] for i in range(8)]), expected)
+
+
+class _Threads(TinyEncoder):
+    """Notes the torch threads its text side and its forward pass run on."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.threads: dict[str, set[int]] = {"text": set(), "forward": set()}
+
+    def encode_text(self, names: Sequence[str]) -> np.ndarray:
+        import torch
+
+        self.threads["text"].add(torch.get_num_threads())
+        return super().encode_text(names)
+
+    def encode_prepared(self, prepared: Any) -> np.ndarray:
+        import torch
+
+        self.threads["forward"].add(torch.get_num_threads())
+        return super().encode_prepared(prepared)
+
+
+def test_the_vocabularys_text_runs_on_the_forward_passs_threads(tmp_path: Path) -> None:
+    """The vocabulary's prompts are a text tower's batches: they run on every core the
+    forward pass has (``Work.ENCODE``), not on the ingest's own one thread."""
+    from care_maps.runtime.threads import Work, thread_count
+
+    rec = write_recording(tmp_path / "r.mcap", synthetic_frames(4), fmt="mcap")
+    config = IngestConfig(encoder_options=EncoderOptions(batch_size=2), vocabulary="chair,sofa")
+    encoder = _Threads()
+    run_ingest(rec, tmp_path / "store", config, run=Execution(progress=False), encoder=encoder)
+    assert encoder.threads == {"text": {thread_count(Work.ENCODE)},
+                               "forward": {thread_count(Work.ENCODE)}}  # fmt: skip
