@@ -156,13 +156,20 @@ boxes = [(0, h // 2, 0, w // 2), (0, h // 2, w // 2, w), (h // 2, h, 0, w // 2),
 crops = [f.rgb[a:b, c:d] for f in frames for a, b, c, d in boxes]
 out = {"views": len(frames), "crops": len(crops)}
 names = list(vocabulary_option(case["vocabulary"]))
+INT8 = "int8 (not offered)"
 encoders = {}
 for precision in Precision:
     options = EncoderOptions(weights=case["weights"], device=case["device"], precision=precision)
-    encoders[precision] = make_encoder("clip", options)
-    encoders[precision].encode_prepared(encoders[precision].prepare_views(frames[:8]))  # warm
-    encoders[precision].encode_crops(crops[:8])
-text = encoders[Precision.FLOAT32].encode_text(names)  # the text side is float32 at any precision
+    encoders[str(precision)] = make_encoder("clip", options)
+if case["device"] in (None, "cpu"):  # torch's dynamic int8 of the linear layers: CPU only
+    import torch
+    int8 = make_encoder("clip", EncoderOptions(weights=case["weights"], device="cpu"))
+    int8.model = torch.ao.quantization.quantize_dynamic(int8.model, {torch.nn.Linear}, dtype=torch.qint8)
+    encoders[INT8] = int8
+for encoder in encoders.values():  # warm
+    encoder.encode_prepared(encoder.prepare_views(frames[:8]))
+    encoder.encode_crops(crops[:8])
+text = encoders["float32"].encode_text(names)  # the text side is float32 at any precision
 for turn in range(case["turns"]):  # in turn, each precision's least time kept
     for precision, encoder in encoders.items():
         prepared = encoder.prepare_views(frames)
@@ -184,12 +191,12 @@ def fidelity(a, b):
     top = (np.argmax(a @ text.T, 1) == np.argmax(b @ text.T, 1)).mean()
     return {"cos_mean": float(cos.mean()), "cos_min": float(cos.min()), "top1": float(top)}
 
-full = out.pop(str(Precision.FLOAT32))
+full = out.pop("float32")
 rows = []
-for precision in Precision:
-    res = full if precision is Precision.FLOAT32 else out.pop(str(precision))
+for precision in encoders:
+    res = full if precision == "float32" else out.pop(precision)
     rows.append({
-        "precision": str(precision),
+        "precision": precision,
         "dense_s": res["dense_s"], "crop_s": res["crop_s"],
         "dense": fidelity(full["dense"], res["dense"]),
         "crop": fidelity(full["crop"], res["crop"]),
@@ -344,7 +351,7 @@ def _fuse(store: Path, features: str) -> dict:
     return _child(_FUSE, {"args": args}, ROOT)
 
 
-def _crops(store: Path, repeat: int) -> None:
+def _crops(model: str, store: Path, repeat: int) -> None:
     """``care fuse instances --features crops`` on ``store`` (a whole command, fresh process)
     against ``--features masked`` (the same map, no model: what the crops add is the
     difference) and against the bare ``encode_crops`` of the very crops it encodes (recorded
@@ -364,7 +371,7 @@ def _crops(store: Path, repeat: int) -> None:
     views = json.loads((store / "meta.json").read_text())["num_views"]
     added = {"seconds": crops["seconds"] - masked["seconds"], "cpu": crops["cpu"] - masked["cpu"]}
     print(
-        f"crops of `care fuse instances` (ViT-B/32, cpu, the {views}-view store of `care "
+        f"crops of `care fuse instances` ({model}, cpu, the {views}-view store of `care "
         f"ingest` above; geometric proposals, up to 5 views an instance: {n} crops; "
         f"best of {repeat}; the whole commands include program start and, with crops, "
         f"the model's load)"
@@ -477,13 +484,15 @@ def _compare(
     repeat: int,
     *,
     cheaper: bool = False,
-) -> None:
+) -> Path:
     """The bare forward and ``care ingest`` (and the baseline checkout's) on the long of
     ``recs``, and ingest on the short one, one after another ``repeat`` times, each way's
-    best run; ``cheaper``: ingest at ``--precision bfloat16`` too."""
+    best run; ``cheaper``: ingest at ``--precision bfloat16`` too. Returns the store of
+    ``care ingest`` on the long recording (float32)."""
     from care_maps.core.store import BATCH_SIZE
 
     label = device or "cpu"
+    slug = f"{model.lower().replace('/', '')}-{label}"
     rec, short = recs
     views = int(rec.stem.rsplit("_", 1)[-1])
     ways = {"ingest": ROOT, **({"before": baseline} if baseline is not None else {})}
@@ -494,11 +503,11 @@ def _compare(
         res = _bare(rec, weights, views, device, [BATCH_SIZE])
         runs["bare"].append(res if "error" in res else {**res, **res["rows"][0]})
         for way, checkout in ways.items():
-            store = work / f"store-{way}"
+            store = work / f"store-{slug}-{way}"
             extra = ("--precision", way) if way == "bfloat16" else ()
             runs.setdefault(way, []).append(_ingest(rec, weights, store, device, checkout, extra))
             runs.setdefault(f"{way}-short", []).append(
-                _ingest(short, weights, work / f"store-{way}-short", device, checkout, extra)
+                _ingest(short, weights, work / f"store-{slug}-{way}-short", device, checkout, extra)
             )
     floor = _best(runs["bare"])
     _row(model, label, "bare forward (the floor)", floor, None)
@@ -512,6 +521,7 @@ def _compare(
         _row(model, label, name, long, floor)
         _row(model, label, f"{name}: views past the first {cut.get('views', '?')}",
              _past_start(long, cut), floor)  # fmt: skip
+    return work / f"store-{slug}-ingest"
 
 
 def main() -> None:
@@ -541,6 +551,7 @@ def main() -> None:
             f"14x19 cells of 448x608 input); inputs written in {time.perf_counter() - t:.0f} s"
         )
         devices: list[str | None] = [None]
+        stores: dict[tuple[str, str | None], Path] = {}  # each model's float32 store, by device
         if args.device == "cuda" and _cuda():
             devices.append("cuda")
         elif args.device == "cuda":
@@ -552,14 +563,19 @@ def main() -> None:
         )
         print("| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
         for device in devices:
-            _compare("ViT-B/32", device, (rec, sweep), b32, work, args.baseline, args.repeat,
-                     cheaper=True)  # fmt: skip
+            stores["ViT-B/32", device] = _compare(
+                "ViT-B/32", device, (rec, sweep), b32, work, args.baseline, args.repeat,
+                cheaper=True,
+            )  # fmt: skip
             if args.large:
                 l14 = _weights(work, "vit-l14")
                 large = _recording(work, args.large_views)
                 short = _recording(work, max(1, args.large_views // 4))
-                _compare("ViT-L/14", device, (large, short), l14, work, None, 1)
-        _crops(work / "store-ingest", args.repeat)
+                stores["ViT-L/14", device] = _compare(
+                    "ViT-L/14", device, (large, short), l14, work, None, 1
+                )
+        for model in ("ViT-B/32", "ViT-L/14") if args.large else ("ViT-B/32",):
+            _crops(model, stores[model, None], args.repeat)
         for device in devices:
             res = _precisions(sweep, b32, args.sweep_views, device)
             _precision_table(res, "ViT-B/32", device)

@@ -84,7 +84,11 @@ PINNED: frozenset[Work] = frozenset({Work.FUSE, Work.QUERY, Work.EVAL})
 """Kinds of work whose results must not depend on the machine, so ``CARE_THREADS`` leaves
 them at :data:`THREADS`: a float32 matrix product rounds its last bits by BLAS's thread
 count (the grid's per-view class dot products changed its pwKL column with two threads),
-and such bits decide near-ties between candidates. Their parallelism is processes."""
+and such bits decide near-ties between candidates. Their parallelism is processes. A model's
+own outputs are not theirs: ingest's features and vocabulary text and the crops of an
+instance map run on :attr:`Work.ENCODE` (every core), and, as between a CPU and a GPU, their
+last bits may differ between machines of different core counts (a tiny CLIP's text
+embeddings by 1e-7 between one thread and two); what is computed from them is pinned."""
 
 
 def _cores() -> int:
