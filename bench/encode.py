@@ -66,11 +66,11 @@ VOCABULARY = "scannet200"
 SWEEP = (2, 4, 8, 16)
 """Batch sizes of the bare forward's sweep."""
 
-_INGEST = r"""
+_COMMAND = r"""
 import json, resource, sys, time
 t0 = time.perf_counter()
 case = json.loads(sys.argv[1])
-sys.argv = ["bench-care", "ingest", *case["args"]]  # not "care": exits come back here
+sys.argv = ["bench-care", *case["args"]]  # not "care": exits come back here
 import care_maps
 from care_maps.cli.main import main
 try:
@@ -81,10 +81,14 @@ except SystemExit as done:
 seconds = time.perf_counter() - t0
 from bench.rss import peak_rss_mb
 use = resource.getrusage(resource.RUSAGE_SELF)
-views = json.loads(open(case["out"] + "/meta.json").read())["num_views"]
-print(json.dumps({"seconds": seconds, "cpu": use.ru_utime + use.ru_stime, "views": views,
-                  "peak_mb": peak_rss_mb(), "package": care_maps.__file__}))
+out = {"seconds": seconds, "cpu": use.ru_utime + use.ru_stime, "peak_mb": peak_rss_mb(),
+       "package": care_maps.__file__}
+if "out" in case:  # a store written: its views
+    out["views"] = json.loads(open(case["out"] + "/meta.json").read())["num_views"]
+print(json.dumps(out))
 """
+"""A ``care`` command (``args``) in this fresh process: its seconds from program start, CPU
+seconds and peak memory (and, given the store it writes, ``out``, its views)."""
 
 _BARE = r"""
 import json, resource, sys, time
@@ -205,24 +209,6 @@ print(json.dumps({**out, "rows": rows}))
 """
 
 
-_FUSE = r"""
-import json, resource, sys, time
-t0 = time.perf_counter()
-case = json.loads(sys.argv[1])
-sys.argv = ["bench-care", "fuse", "instances", *case["args"]]
-import care_maps
-from care_maps.cli.main import main
-try:
-    main()
-except SystemExit as done:
-    if done.code:
-        raise
-seconds = time.perf_counter() - t0
-from bench.rss import peak_rss_mb
-use = resource.getrusage(resource.RUSAGE_SELF)
-print(json.dumps({"seconds": seconds, "cpu": use.ru_utime + use.ru_stime, "peak_mb": peak_rss_mb()}))
-"""
-
 _BARE_CROPS = r"""
 import json, resource, sys, time
 from pathlib import Path
@@ -331,7 +317,7 @@ def _ingest(
             "--vocabulary", VOCABULARY, "--force", *extra]  # fmt: skip
     if device:
         args += ["--device", device]
-    return _child(_INGEST, {"args": args, "out": str(out)}, cwd)
+    return _child(_COMMAND, {"args": ["ingest", *args], "out": str(out)}, cwd)
 
 
 def _bare(rec: Path, weights: Path, views: int, device: str | None, sizes: list[int]) -> dict:
@@ -347,8 +333,8 @@ def _precisions(rec: Path, weights: Path, views: int, device: str | None) -> dic
 
 
 def _fuse(store: Path, features: str) -> dict:
-    args = [str(store), "--features", features, "--overwrite"]
-    return _child(_FUSE, {"args": args}, ROOT)
+    args = ["fuse", "instances", str(store), "--features", features, "--overwrite"]
+    return _child(_COMMAND, {"args": args}, ROOT)
 
 
 def _crops(model: str, store: Path, repeat: int) -> None:

@@ -21,7 +21,7 @@ from care_maps.core.store import Store
 from care_maps.ingest.pipeline import IngestConfig, run_ingest
 from care_maps.ingest.runs import RunOptions, WorldTransform
 from tests.support.cli import InProcessCli
-from tests.support.faults import assert_fault
+from tests.support.faults import assert_fault, snapshot
 from tests.support.frames import load_livingroom
 from tests.support.recordings import Container, robot_messages, write_bag
 
@@ -166,6 +166,45 @@ def test_appending_needs_a_store(runs: dict, tmp_path: Path, run_cli: InProcessC
     code, _, err = run_cli("ingest", runs["second"], "--out", tmp_path / "none", "--append")
     assert_fault(code, err, rf"{tmp_path / 'none'}: no store to append to")
     assert not (tmp_path / "none").exists()
+
+
+def test_a_failure_while_the_maps_are_carried_leaves_the_store_whole(
+    runs: dict,
+    tmp_path: Path,
+    run_cli: InProcessCli,
+    monkeypatch: pytest.MonkeyPatch,
+    save_tiny_clip,
+) -> None:
+    """The disk fills while an append carries the maps into the store with one more run:
+    one line, and the store, its maps and their marker are as they were, no temporary
+    beside them (the carry runs in the staged store, before it takes the old one's place)."""
+    import errno
+
+    import care_maps.ingest.runs
+
+    weights = save_tiny_clip(tmp_path / "weights", layers=1)
+    model = ("--encoder", "clip", "--weights", weights, "--vocabulary", "chair,sofa")
+    store = tmp_path / "store"
+    code, _, err = run_cli("ingest", runs["first"], "--out", store, *model)
+    assert code == 0, err
+    code, _, err = run_cli("fuse", "grid", store)
+    assert code == 0, err
+    assert (store / "cells.parquet").is_file()
+    before = snapshot(store, weights)
+    carried: list[str] = []
+
+    def fills(src: str, dst: str) -> None:
+        if carried:  # the second file carried finds the disk full
+            raise OSError(errno.ENOSPC, "No space left on device", dst)
+        carried.append(src)
+        real(src, dst)
+
+    real = care_maps.ingest.runs.link_or_copy
+    monkeypatch.setattr(care_maps.ingest.runs, "link_or_copy", fills)
+    code, _, err = run_cli("ingest", runs["second"], "--out", store, "--append", *model)
+    assert carried  # the carry had begun
+    assert_fault(code, err, r"store: no space left on device", clean=(tmp_path,), intact=before)
+    assert len(Store(store).meta.runs) == 0  # one run, as before: no runs list yet
 
 
 @pytest.mark.parametrize(
