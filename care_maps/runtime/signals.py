@@ -26,6 +26,7 @@ from typing import Any, NoReturn, TypeVar
 __all__ = [
     "STOPS",
     "WORKER_GRACE_S",
+    "WORKER_LEAVE_S",
     "answer_stops_in_worker",
     "exit_code",
     "in_task",
@@ -38,10 +39,16 @@ R = TypeVar("R")
 STOPS: tuple[signal.Signals, ...] = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 """Signals that interrupt a run (the others keep their default meaning)."""
 
-WORKER_GRACE_S = 0.5
+WORKER_LEAVE_S = 0.5
 """How long a worker told to stop may take to unwind its task before it leaves anyway (a
-call in compiled code sees the interruption only when it returns); the program waits as
-long for its workers."""
+call in compiled code sees the interruption only when it returns)."""
+
+WORKER_GRACE_S = 0.65
+"""How long the program waits for a worker told to stop before it kills it: longer than
+:data:`WORKER_LEAVE_S`. Leaving, the worker frees its semaphores (each unlinked, then struck
+off the resource tracker's list); a kill due at the same moment cut that in two under load,
+and the tracker warned of a "leaked" semaphore it could not find. Within the program's own
+grace (``care_maps.cli.main._GRACE_S``)."""
 
 
 def release_semaphores() -> None:
@@ -76,7 +83,7 @@ _stopping: int | None = None
 
 def stop_task(signum: int, frame: object) -> None:
     """A worker's SIGTERM and SIGHUP: unwind the running task with KeyboardInterrupt (its
-    staged outputs removed on the way) and leave within :data:`WORKER_GRACE_S`; between
+    staged outputs removed on the way) and leave within :data:`WORKER_LEAVE_S`; between
     tasks, leave at once. Only the first signal interrupts: a second one (the program's
     after the group's) would cut the unwinding short."""
     global _stopping
@@ -86,7 +93,7 @@ def stop_task(signum: int, frame: object) -> None:
     if _stopping is not None:
         return
     _stopping = signum
-    timer = threading.Timer(WORKER_GRACE_S, _leave, args=(signum,))
+    timer = threading.Timer(WORKER_LEAVE_S, _leave, args=(signum,))
     timer.daemon = True
     timer.start()
     raise KeyboardInterrupt
