@@ -139,7 +139,7 @@ def _recorded(store: Path, table: str, kind: str) -> bytes | None:
 @config_options(
     "run",
     Execution,
-    only=("overwrite", "memory_budget", "read_ahead"),
+    only=("overwrite", "memory_budget", "read_ahead", "growth_state"),
     parse={"memory_budget": _bytes},
     extra=_REBUILD,
 )

@@ -557,7 +557,7 @@ def _write_cells(
     n_cells = first.index.size
     layers = first.layers
     assert layers is not None  # a build's first pass gathers them
-    _keep_state(store, metadata, first, one_pass=n_cells <= capacity)
+    _keep_state(store, metadata, first, keep=run.growth_state and n_cells <= capacity)
     writer: pq.ParquetWriter | None = None
     n_top = min(len(text), MAX_TOP_CLASSES)
     sidecar = SidecarWriter(sidecar_path(final), n_cells, text.shape[1], n_top, len(text), metadata)
@@ -589,13 +589,13 @@ def _state_config(metadata: dict[bytes, bytes]) -> bytes:
 
 
 def _keep_state(
-    store: Store, metadata: dict[bytes, bytes], first: _FirstPass, *, one_pass: bool
+    store: Store, metadata: dict[bytes, bytes], first: _FirstPass, *, keep: bool
 ) -> None:
     """Save the cells' streaming state beside the grid being written, so later views grow
-    it (:mod:`care_maps.fuse.grid_state`); only where it all fitted one pass (else any
-    earlier state goes: it belongs to another build)."""
+    it (:mod:`care_maps.fuse.grid_state`); ``keep``: asked for (``Execution.growth_state``)
+    and it all fitted one pass. Else any earlier state goes: it belongs to another build."""
     path = store.path / STATE_FILE
-    if not one_pass or first.sums is None or first.layers is None:
+    if not keep or first.sums is None or first.layers is None:
         path.unlink(missing_ok=True)
         return
     n = first.index.size

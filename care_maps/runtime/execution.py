@@ -57,6 +57,10 @@ class Execution:
     floor too large for it is fused in several passes over the views."""
     cells_per_pass: int | None = None
     """Cells fused per pass, overriding what the budget allows (tests, benchmarks)."""
+    growth_state: bool = True
+    """Keep a grid's streaming state beside it (``cells.state.npz``, about 5.7 KB a cell at
+    100 classes), so runs appended to the store later grow the grid from their views alone;
+    off: that disk is saved, and after an append the grid is built from every view."""
     overwrite: bool = False
     """Rebuild even if a current output (store, map) exists."""
     progress: bool = True

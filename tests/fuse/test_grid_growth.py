@@ -117,15 +117,17 @@ def test_a_grown_grid_is_the_grid_of_every_view(
         (GridConfig(cell_size=0.1, stride=2), Execution()),  # another config: another map
         (GRID, Execution(overwrite=True)),  # a rebuild asked for
         (GRID, Execution(cells_per_pass=128)),  # no state kept: more cells than one pass
+        (GRID, Execution(growth_state=False)),  # no state kept: asked for
     ],
-    ids=["config", "overwrite", "passes"],
+    ids=["config", "overwrite", "passes", "no-state"],
 )
 def test_what_the_state_cannot_vouch_for_is_built_from_every_view(
     runs: tuple[Path, Path], tmp_path: Path, grew: list[int], config: GridConfig, run: Execution
 ) -> None:
     store = _ingest(runs[0], tmp_path / "grown")
-    build_grid(store, GRID, run=Execution(cells_per_pass=run.cells_per_pass))
-    assert (store / STATE_FILE).is_file() == (run.cells_per_pass is None)
+    first = Execution(cells_per_pass=run.cells_per_pass, growth_state=run.growth_state)
+    build_grid(store, GRID, run=first)
+    assert (store / STATE_FILE).is_file() == (run.cells_per_pass is None and run.growth_state)
     _ingest(runs[1], store, append=True)
     build_grid(store, config, run=run)
     assert grew[-1] == 0
