@@ -34,7 +34,13 @@ from care_maps.cli.values import plain_values
 from care_maps.core.errors import CareError
 from care_maps.core.notices import print_notices
 from care_maps.runtime.malloc import keep_freed_memory
-from care_maps.runtime.signals import STOPS, WORKER_GRACE_S, exit_code, stop_line
+from care_maps.runtime.signals import (
+    STOPS,
+    WORKER_GRACE_S,
+    exit_code,
+    release_semaphores,
+    stop_line,
+)
 from care_maps.runtime.threads import Work, use_threads
 
 _GRACE_S = 0.8
@@ -100,6 +106,7 @@ def _stop_now(signum: int, frame: object) -> None:
     if _stopped_by is None:
         _stopped_by = signum
     _stop_workers(0.0)
+    release_semaphores()  # after any release under way in another thread has ended
     _say(raw=True)
     os._exit(exit_code(_signum()))
 

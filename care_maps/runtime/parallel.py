@@ -168,6 +168,9 @@ _LIVE: weakref.WeakSet[ProcessPoolExecutor] = weakref.WeakSet()
 _STARTED: weakref.WeakSet[Any] = weakref.WeakSet()
 """Every pool worker this process started (:class:`_Worker`), known to :func:`stop_workers`
 even where the pool had not yet recorded it."""
+_HELD: list[tuple[Any, ...]] = []
+"""The queues of the pools stopped (:func:`stop_pool`), kept from the garbage collector until
+a new pool is made, by when their workers have long ended."""
 _STARTING = threading.Lock()
 """Held while a worker starts: a program that stops waits for the hand-over of its start-up
 data to end (cut short, the half-started worker prints a traceback of its own)."""
@@ -221,12 +224,11 @@ def stop_pool(pool: ProcessPoolExecutor, grace: float = WORKER_GRACE_S) -> None:
     next run there."""
     processes = _workers(pool)
     processes += [p for p in _started() if p not in processes]  # started, not yet recorded
-    queues = _queues(pool)  # held until the workers have ended (see _queues)
+    _HELD.append(_queues(pool))  # not freed under a worker still starting (see _queues)
     _signal_workers(processes)
     with contextlib.suppress(RuntimeError):
         pool.shutdown(wait=False, cancel_futures=True)
     _await_workers(processes, grace)
-    del queues
 
 
 def _started() -> list[Any]:
@@ -241,8 +243,9 @@ def _queues(pool: ProcessPoolExecutor) -> tuple[Any, ...]:
     """The pool's call and result queues. A worker still starting has yet to open their
     semaphores (by name, from its start-up data), and a queue freed unlinks its semaphores:
     dropped by the pool's shutdown, they were freed under the worker, which printed a
-    ``SemLock._rebuild`` traceback (one stop in four on a loaded machine). Held, they stay
-    until the workers have ended."""
+    ``SemLock._rebuild`` traceback (one stop in four on a loaded machine). Held
+    (:data:`_HELD`), they are freed with the program's other semaphores as it leaves
+    (:func:`care_maps.runtime.signals.release_semaphores`), one thread at a time."""
     return tuple(getattr(pool, name, None) for name in ("_call_queue", "_result_queue"))
 
 
@@ -346,6 +349,7 @@ class _WorkerContext(SpawnContext):
 
 def _pool(workers: int) -> ProcessPoolExecutor:
     _STOPPING.clear()  # new work (a caller that went on after a stop: a test)
+    _HELD.clear()
     pool = ProcessPoolExecutor(workers, mp_context=_WorkerContext(), initializer=_setup_pool_worker)
     _LIVE.add(pool)
     return pool

@@ -51,14 +51,31 @@ and the tracker warned of a "leaked" semaphore it could not find. Within the pro
 grace (``care_maps.cli.main._GRACE_S``)."""
 
 
+_RELEASING = threading.RLock()
+"""Held while this process frees its semaphores (:func:`release_semaphores`)."""
+
+RELEASE_WAIT_S = 0.2
+"""How long a thread that frees the semaphores waits for another one at it."""
+
+
 def release_semaphores() -> None:
     """Free this process's multiprocessing semaphores now (its finalizers), as the
     interpreter's exit would: a process that leaves at once (``os._exit``) would otherwise
-    have the resource tracker warn of "leaked semaphore objects" on the program's stderr."""
+    have the resource tracker warn of "leaked semaphore objects" on the program's stderr.
+
+    One thread at a time, and a caller returns only once another thread's release has
+    ended (up to :data:`RELEASE_WAIT_S`): a semaphore is freed in two steps (unlinked, then
+    struck off the tracker's list), and a process that left in between (the program's
+    watchdog leaving while the main thread released) had the tracker warn of a "leaked"
+    semaphore it could not find."""
     util = sys.modules.get("multiprocessing.util")
-    if util is not None:
+    if util is None or not _RELEASING.acquire(timeout=RELEASE_WAIT_S):
+        return
+    try:
         with contextlib.suppress(Exception):
             util._run_finalizers()
+    finally:
+        _RELEASING.release()
 
 
 def exit_code(signum: int) -> int:
