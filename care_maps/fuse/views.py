@@ -398,9 +398,9 @@ def crop_features(
     least ``min_size`` pixels wide), clipped to the image, cut from the view's RGB and
     encoded with ``encoder.encode_crops``; unselected slots stay zero. Views are read
     ``run.batch_size`` at a time, ``run.read_ahead`` ahead. The model runs on
-    :attr:`~care_maps.runtime.threads.Work.ENCODE`'s threads, as ingest's forward pass does
-    (the fusion's own one thread made the crops take x1.9 as long on 2 cores); torch's
-    products give the same bytes on one thread or two.
+    :attr:`~care_maps.runtime.threads.Work.ENCODE`'s threads, as ingest's forward pass does,
+    not the fusion's one: its last bits may depend on the core count, as a model's do
+    (:data:`care_maps.runtime.threads.PINNED`); what is fused from them does not.
     """
     require_crops(encoder)
     M, k = selection.view_ids.shape

@@ -465,7 +465,7 @@ def _build(
     info = encoder.info(vocab) if encoder is not None else None
     # the text side first: a missing text table or model fails before any frame is read;
     # on every core, as the forward pass (a vocabulary's prompts are a text tower's batches:
-    # ScanNet200's on ViT-B/32, 4.3 s on one of 2 cores, 2.3 s on both, the same bytes)
+    # ScanNet200's on ViT-B/32, 4.3 s on one of 2 cores, 2.3 s on both)
     text = None
     if encoder is not None and vocab:
         with threads_for(Work.ENCODE):
