@@ -67,6 +67,7 @@ from care_maps.ingest.runs import (
     carry_maps,
     check_alignment,
     check_same_encoding,
+    check_same_names,
     check_world_frame,
     placed,
 )
@@ -379,6 +380,9 @@ def _append(
     ):
         return _log_missing_rrd(job)
     with open_frames(job.source, config.read) as frames:
+        # what the opened recording says is checked before the model loads or a frame is read
+        check_world_frame(base, frames.world_frame, job.placement.world_transform, where)
+        check_same_names(base, _vocabulary(config, frames.label_names), frames.label_names, where)
         if encoder is None and config.encoder is not None:
             encoder = make_encoder(config.encoder, config.encoder_options)
         with output_lock(out):
@@ -514,7 +518,6 @@ def _build(
             meta["request_fingerprint"] = request
             if base is not None:  # one more run: checked against the store's, then recorded
                 label = str(where)
-                check_world_frame(base, frames.world_frame, job.placement.world_transform, label)
                 sample = [s for run in sampler.samples() for s in run]
                 alignment = check_alignment(base, sample, label, accept=config.read.accept_geometry)
                 meta = appended_meta(base, meta, writer.num_views, alignment, job.placement)

@@ -83,6 +83,7 @@ __all__ = [
     "carry_maps",
     "check_alignment",
     "check_same_encoding",
+    "check_same_names",
     "check_world_frame",
     "describe_alignment",
     "link_or_copy",
@@ -120,8 +121,15 @@ class WorldTransform:
         if len(values) != 7 or not np.isfinite(values).all():
             msg = f"{_FLAG} {text!r}: expected seven numbers x,y,z,qx,qy,qz,qw (the run's world frame in the store's)."
             raise IngestError(msg)
-        if np.linalg.norm(values[3:]) < 1e-6:
+        norm = float(np.linalg.norm(values[3:]))
+        if norm < 1e-6:
             msg = f"{_FLAG} {text!r}: the quaternion qx,qy,qz,qw is zero; the identity is 0,0,0,1."
+            raise IngestError(msg)
+        if abs(norm - 1.0) > 1e-3:  # not normalised here: a unit quaternion in another order?
+            msg = (
+                f"{_FLAG} {text!r}: the quaternion qx,qy,qz,qw has length {norm:.4g}, not 1; "
+                "give a unit quaternion, x,y,z first and w last (the identity is 0,0,0,1)."
+            )
             raise IngestError(msg)
         x, y, z, *q = values
         return cls((x, y, z), (q[0], q[1], q[2], q[3]))
@@ -183,6 +191,31 @@ def check_same_encoding(store: Store, recorded: dict[str, Any], where: str) -> N
                 "encoded alike), or ingest it into a store of its own."
             )
             raise IngestError(msg)
+
+
+def check_same_names(
+    store: Store, vocabulary: Sequence[str], label_names: Sequence[str], where: str
+) -> None:
+    """Refuse a run whose class names differ from ``store``'s: a vocabulary taken from the
+    recording's labels (no ``--vocabulary``), or the label ids' names, would index another
+    list of names than the store's text table and labels do."""
+    for what, ours, theirs in (
+        ("class names", tuple(store.meta.vocabulary), tuple(vocabulary or ())),
+        ("label names", tuple(store.meta.label_names), tuple(label_names or ())),
+    ):
+        if ours != theirs:
+            msg = (
+                f"{where}: cannot be appended to {store.path}: its {what} are "
+                f"{_names(theirs)}, the store's are {_names(ours)}; every run of a store is "
+                "labelled alike: give both the store's --vocabulary, or ingest it into a "
+                "store of its own."
+            )
+            raise IngestError(msg)
+
+
+def _names(names: tuple[str, ...]) -> str:
+    shown = ",".join(names[:6]) + (f",... ({len(names)})" if len(names) > 6 else "")
+    return repr(shown) if names else "none"
 
 
 def check_world_frame(

@@ -159,3 +159,22 @@ def test_a_store_rebuilt_from_one_run_drops_the_grid(
     run_ingest(runs[1], store, CONFIG, encoder=TinyEncoder())  # the store replaced by one run
     assert not (store / "cells.parquet").exists()
     assert not (store / STATE_FILE).exists()
+
+
+@pytest.mark.parametrize(("offset", "value"), [(8, 0x01), (10, 99)], ids=["encrypted", "method"])
+def test_a_state_damaged_in_its_zip_directory_reads_as_none(
+    tmp_path: Path, offset: int, value: int
+) -> None:
+    """The first member's flags marked encrypted, or its compression method made unknown, in
+    the zip's central directory (zipfile then raises RuntimeError or NotImplementedError,
+    not BadZipFile): no state, and the grid is rebuilt."""
+    import numpy as np
+
+    from care_maps.fuse.grid_state import load_state
+
+    path = tmp_path / STATE_FILE
+    np.savez(path, build=np.frombuffer(b"id", np.uint8), keys=np.arange(3))
+    data = bytearray(path.read_bytes())
+    data[data.index(b"PK\x01\x02") + offset] = value  # the central directory's first entry
+    path.write_bytes(bytes(data))
+    assert load_state(path) is None

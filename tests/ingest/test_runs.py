@@ -209,7 +209,11 @@ def test_a_failure_while_the_maps_are_carried_leaves_the_store_whole(
 
 @pytest.mark.parametrize(
     ("text", "why"),
-    [("1,2,3", "expected seven numbers"), ("0,0,0,0,0,0,0", "the quaternion qx,qy,qz,qw is zero")],
+    [
+        ("1,2,3", "expected seven numbers"),
+        ("0,0,0,0,0,0,0", "the quaternion qx,qy,qz,qw is zero"),
+        ("0,0,0,0,0,0.5,0.5", "has length 0.7071, not 1"),  # not normalised silently
+    ],
 )
 def test_a_bad_transform_is_a_usage_error(
     runs: dict, tmp_path: Path, run_cli: InProcessCli, text: str, why: str
@@ -219,6 +223,20 @@ def test_a_bad_transform_is_a_usage_error(
     )
     assert code == 2
     assert why in err
+
+
+def test_a_run_labelled_otherwise_is_refused(runs: dict, tmp_path: Path) -> None:
+    """Class names taken from a recording's labels (no --vocabulary) must be the store's:
+    its label ids and text table index one list of names."""
+    from care_maps.ingest.runs import check_same_names
+
+    store = Store(run_ingest(runs["first"], tmp_path / "store"))
+    check_same_names(store, (), (), "day2.mcap")  # unlabelled, as the store
+    with pytest.raises(IngestError, match=r"day2.mcap: cannot be appended to .*: its label "
+                       r"names are 'chair,sofa', the store's are none"):  # fmt: skip
+        check_same_names(store, (), ("chair", "sofa"), "day2.mcap")
+    with pytest.raises(IngestError, match=r"its class names are 'chair,sofa', the store's"):
+        check_same_names(store, ("chair", "sofa"), ("chair", "sofa"), "day2.mcap")
 
 
 def _timelines(rrd: Path, entity: str) -> set[str]:
