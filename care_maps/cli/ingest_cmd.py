@@ -170,6 +170,10 @@ def topics(
     from care_maps.ingest.runs import append_lines, placed
 
     runs = placement.config()
+    if store is not None:  # a store that is not one is its own error, not auto-detection's
+        from care_maps.core.store import Store
+
+        Store(store)
     try:
         with RecordingFrames(source, options) as frames:
             chosen = frames.describe()

@@ -373,6 +373,12 @@ def _append(
     if not (out / META_FILE).is_file():
         msg = f"{out}: no store to append to; ingest the first run without --append."
         raise IngestError(msg)
+    if job.run.overwrite:  # two opposite asks: one is not silently dropped
+        msg = (
+            f"{out}: --force rebuilds the store from this recording alone and --append adds it "
+            "to the store's runs; give one of them."
+        )
+        raise IngestError(msg)
     base = Store(out)
     check_same_encoding(base, _recorded(config), where)
     if request is not None and any(

@@ -168,6 +168,15 @@ def test_appending_needs_a_store(runs: dict, tmp_path: Path, run_cli: InProcessC
     assert not (tmp_path / "none").exists()
 
 
+def test_append_and_force_together_are_refused(
+    runs: dict, tmp_path: Path, run_cli: InProcessCli
+) -> None:
+    store = run_ingest(runs["first"], tmp_path / "store")
+    before = snapshot(store)
+    code, _, err = run_cli("ingest", runs["second"], "--out", store, "--append", "--force")
+    assert_fault(code, err, r"--force rebuilds the store .* --append adds it", intact=before)
+
+
 def test_a_failure_while_the_maps_are_carried_leaves_the_store_whole(
     runs: dict,
     tmp_path: Path,
@@ -309,3 +318,11 @@ def test_an_encoder_option_that_differs_is_named_and_how_it_runs_may_differ(
     batched = IngestConfig(encoder_options=EncoderOptions(batch_size=3))  # how, not what
     run_ingest(runs["second"], store, batched, placement=RunOptions(append=True))
     assert len(Store(store).meta.runs) == 2
+
+
+def test_topics_with_no_store_says_so(runs: dict, tmp_path: Path, run_cli: InProcessCli) -> None:
+    """``care topics REC --store DIR`` where DIR holds no store: that, in one line, not a
+    failure of the recording's auto-detection."""
+    (tmp_path / "empty").mkdir()
+    code, _, err = run_cli("topics", runs["second"], "--store", tmp_path / "empty")
+    assert_fault(code, err, rf"{tmp_path / 'empty'}: not a complete feature store")
