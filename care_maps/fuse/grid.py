@@ -36,6 +36,7 @@ it). How the build runs (read-ahead, memory budget, progress) is the run's
 
 from __future__ import annotations
 
+import hashlib
 import os
 from collections.abc import Iterator
 from contextlib import closing, nullcontext
@@ -557,7 +558,7 @@ def _write_cells(
     n_cells = first.index.size
     layers = first.layers
     assert layers is not None  # a build's first pass gathers them
-    _keep_state(store, metadata, first, keep=run.growth_state and n_cells <= capacity)
+    _keep_state(store, metadata, text, first, keep=run.growth_state and n_cells <= capacity)
     writer: pq.ParquetWriter | None = None
     n_top = min(len(text), MAX_TOP_CLASSES)
     sidecar = SidecarWriter(sidecar_path(final), n_cells, text.shape[1], n_top, len(text), metadata)
@@ -583,13 +584,18 @@ def _write_cells(
             writer.close()
 
 
-def _state_config(metadata: dict[bytes, bytes]) -> bytes:
-    """What a grid's state depends on beside its views: the config and the vocabulary."""
-    return metadata[config_key(MapKind.GRID)] + b"|" + metadata.get(VOCABULARY_KEY, b"")
+def _state_config(metadata: dict[bytes, bytes], text: np.ndarray) -> bytes:
+    """What a grid's state depends on beside its views: the config, the vocabulary, and its
+    text embeddings (the names alone do not pin them: a name the store does not cache is
+    embedded at fuse time, by whichever weights and threads the build has)."""
+    digest = hashlib.sha256(np.ascontiguousarray(text, np.float32).tobytes()).hexdigest()
+    return b"|".join(
+        (metadata[config_key(MapKind.GRID)], metadata.get(VOCABULARY_KEY, b""), digest.encode())
+    )
 
 
 def _keep_state(
-    store: Store, metadata: dict[bytes, bytes], first: _FirstPass, *, keep: bool
+    store: Store, metadata: dict[bytes, bytes], text: np.ndarray, first: _FirstPass, *, keep: bool
 ) -> None:
     """Save the cells' streaming state beside the grid being written, so later views grow
     it (:mod:`care_maps.fuse.grid_state`); ``keep``: asked for (``Execution.growth_state``)
@@ -604,7 +610,7 @@ def _keep_state(
         path,
         GridState(
             build=metadata[build_key(MapKind.GRID)],
-            config=_state_config(metadata),
+            config=_state_config(metadata, text),
             runs=store_runs(store),
             num_views=store.num_views,
             frame=frame_of(metadata[STORE_KEY]),
@@ -635,7 +641,7 @@ def _growth(build: MapBuild, run: Execution, capacity: int) -> tuple[_Growth, Gr
             return None
     except StoreError:  # a table no reader takes: rebuilt
         return None
-    if state.config != _state_config(build.metadata):
+    if state.config != _state_config(build.metadata, build.text):
         return None
     if state.frame != frame_of(build.metadata[STORE_KEY]):
         return None

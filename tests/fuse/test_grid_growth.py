@@ -135,6 +135,27 @@ def test_what_the_state_cannot_vouch_for_is_built_from_every_view(
     _same_map(store, reference, by_value=run.cells_per_pass is not None)
 
 
+def test_other_text_embeddings_of_the_same_names_are_built_from_every_view(
+    runs: tuple[Path, Path], tmp_path: Path, grew: list[int], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The vocabulary's names alone do not pin a state: embedded otherwise (other weights
+    for a name the store does not cache), the grid is built from every view."""
+    import care_maps.fuse.build as build
+
+    store = _ingest(runs[0], tmp_path / "grown")
+    build_grid(store, GRID)
+    _ingest(runs[1], store, append=True)
+    embed = build.vocabulary_text
+
+    def other(*args, **kwargs):
+        names, text = embed(*args, **kwargs)
+        return names, text[::-1].copy()  # the same names, their embeddings swapped round
+
+    monkeypatch.setattr(build, "vocabulary_text", other)
+    build_grid(store, GRID)
+    assert grew == [0, 0]
+
+
 def test_a_damaged_state_is_not_used(
     runs: tuple[Path, Path], tmp_path: Path, grew: list[int]
 ) -> None:
